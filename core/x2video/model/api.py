@@ -1,0 +1,72 @@
+"""What the sampler and the `Renderer` need from a model: the contract between model/ and sampling/.
+
+`x2video.model.pipeline.X2VideoModel` implements it with diffusers modules; tests may use
+small fakes. Shapes: N frames of a window travel in the batch dimension.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, Sequence
+
+import numpy as np
+import torch
+
+from x2video.conditioning import FrameConditioning
+
+
+@dataclass
+class WindowInputs:
+    """Everything but the noisy latent that one UNet call over a window of N frames needs."""
+
+    cond: torch.Tensor  # (N, C_cond, h, w) per-frame conditioning latents from `encode_frames`
+    ref: torch.Tensor  # (N, 4, h, w) reference latents at `ref_positions`, zeros elsewhere
+    ref_positions: tuple[int, ...]  # () no reference, (0,) keyframe mode, (0, N-1) interpolation
+    mode: str  # "key" (keyframe prediction) or "interp" (interpolation)
+    level: int  # recursive level k >= 1 (keyframe windows carry the top level K)
+    text_global: torch.Tensor  # (1, L, D) global prompt token embeddings
+    text_local: torch.Tensor  # (P, L, D) local prompt token embeddings, P >= 0
+    local_masks: torch.Tensor  # (N, P, H, W) pixel-resolution masks of the local prompts
+
+
+class RenderModel(Protocol):
+    """A frozen model the sampler can drive. All tensors on `device`, dtype `dtype`."""
+
+    device: torch.device
+    dtype: torch.dtype
+    #: latent downsampling factor of the VAE and latent channels of the output
+    downsample: int
+    latent_channels: int
+    #: the diffusion schedule the model was trained with: betas over `num_train_timesteps`
+    num_train_timesteps: int
+    #: whether LCM (distilled) weights are loaded, so `sampler="lcm"` is allowed
+    has_lcm: bool
+
+    def alphas_cumprod(self) -> torch.Tensor:
+        """(num_train_timesteps,) float64 cumulative alphas (zero-terminal-SNR rescaled)."""
+        ...
+
+    def content_key(self) -> str:
+        """A string identifying the weights, for the conditioning-latent cache."""
+        ...
+
+    def encode_frames(self, frames: Sequence[FrameConditioning]) -> torch.Tensor:
+        """(N, C_cond, h, w): VAE latents of albedo/normal/roughness/metallic, downsampled
+        irradiance, shading prior (if the config has it) and the A|M|R union mask. Pure in its
+        input, so the Renderer caches it per frame by content."""
+        ...
+
+    def encode_image(self, rgb_linear: np.ndarray) -> torch.Tensor:
+        """(4, h, w) latent of an (H, W, 3) linear RGB image (reference frames)."""
+        ...
+
+    def encode_prompts(self, prompts: Sequence[str]) -> torch.Tensor:
+        """(P, L, D) token embeddings; P = len(prompts) (0 gives (0, L, D))."""
+        ...
+
+    def predict_v(self, x_t: torch.Tensor, t: torch.Tensor, window: WindowInputs, *, lcm: bool = False) -> torch.Tensor:
+        """v-prediction for a window: x_t (N, 4, h, w), t scalar timestep -> (N, 4, h, w)."""
+        ...
+
+    def decode(self, latents: torch.Tensor) -> np.ndarray:
+        """(N, 4, h, w) latents -> (N, H, W, 3) linear RGB float32."""
+        ...

@@ -1,0 +1,97 @@
+"""Render settings, cancel token and the typed events a `Renderer` emits (CLI, editor and bench share them)."""
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+from typing import Callable, Literal, Union
+
+import numpy as np
+
+
+@dataclass
+class RenderSettings:
+    """How to sample a shot. Field docstrings double as CLI help."""
+
+    sampler: Literal["ddim", "lcm"] = "ddim"
+    """DDIM (v-prediction, trailing spacing) or LCM multistep (needs distilled weights)."""
+    steps: int = 20
+    """Denoising steps per window (paper: DDIM-20; LCM-2 after distillation)."""
+    seed: int = 0
+    """Seed of the initial noise; same inputs and seed give identical frames."""
+    window: int = 5
+    """Frames per window N (the paper trains with N=5)."""
+    scheme: Literal["recursive", "sequential"] = "recursive"
+    """Recursive Sampling (keyframes, then interpolation levels) or the sequential baseline."""
+    frames: tuple[int, int] | None = None
+    """Optional [start, stop) range of the shot to render."""
+
+
+class CancelToken:
+    """Thread-safe flag; the Renderer and samplers check it between denoising steps."""
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+
+    def cancel(self) -> None:
+        self._event.set()
+
+    @property
+    def cancelled(self) -> bool:
+        return self._event.is_set()
+
+
+class Cancelled(Exception):
+    """Raised inside the sampler when the token is set; the Renderer turns it into a `RenderCancelled` event."""
+
+
+@dataclass
+class RenderStarted:
+    num_frames: int
+    num_windows: int
+    levels: list[int]  # levels in the order they will run (top level = keyframes first)
+
+
+@dataclass
+class WindowStarted:
+    index: int  # window number in plan order
+    frames: list[int]  # shot frame indices of the window positions
+    mode: str  # "key" | "interp" | "seq"
+    level: int
+
+
+@dataclass
+class StepDone:
+    window: int
+    step: int  # 1-based
+    steps: int
+
+
+@dataclass
+class FramesReady:
+    """Newly finished frames: linear RGB float32 (H, W, 3) each; `level` they were produced at."""
+
+    window: int
+    frames: dict[int, np.ndarray]
+    level: int
+    mode: str
+    seconds: float  # wall time of the window that produced them
+
+
+@dataclass
+class RenderFinished:
+    num_frames: int
+    seconds: float
+
+
+@dataclass
+class RenderCancelled:
+    frames_done: list[int]
+
+
+@dataclass
+class RenderFailed:
+    error: str
+
+
+RenderEvent = Union[RenderStarted, WindowStarted, StepDone, FramesReady, RenderFinished, RenderCancelled, RenderFailed]
+EventCallback = Callable[[RenderEvent], None]
