@@ -1,0 +1,140 @@
+"""Render settings (preset, seed, window N, scheme), Render/Cancel, a progress bar per level and the ETA."""
+from __future__ import annotations
+
+from PySide6.QtCore import Signal
+from PySide6.QtWidgets import (
+    QComboBox,
+    QFormLayout,
+    QGroupBox,
+    QHBoxLayout,
+    QLabel,
+    QProgressBar,
+    QPushButton,
+    QSpinBox,
+    QVBoxLayout,
+    QWidget,
+)
+
+from x2video_app.render_state import RenderState
+
+
+class RenderPanel(QWidget):
+    """Emits sigRender / sigCancel; `show_state(render_state)` refreshes the progress display."""
+
+    sigRender = Signal()
+    sigCancel = Signal()
+    sigSettingsChanged = Signal()
+
+    def __init__(self, parent=None) -> None:
+        super().__init__(parent)
+        self.preset = QComboBox()
+        self.preset.addItem("fast", "fast")
+        self.preset.addItem("quality (DDIM-20)", "quality")
+        self.preset.setToolTip("fast: LCM-2 when distilled weights are loaded, else DDIM-4. quality: DDIM-20.")
+        self.seed = QSpinBox()
+        self.seed.setRange(0, 2**31 - 1)
+        self.seed.setToolTip("Seed of the initial noise: same inputs and seed give the same frames")
+        self.window = QSpinBox()
+        self.window.setRange(2, 17)
+        self.window.setValue(5)
+        self.window.setToolTip("Frames per window N (the model was trained with N=5)")
+        self.scheme = QComboBox()
+        self.scheme.addItem("recursive (keyframes first)", "recursive")
+        self.scheme.addItem("sequential (baseline)", "sequential")
+        form = QFormLayout()
+        form.addRow("Preset", self.preset)
+        form.addRow("Seed", self.seed)
+        form.addRow("Window N", self.window)
+        form.addRow("Scheme", self.scheme)
+        for w in (self.preset, self.scheme):
+            w.currentIndexChanged.connect(self.sigSettingsChanged.emit)
+        for w in (self.seed, self.window):
+            w.valueChanged.connect(self.sigSettingsChanged.emit)
+
+        self.render_button = QPushButton("Render")
+        self.render_button.setToolTip("Render the shot with the current edits (Ctrl+R)")
+        self.render_button.setStyleSheet("QPushButton { font-weight: bold; padding: 4px 14px; }")
+        self.cancel_button = QPushButton("Cancel")
+        self.cancel_button.setEnabled(False)
+        self.cancel_button.setToolTip("Stop after the current denoising step; finished frames are kept")
+        self.render_button.clicked.connect(self.sigRender.emit)
+        self.cancel_button.clicked.connect(self.sigCancel.emit)
+        buttons = QHBoxLayout()
+        buttons.addWidget(self.render_button)
+        buttons.addWidget(self.cancel_button)
+
+        self.model_label = QLabel()
+        self.model_label.setWordWrap(True)
+        self.status_label = QLabel("Ready")
+        self.status_label.setWordWrap(True)
+        self.bars_box = QGroupBox("Progress per level")
+        self.bars_layout = QVBoxLayout(self.bars_box)
+        self.bars_layout.setContentsMargins(6, 4, 6, 4)
+        self._bars: dict[int, QProgressBar] = {}
+        self._empty = QLabel("No render yet")
+        self.bars_layout.addWidget(self._empty)
+
+        lay = QVBoxLayout(self)
+        lay.setContentsMargins(4, 4, 4, 4)
+        lay.addLayout(form)
+        lay.addLayout(buttons)
+        lay.addWidget(self.model_label)
+        lay.addWidget(self.bars_box)
+        lay.addWidget(self.status_label)
+        lay.addStretch(1)
+
+    def values(self) -> dict:
+        return {
+            "preset": self.preset.currentData(),
+            "seed": self.seed.value(),
+            "window": self.window.value(),
+            "scheme": self.scheme.currentData(),
+        }
+
+    def set_running(self, running: bool) -> None:
+        self.render_button.setEnabled(not running)
+        self.cancel_button.setEnabled(running)
+
+    def _ensure_bars(self, progress: list[tuple[int, int, int]], top: int) -> None:
+        levels = [lv for lv, _, _ in progress]
+        if list(self._bars) == levels:
+            return
+        for b in self._bars.values():
+            self.bars_layout.removeWidget(b)
+            b.deleteLater()
+        self._bars = {}
+        self._empty.setVisible(not levels)
+        for lv in levels:
+            b = QProgressBar()
+            b.setTextVisible(True)
+            self._bars[lv] = b
+            self.bars_layout.addWidget(b)
+
+    def show_state(self, st: RenderState) -> None:
+        progress = st.level_progress()
+        top = st.top_level
+        self._ensure_bars(progress, top)
+        for lv, done, planned in progress:
+            b = self._bars[lv]
+            name = "keyframes" if lv == top and st.level_order and len(st.level_order) > 1 else (f"level {lv}" if len(st.level_order) > 1 else "windows")
+            b.setMaximum(max(planned, done, 1) if planned else 0)  # 0 = busy indicator when the plan is unknown
+            if planned:
+                b.setValue(done)
+            b.setFormat(f"{name}: {done}/{planned} windows" if planned else f"{name}: {done} windows")
+        eta = st.eta_seconds()
+        if st.status == "running":
+            msg = f"Rendering: {len(st.frames)}/{st.num_frames or '?'} frames"
+            if eta is not None:
+                msg += f", about {eta:.0f} s left"
+        elif st.status == "finished":
+            msg = f"Finished {len(st.frames)} frames in {st.finished_at - st.started_at:.1f} s"
+        elif st.status == "cancelled":
+            msg = f"Cancelled; kept {len(st.frames)} finished frames"
+        elif st.status == "failed":
+            msg = f"Render failed: {st.error}"
+        else:
+            msg = "Ready"
+        ttk = st.time_to_first_keyframe()
+        if ttk is not None:
+            msg += f"\nFirst keyframe after {ttk:.2f} s"
+        self.status_label.setText(msg)

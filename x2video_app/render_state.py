@@ -1,0 +1,139 @@
+"""Qt-free record of one render as its events arrive: frames, their levels, keyframes, per-level progress, ETA."""
+from __future__ import annotations
+
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from x2video.sampling.events import (
+    FramesReady,
+    RenderCancelled,
+    RenderEvent,
+    RenderFailed,
+    RenderFinished,
+    RenderStarted,
+    StepDone,
+    WindowStarted,
+)
+from x2video_app.signals import Signal
+
+
+@dataclass
+class WindowRecord:
+    index: int
+    level: int
+    mode: str
+    frames: list[int]
+    seconds: float | None = None
+
+
+@dataclass
+class RenderState:
+    """What the viewer, timeline, progress bars and charts show about the current render.
+
+    `apply(event)` is the only mutator; `changed` fires after each event with the event.
+    Frames are kept as float16 linear RGB (H, W, 3) to halve memory on long shots.
+    """
+
+    frames: dict[int, np.ndarray] = field(default_factory=dict)
+    levels: dict[int, int] = field(default_factory=dict)
+    keyframes: set[int] = field(default_factory=set)
+    level_order: list[int] = field(default_factory=list)
+    windows: dict[int, WindowRecord] = field(default_factory=dict)
+    windows_per_level: dict[int, int] = field(default_factory=dict)
+    num_frames: int = 0
+    num_windows: int = 0
+    steps_per_window: int = 0
+    steps_done: int = 0
+    in_flight: list[int] = field(default_factory=list)
+    status: str = "idle"  # idle | running | finished | cancelled | failed
+    error: str = ""
+    started_at: float = 0.0
+    first_frame_at: float | None = None
+    first_keyframe_at: float | None = None
+    finished_at: float | None = None
+    #: order in which frames arrived, with their mode: [(t, level, mode)] — tests and the demo read it
+    arrivals: list[tuple[int, int, str]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.changed = Signal("render_changed")
+
+    # -- lifecycle -------------------------------------------------------------
+    def begin(self, steps_per_window: int, windows_per_level: dict[int, int] | None = None, keep_frames: bool = False) -> None:
+        """Reset for a new render (called on the GUI thread when Render is pressed)."""
+        if not keep_frames:
+            self.frames.clear()
+            self.levels.clear()
+            self.keyframes.clear()
+        self.arrivals.clear()
+        self.windows.clear()
+        self.windows_per_level = dict(windows_per_level or {})
+        self.level_order = []
+        self.steps_per_window = steps_per_window
+        self.steps_done = 0
+        self.in_flight = []
+        self.status = "running"
+        self.error = ""
+        self.started_at = time.perf_counter()
+        self.first_frame_at = self.first_keyframe_at = self.finished_at = None
+        self.changed.emit(None)
+
+    @property
+    def top_level(self) -> int:
+        return max(self.level_order) if self.level_order else (max(self.levels.values()) if self.levels else 1)
+
+    def apply(self, ev: RenderEvent) -> None:
+        now = time.perf_counter()
+        if isinstance(ev, RenderStarted):
+            self.num_frames, self.num_windows, self.level_order = ev.num_frames, ev.num_windows, list(ev.levels)
+        elif isinstance(ev, WindowStarted):
+            self.windows[ev.index] = WindowRecord(ev.index, ev.level, ev.mode, list(ev.frames))
+            self.in_flight = list(ev.frames)
+        elif isinstance(ev, StepDone):
+            self.steps_done += 1
+        elif isinstance(ev, FramesReady):
+            rec = self.windows.get(ev.window)
+            if rec is not None:
+                rec.seconds = ev.seconds
+            for t, img in ev.frames.items():
+                self.frames[t] = np.asarray(img, dtype=np.float16)
+                self.levels[t] = ev.level
+                if ev.mode == "key":
+                    self.keyframes.add(t)
+                self.arrivals.append((t, ev.level, ev.mode))
+            if self.first_frame_at is None:
+                self.first_frame_at = now
+            if ev.mode == "key" and self.first_keyframe_at is None:
+                self.first_keyframe_at = now
+            self.in_flight = []
+        elif isinstance(ev, RenderFinished):
+            self.status, self.finished_at, self.in_flight = "finished", now, []
+        elif isinstance(ev, RenderCancelled):
+            self.status, self.finished_at, self.in_flight = "cancelled", now, []
+        elif isinstance(ev, RenderFailed):
+            self.status, self.error, self.finished_at, self.in_flight = "failed", ev.error, now, []
+        self.changed.emit(ev)
+
+    def fail(self, message: str) -> None:
+        """The worker raised instead of emitting RenderFailed (e.g. out of memory)."""
+        self.apply(RenderFailed(error=message))
+
+    # -- derived figures -------------------------------------------------------
+    def level_progress(self) -> list[tuple[int, int, int]]:
+        """[(level, windows finished, windows planned)] in run order; planned is 0 when unknown."""
+        done = Counter(w.level for w in self.windows.values() if w.seconds is not None)
+        levels = self.level_order or sorted(set(done), reverse=True)
+        return [(lv, done.get(lv, 0), self.windows_per_level.get(lv, 0)) for lv in levels]
+
+    def eta_seconds(self) -> float | None:
+        """Remaining seconds, from the mean time per denoising step so far (None before the first step)."""
+        if self.status != "running" or self.steps_done == 0 or not self.num_windows or not self.steps_per_window:
+            return None
+        elapsed = time.perf_counter() - self.started_at
+        total = self.num_windows * self.steps_per_window
+        return max(0.0, elapsed / self.steps_done * (total - self.steps_done))
+
+    def time_to_first_keyframe(self) -> float | None:
+        return None if self.first_keyframe_at is None else self.first_keyframe_at - self.started_at
