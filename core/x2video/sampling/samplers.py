@@ -1,0 +1,122 @@
+"""DDIM and LCM multistep samplers (paper Sec. Implementation: DDIM-20, LCM-2 after distillation).
+
+Plain functions in the k-diffusion style around diffusers' schedulers: the schedule is
+SD 2.1's scaled-linear betas (0.00085 to 0.012 over 1,000 steps) rescaled to zero terminal
+SNR, v-prediction, "trailing" timestep spacing, as the XRGB release samples. With zero
+terminal SNR the first step is at t=999 where alpha_cumprod = 0: the noisy latent carries no
+signal and v-prediction gives x0 = -v there (epsilon-prediction would divide by zero).
+
+`model_fn(x_t, t) -> v` gets x_t (N, C, h, w) and the timestep as a 0-d long tensor.
+Every sampler reports each step through `callback({'x', 'i', 't', 'denoised', 'steps'})`
+('x' is the sample after step i, 'denoised' the model's x0 estimate at step i) and checks
+the cancel token before every step, raising `Cancelled`.
+"""
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import torch
+from diffusers import DDIMScheduler, LCMScheduler
+
+from x2video.sampling.events import CancelToken, Cancelled
+
+ModelFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+StepCallback = Callable[[dict[str, Any]], None]
+
+#: The diffusion schedule the model is trained with (DESIGN.md: SD 2.1 betas, zero-terminal SNR).
+SCHEDULE: dict[str, Any] = dict(
+    num_train_timesteps=1000,
+    beta_start=0.00085,
+    beta_end=0.012,
+    beta_schedule="scaled_linear",
+    prediction_type="v_prediction",
+    rescale_betas_zero_snr=True,
+    timestep_spacing="trailing",
+    clip_sample=False,
+    set_alpha_to_one=True,
+)
+
+
+def ddim_scheduler(**overrides: Any) -> DDIMScheduler:
+    """The project's DDIM scheduler (eta = 0, deterministic)."""
+    return DDIMScheduler(**{**SCHEDULE, **overrides})
+
+
+def lcm_scheduler(**overrides: Any) -> LCMScheduler:
+    """The project's LCM scheduler: same betas, LCM's 50-step distillation grid (t = 999, 979, ...)."""
+    cfg = {k: v for k, v in SCHEDULE.items() if k != "timestep_spacing"}
+    return LCMScheduler(**{**cfg, **overrides})
+
+
+def alphas_cumprod() -> torch.Tensor:
+    """(1000,) float64 cumulative alphas of `SCHEDULE` (what a model trained with it reports)."""
+    return ddim_scheduler().alphas_cumprod.to(torch.float64)
+
+
+def _check_cancel(cancel: CancelToken | None, i: int) -> None:
+    if cancel is not None and cancel.cancelled:
+        raise Cancelled(f"cancelled before denoising step {i + 1}")
+
+
+@torch.no_grad()
+def sample_ddim(
+    model_fn: ModelFn,
+    x_T: torch.Tensor,
+    steps: int,
+    *,
+    callback: StepCallback | None = None,
+    cancel: CancelToken | None = None,
+    scheduler: DDIMScheduler | None = None,
+) -> torch.Tensor:
+    """DDIM (Song et al. 2021, eta = 0) with v-prediction, zero-terminal-SNR, trailing spacing.
+
+    The last step returns the x0 estimate (DDIM's update with alpha_prev = 1): diffusers derives
+    the previous timestep as ``t - 1000 // steps``, which for step counts that do not divide
+    1,000 (e.g. 7: last t = 142) lands on t = 0 instead of the clean sample.
+    """
+    if steps < 1:
+        raise ValueError(f"DDIM needs at least 1 step, got {steps}")
+    sched = scheduler if scheduler is not None else ddim_scheduler()
+    sched.set_timesteps(steps, device=x_T.device)
+    x = x_T * sched.init_noise_sigma  # (N, C, h, w)
+    for i, t in enumerate(sched.timesteps):
+        _check_cancel(cancel, i)
+        v = model_fn(x, t)  # (N, C, h, w)
+        out = sched.step(v, t, x)
+        x = out.prev_sample if i < steps - 1 else out.pred_original_sample
+        if callback is not None:
+            callback({"x": x, "i": i, "t": int(t), "denoised": out.pred_original_sample, "steps": steps})
+    return x
+
+
+@torch.no_grad()
+def sample_lcm(
+    model_fn: ModelFn,
+    x_T: torch.Tensor,
+    steps: int,
+    *,
+    callback: StepCallback | None = None,
+    cancel: CancelToken | None = None,
+    generator: torch.Generator | None = None,
+    scheduler: LCMScheduler | None = None,
+) -> torch.Tensor:
+    """Latent Consistency Model multistep sampling (Luo et al. 2023, Alg. 1) with v-prediction.
+
+    Between steps LCM re-noises its x0 estimate; `generator` makes that noise reproducible.
+    """
+    if steps < 1:
+        raise ValueError(f"LCM needs at least 1 step, got {steps}")
+    sched = scheduler if scheduler is not None else lcm_scheduler()
+    sched.set_timesteps(steps, device=x_T.device)
+    x = x_T * sched.init_noise_sigma  # (N, C, h, w)
+    for i, t in enumerate(sched.timesteps):
+        _check_cancel(cancel, i)
+        v = model_fn(x, t)  # (N, C, h, w)
+        out = sched.step(v, t, x, generator=generator)
+        x = out.prev_sample
+        if callback is not None:
+            callback({"x": x, "i": i, "t": int(t), "denoised": out.denoised, "steps": steps})
+    return x
+
+
+SAMPLERS: dict[str, Callable[..., torch.Tensor]] = {"ddim": sample_ddim, "lcm": sample_lcm}

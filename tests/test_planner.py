@@ -1,0 +1,99 @@
+"""Recursive Sampling and sequential frame plans: exhaustive invariants for L in 1..300, N in 2..9."""
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from x2video.sampling.planner import Window, last_use, num_levels, plan_recursive, plan_sequential, shift
+
+
+def check_plan(plan: list[Window], length: int, window: int, ref_frame: int | None = None) -> None:
+    produced: set[int] = set()
+    counts = [0] * length
+    for i, w in enumerate(plan):
+        assert 1 <= len(w.frames) <= window, (i, w)
+        assert set(w.generate) <= set(w.frames) and set(w.refs) <= set(w.frames), w
+        assert not set(w.generate) & set(w.refs), w
+        assert set(w.refs) <= produced, f"window {i} reads {set(w.refs) - produced} before they exist"
+        assert not set(w.generate) & produced, f"window {i} regenerates {set(w.generate) & produced}"
+        assert set(w.frames) == set(w.generate) | set(w.refs), w
+        for f in w.generate:
+            counts[f] += 1
+        produced |= set(w.generate)
+        if w.mode == "interp":
+            assert w.refs == (w.frames[0], w.frames[-1]) and w.ref_positions == (0, len(w.frames) - 1)
+            stride = (window - 1) ** (w.level - 1)
+            steps = [b - a for a, b in zip(w.frames, w.frames[1:])]
+            assert all(s == stride for s in steps[:-1]) and 0 < steps[-1] <= stride, w
+        else:
+            assert w.refs in ((), (w.frames[0],)), w
+            assert w.ref_positions in ((), (0,)), w
+    assert counts == [1] * length, "every frame is produced exactly once"
+    levels = [w.level for w in plan]
+    assert levels == sorted(levels, reverse=True), "keyframes before level 2 before level 1"
+    users = [i for i, w in enumerate(plan) if w.user_ref]
+    if ref_frame is None:
+        assert users == []
+    else:
+        assert users == [0] and plan[0].frames[0] == ref_frame
+
+
+def test_recursive_exhaustive() -> None:
+    for window in range(2, 10):
+        for length in range(1, 301):
+            plan = plan_recursive(length, window)
+            check_plan(plan, length, window)
+            keys = [w for w in plan if w.mode == "key"]
+            if window > 2:
+                assert len(keys) == 1 and keys[0].level == num_levels(length - 1, window), (length, window)
+                # first interpolation happens only after all keyframes
+                assert plan[0].mode == "key"
+
+
+def test_sequential_exhaustive() -> None:
+    for window in range(2, 10):
+        for length in range(1, 301):
+            plan = plan_sequential(length, window)
+            check_plan(plan, length, window)
+            for prev, w in zip(plan, plan[1:]):
+                assert w.refs == (prev.frames[-1],) and w.frames[0] == prev.frames[-1]
+                assert list(w.frames) == list(range(w.frames[0], w.frames[0] + len(w.frames)))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(1, 300), st.integers(2, 9), st.data())
+def test_with_reference_frame(length: int, window: int, data: st.DataObject) -> None:
+    ref = data.draw(st.integers(0, length - 1))
+    check_plan(plan_recursive(length, window, ref), length, window, ref)
+    check_plan(plan_sequential(length, window, ref), length, window, ref)
+
+
+def test_paper_example_65_frames() -> None:
+    """Paper Fig. recursive_sample: N=5, K=3, L=65."""
+    plan = plan_recursive(65, 5)
+    assert plan[0] == Window((0, 16, 32, 48, 64), (0, 16, 32, 48, 64), (), "key", 3)
+    assert plan[1] == Window((0, 4, 8, 12, 16), (4, 8, 12), (0, 16), "interp", 2)
+    assert [w.level for w in plan].count(2) == 4 and [w.level for w in plan].count(1) == 16
+    with_ref = plan_recursive(65, 5, ref_frame=0)
+    assert with_ref[0].user_ref and with_ref[0].ref_positions == (0,)
+
+
+def test_uneven_tail_keeps_strides() -> None:
+    plan = plan_recursive(18, 5)
+    assert plan[0].frames == (0, 16, 17)
+    assert all(w.frames != (16, 17) for w in plan[1:]), "adjacent keyframes need no window"
+
+
+def test_last_use_and_shift() -> None:
+    plan = plan_recursive(17, 5)
+    lu = last_use(plan)
+    assert lu[16] == 4 and lu[0] == 1 and 1 not in lu
+    moved = shift(plan, 100)
+    assert moved[0].frames == (100, 104, 108, 112, 116) and moved[1].refs == (100, 104)
+
+
+@pytest.mark.parametrize("args", [(0, 5), (10, 1), (10, 5, 10), (10, 5, -1)])
+def test_bad_arguments(args: tuple[int, ...]) -> None:
+    with pytest.raises(ValueError, match="frame|window"):
+        plan_recursive(*args)
