@@ -1,0 +1,274 @@
+"""`Renderer`: runs a frame plan window by window and streams finished frames as typed events.
+
+Paper Sec. Recursive Sampling (keyframes, then interpolation levels) and Sec. Acceleration
+(reference frame, LCM-2). Per render: edits applied frame by frame, prompts encoded once,
+each frame's conditioning encoded once through a content-keyed cache that outlives the
+render (a prompt-only re-render re-encodes nothing), initial noise seeded per window, and
+only the latents that later windows read as references are kept; decoded frames leave
+through `FramesReady` events and are not held. No global state: one Renderer per thread,
+or one shared Renderer driven from one thread at a time.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+from x2video.channels import INTRINSIC
+from x2video.conditioning import FrameConditioning, Prompts
+from x2video.model.api import RenderModel, WindowInputs
+from x2video.sampling.cache import CacheStats, ConditioningCache, conditioning_key
+from x2video.sampling.events import (
+    CancelToken,
+    Cancelled,
+    EventCallback,
+    FramesReady,
+    RenderCancelled,
+    RenderEvent,
+    RenderFailed,
+    RenderFinished,
+    RenderSettings,
+    RenderStarted,
+    StepDone,
+    WindowStarted,
+)
+from x2video.sampling.planner import Window, last_use, plan, shift
+from x2video.sampling.samplers import alphas_cumprod, sample_ddim, sample_lcm
+from x2video.shot import Shot
+
+log = logging.getLogger(__name__)
+
+
+def select_steps(settings: RenderSettings, model: RenderModel) -> RenderSettings:
+    """Resolve `settings.preset` into a sampler and step count for this model.
+
+    'fast': LCM-2 when the model has distilled (LCM) weights, else DDIM-4; 'quality': DDIM-20;
+    None: the settings as given.
+    """
+    if settings.preset is None:
+        return settings
+    if settings.preset == "fast":
+        sampler, steps = ("lcm", 2) if model.has_lcm else ("ddim", 4)
+    elif settings.preset == "quality":
+        sampler, steps = "ddim", 20
+    else:
+        raise ValueError(f"unknown render preset {settings.preset!r} (use 'fast' or 'quality')")
+    return dataclasses.replace(settings, sampler=sampler, steps=steps)
+
+
+def plain_conditioning(shot: Shot, t: int) -> FrameConditioning:
+    """A frame's conditioning with no edits: the shot's channels, absent ones dropped, no masks."""
+    h, w = shot.size
+    channels: dict[str, np.ndarray | None] = {n: shot.channel(n, t) if shot.has(n) else None for n in INTRINSIC}
+    return FrameConditioning(
+        channels=channels,
+        amr_mask=np.zeros((h, w), np.float32),
+        local_masks=np.zeros((0, h, w), np.float32),
+        frame_index=t,
+    )
+
+
+def window_seed(seed: int, window: Window) -> int:
+    """Seed of one window's initial noise: depends on the user seed and the window's frames and level only."""
+    return int(np.random.SeedSequence([seed, window.level, *window.frames]).generate_state(1, np.uint64)[0] >> 1)
+
+
+class Renderer:
+    """Drives a `RenderModel` over a shot; see the module docstring."""
+
+    def __init__(self, model: RenderModel, *, cache: ConditioningCache | None = None) -> None:
+        self.model = model
+        self.cache = cache if cache is not None else ConditioningCache()
+        #: most reference latents held at once during the last render (they are dropped after their last use)
+        self.peak_latents = 0
+        ours, theirs = alphas_cumprod(), model.alphas_cumprod().to(torch.float64).cpu()
+        if ours.shape != theirs.shape or not torch.allclose(ours, theirs, atol=1e-6):
+            raise ValueError(
+                "the model's noise schedule is not the SD 2.1 zero-terminal-SNR schedule the samplers use "
+                f"({theirs.shape[0]} steps, alpha_cumprod[0]={float(theirs[0]):.6f})"
+            )
+
+    # -- for the editor and tests --------------------------------------------------
+    def cache_stats(self) -> CacheStats:
+        return self.cache.stats()
+
+    def plan(self, shot: Shot, settings: RenderSettings, ref_frame: int | None = None) -> list[Window]:
+        """The windows a render of `shot` with `settings` runs (shot frame indices)."""
+        start, stop = self._range(shot, settings)
+        if ref_frame is not None:
+            ref_frame = min(max(ref_frame, start), stop - 1) - start
+        return shift(plan(settings.scheme, stop - start, settings.window, ref_frame), start)
+
+    # -- the render ------------------------------------------------------------------
+    def render(
+        self,
+        shot: Shot,
+        edits: Any,
+        settings: RenderSettings,
+        on_event: EventCallback | None = None,
+        cancel: CancelToken | None = None,
+        *,
+        base_dir: str | Path | None = None,
+    ) -> None:
+        """Render `shot` with `edits` (an `x2video.edits.Edits`, or None for none).
+
+        Emits RenderStarted, then per window WindowStarted, StepDone per step, FramesReady;
+        then RenderFinished. Cancelling (between steps) emits RenderCancelled with the finished
+        frames and returns. Any error emits RenderFailed and is re-raised. `base_dir` resolves
+        relative paths of a reference image in the edits (the project file's folder).
+        """
+        emit: Callable[[RenderEvent], None] = on_event if on_event is not None else (lambda e: None)
+        done: list[int] = []
+        try:
+            self._render(shot, edits, settings, emit, cancel, base_dir, done)
+        except Cancelled:
+            log.info("render cancelled after %d frames", len(done))
+            emit(RenderCancelled(frames_done=sorted(done)))
+        except Exception as exc:
+            emit(RenderFailed(error=f"{type(exc).__name__}: {exc}"))
+            raise
+
+    def _range(self, shot: Shot, settings: RenderSettings) -> tuple[int, int]:
+        start, stop = settings.frames if settings.frames is not None else (0, shot.num_frames)
+        if not 0 <= start < stop <= shot.num_frames:
+            raise ValueError(f"frame range [{start}, {stop}) outside the shot's {shot.num_frames} frames")
+        return start, stop
+
+    def _validate(self, shot: Shot, settings: RenderSettings) -> RenderSettings:
+        settings = select_steps(settings, self.model)
+        if settings.sampler not in ("ddim", "lcm"):
+            raise ValueError(f"unknown sampler {settings.sampler!r} (use 'ddim' or 'lcm')")
+        if settings.sampler == "lcm" and not self.model.has_lcm:
+            raise ValueError("sampler 'lcm' needs distilled LCM weights, and the loaded model has none")
+        if settings.steps < 1:
+            raise ValueError(f"steps must be at least 1, got {settings.steps}")
+        h, w = shot.size
+        d = self.model.downsample
+        if h % d or w % d:
+            raise ValueError(f"shot size {w}x{h} is not a multiple of the model's downsampling factor {d}")
+        return settings
+
+    def _render(
+        self,
+        shot: Shot,
+        edits: Any,
+        settings: RenderSettings,
+        emit: Callable[[RenderEvent], None],
+        cancel: CancelToken | None,
+        base_dir: str | Path | None,
+        done: list[int],
+    ) -> None:
+        t0 = time.perf_counter()
+        settings = self._validate(shot, settings)
+        model = self.model
+        if edits is None:
+            prompts, reference = Prompts(), None
+            conditioning: Callable[[int], FrameConditioning] = lambda t: plain_conditioning(shot, t)
+        else:
+            from x2video.edits import apply_edits, resolve_reference
+
+            prompts = edits.prompts()
+            reference = resolve_reference(shot, edits, base_dir)
+            conditioning = lambda t: apply_edits(shot, edits, t)
+        windows = self.plan(shot, settings, None if reference is None else reference[0])
+        keep_until = last_use(windows)
+
+        with torch.inference_mode():
+            text_global = model.encode_prompts([prompts.global_prompt])  # (1, L, D)
+            text_local = model.encode_prompts(list(prompts.local))  # (P, L, D)
+            ref_latent = None if reference is None else model.encode_image(reference[1])  # (4, h, w)
+            levels = sorted({w.level for w in windows}, reverse=True)
+            emit(RenderStarted(num_frames=sum(len(w.generate) for w in windows), num_windows=len(windows), levels=levels))
+            latents: dict[int, torch.Tensor] = {}  # frame -> (4, h, w), only while a later window reads it
+            self.peak_latents = 0
+            for index, window in enumerate(windows):
+                if cancel is not None and cancel.cancelled:
+                    raise Cancelled(f"cancelled before window {index}")
+                emit(WindowStarted(index=index, frames=list(window.frames), mode=window.mode, level=window.level))
+                tw = time.perf_counter()
+                x0 = self._run_window(index, window, settings, conditioning, latents, ref_latent, text_global, text_local, emit, cancel)
+                gen_pos = list(window.generate_positions)
+                images = model.decode(x0[gen_pos])  # (G, H, W, 3)
+                for pos, f in zip(gen_pos, window.generate):
+                    if keep_until.get(f, -1) > index:
+                        latents[f] = x0[pos].clone()
+                self.peak_latents = max(self.peak_latents, len(latents))
+                for f in window.refs:
+                    if keep_until.get(f) == index:
+                        latents.pop(f, None)
+                frames = {f: np.asarray(images[i], dtype=np.float32) for i, f in enumerate(window.generate)}
+                done.extend(window.generate)
+                emit(FramesReady(window=index, frames=frames, level=window.level, mode=window.mode, seconds=time.perf_counter() - tw))
+        emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))
+
+    def _encode(self, conds: list[FrameConditioning]) -> torch.Tensor:
+        """(n, C_cond, h, w) conditioning latents, encoding only frames the cache lacks (one batch)."""
+        key = self.model.content_key()
+        keys = [conditioning_key(c, key) for c in conds]
+        found = [self.cache.get(k) for k in keys]
+        missing = [i for i, v in enumerate(found) if v is None]
+        if missing:
+            fresh = self.model.encode_frames([conds[i] for i in missing])  # (m, C_cond, h, w)
+            for j, i in enumerate(missing):
+                found[i] = fresh[j].clone()
+                self.cache.put(keys[i], found[i])
+        return torch.stack(found)  # (n, C_cond, h, w)
+
+    def _run_window(
+        self,
+        index: int,
+        window: Window,
+        settings: RenderSettings,
+        conditioning: Callable[[int], FrameConditioning],
+        latents: dict[int, torch.Tensor],
+        ref_latent: torch.Tensor | None,
+        text_global: torch.Tensor,
+        text_local: torch.Tensor,
+        emit: Callable[[RenderEvent], None],
+        cancel: CancelToken | None,
+    ) -> torch.Tensor:
+        """Denoise one window; returns its clean latents (n, 4, h, w)."""
+        model = self.model
+        conds = [conditioning(f) for f in window.frames]
+        cond = self._encode(conds)  # (n, C_cond, h, w)
+        n, _, h, w = cond.shape
+        ref = torch.zeros(n, model.latent_channels, h, w, device=model.device, dtype=model.dtype)  # (n, 4, h, w)
+        if window.user_ref:
+            ref[0] = ref_latent
+        for f in window.refs:
+            ref[window.frames.index(f)] = latents[f]
+        for c in conds:
+            if c.local_masks.shape[0] != text_local.shape[0]:
+                raise ValueError(
+                    f"frame {c.frame_index}: {c.local_masks.shape[0]} local prompt masks for {text_local.shape[0]} local prompts"
+                )
+        masks = np.stack([c.local_masks for c in conds]).astype(np.float32)  # (n, P, H, W)
+        inputs = WindowInputs(
+            cond=cond,
+            ref=ref,
+            ref_positions=window.ref_positions,
+            mode=window.mode,
+            level=window.level,
+            text_global=text_global,
+            text_local=text_local,
+            local_masks=torch.from_numpy(masks).to(model.device, model.dtype),
+        )
+        gen = torch.Generator(device="cpu").manual_seed(window_seed(settings.seed, window))
+        noise = torch.randn(n, model.latent_channels, h, w, generator=gen)  # (n, 4, h, w), CPU so devices agree
+        x_T = noise.to(model.device, model.dtype)
+        lcm = settings.sampler == "lcm"
+
+        def model_fn(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+            return model.predict_v(x, t, inputs, lcm=lcm)
+
+        def callback(info: dict[str, Any]) -> None:
+            emit(StepDone(window=index, step=info["i"] + 1, steps=info["steps"]))
+
+        if lcm:
+            return sample_lcm(model_fn, x_T, settings.steps, callback=callback, cancel=cancel, generator=gen)
+        return sample_ddim(model_fn, x_T, settings.steps, callback=callback, cancel=cancel)

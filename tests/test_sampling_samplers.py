@@ -1,0 +1,105 @@
+"""DDIM / LCM samplers: oracle recovery, schedule conventions, callbacks, cancel within one step."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from x2video.sampling.events import CancelToken, Cancelled
+from x2video.sampling.samplers import alphas_cumprod, ddim_scheduler, lcm_scheduler, sample_ddim, sample_lcm
+
+
+def _oracle(x0: torch.Tensor, seen: list | None = None):
+    ac = alphas_cumprod().float()
+
+    def fn(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        a = ac[int(t)]
+        if seen is not None:
+            seen.append((int(t), x.clone()))
+        eps = (x - a.sqrt() * x0) / (1 - a).sqrt()
+        return a.sqrt() * eps - (1 - a).sqrt() * x0  # the true v
+
+    return fn
+
+
+def _data(seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    return torch.randn(3, 4, 6, 8, generator=g), torch.randn(3, 4, 6, 8, generator=g)
+
+
+def test_schedule_is_zero_terminal_snr_trailing() -> None:
+    ac = alphas_cumprod()
+    assert ac[-1] == 0 and abs(float(ac[0]) - (1 - 0.00085)) < 1e-6
+    s = ddim_scheduler()
+    s.set_timesteps(4)
+    assert s.timesteps.tolist() == [999, 749, 499, 249]
+    s = lcm_scheduler()
+    s.set_timesteps(2)
+    assert s.timesteps.tolist() == [999, 499]
+
+
+@pytest.mark.parametrize("steps", [1, 2, 4, 7, 20])
+def test_ddim_oracle_recovers_clean_latent(steps: int) -> None:
+    x0, eps = _data()
+    seen: list = []
+    out = sample_ddim(_oracle(x0, seen), eps, steps)
+    assert torch.allclose(out, x0, atol=1e-5)
+    assert len(seen) == steps and seen[0][0] == 999
+    # t=999 has alpha_cumprod = 0: the first input is pure noise and v-prediction still gives x0
+    assert torch.equal(seen[0][1], eps)
+    if 1000 % steps == 0:  # DDIM (eta=0) keeps the same noise: every x_t is on the forward process
+        ac = alphas_cumprod().float()
+        for t, x in seen:
+            assert torch.allclose(x, ac[t].sqrt() * x0 + (1 - ac[t]).sqrt() * eps, atol=1e-5), t
+
+
+def test_ddim_wrong_model_does_not_recover() -> None:
+    x0, eps = _data()
+    out = sample_ddim(_oracle(x0 + 0.5), eps, 4)
+    assert (out - x0).abs().mean() > 0.4
+
+
+@pytest.mark.parametrize("steps", [1, 2, 4])
+def test_lcm_oracle_recovers_clean_latent_and_is_seeded(steps: int) -> None:
+    x0, eps = _data()
+    out = sample_lcm(_oracle(x0), eps, steps, generator=torch.Generator().manual_seed(3))
+    assert torch.allclose(out, x0, atol=1e-5)
+    # an imperfect model: LCM's re-noising between steps makes the result depend on the generator
+    model = _oracle(x0 + 0.3)
+    noisy = lambda x, t: model(x, t) + 0.2 * torch.tanh(x)  # noqa: E731
+    a = sample_lcm(noisy, eps, 2, generator=torch.Generator().manual_seed(1))
+    b = sample_lcm(noisy, eps, 2, generator=torch.Generator().manual_seed(1))
+    c = sample_lcm(noisy, eps, 2, generator=torch.Generator().manual_seed(2))
+    assert torch.equal(a, b) and not torch.equal(a, c)
+
+
+@pytest.mark.parametrize("sampler", [sample_ddim, sample_lcm])
+def test_callback_reports_every_step(sampler) -> None:
+    x0, eps = _data()
+    infos: list[dict] = []
+    sampler(_oracle(x0), eps, 4, callback=infos.append)
+    assert [i["i"] for i in infos] == [0, 1, 2, 3] and all(i["steps"] == 4 for i in infos)
+    assert {"x", "i", "t", "denoised"} <= set(infos[0])
+    assert torch.allclose(infos[-1]["denoised"], x0, atol=1e-5)
+
+
+@pytest.mark.parametrize("sampler", [sample_ddim, sample_lcm])
+@pytest.mark.parametrize("cancel_at", [0, 2])
+def test_cancel_stops_within_one_step(sampler, cancel_at: int) -> None:
+    x0, eps = _data()
+    token = CancelToken()
+    calls: list = []
+    oracle = _oracle(x0, calls)
+
+    def fn(x, t):
+        if len(calls) == cancel_at:
+            token.cancel()  # set while step `cancel_at` runs (as a GUI thread would)
+        return oracle(x, t)
+
+    with pytest.raises(Cancelled):
+        sampler(fn, eps, 20 if sampler is sample_ddim else 4, cancel=token)
+    assert len(calls) == cancel_at + 1  # the running step finishes, no further model call
+
+
+def test_bad_step_count() -> None:
+    with pytest.raises(ValueError, match="at least 1 step"):
+        sample_ddim(lambda x, t: x, torch.zeros(1, 4, 2, 2), 0)
