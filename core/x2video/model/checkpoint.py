@@ -1,0 +1,101 @@
+"""Model checkpoints: a directory of safetensors (fp16 or fp32) plus `config.json` holding the `ModelConfig`.
+
+    DIR/config.json            {"format": "x2video-model", "version": 1, "config": {...ModelConfig...}}
+    DIR/unet.safetensors       the (video or image) UNet, Hybrid Self-Attention weights included
+    DIR/vae.safetensors        the AutoencoderKL
+    DIR/lcm_unet.safetensors   optional: an LCM-distilled UNet of the same config
+
+Loading validates every tensor name and shape and reports all mismatches at once.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import torch
+from safetensors.torch import load_file, save_file
+from torch import nn
+
+from x2video.model.config import ModelConfig
+
+FORMAT = "x2video-model"
+VERSION = 1
+PARTS = ("unet", "vae", "lcm_unet")
+
+
+def _atomic_write(path: Path, write) -> None:
+    """Write via a temp file in the same folder, then os.replace (a kept file is never half-written)."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def save_checkpoint(directory: str | os.PathLike, config: ModelConfig, modules: dict[str, nn.Module], dtype: torch.dtype = torch.float32) -> Path:
+    """Write `modules` (names from PARTS) and the config into `directory` (created if needed)."""
+    if dtype not in (torch.float16, torch.float32, torch.bfloat16):
+        raise ValueError(f"checkpoint dtype must be float16, bfloat16 or float32, got {dtype}")
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    for name, module in modules.items():
+        if name not in PARTS:
+            raise ValueError(f"unknown checkpoint part {name!r} (expected one of {PARTS})")
+        sd = {k: (v.detach().to("cpu", dtype) if v.is_floating_point() else v.detach().cpu()).contiguous() for k, v in module.state_dict().items()}
+        _atomic_write(out / f"{name}.safetensors", lambda tmp, sd=sd: save_file(sd, tmp, metadata={"format": FORMAT}))
+    text = json.dumps({"format": FORMAT, "version": VERSION, "config": config.to_dict()}, indent=2, sort_keys=True)
+
+    def write_json(tmp: str) -> None:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+
+    _atomic_write(out / "config.json", write_json)
+    return out
+
+
+def read_config(directory: str | os.PathLike) -> ModelConfig:
+    """The `ModelConfig` of a checkpoint directory."""
+    path = Path(directory) / "config.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"not an X2Video checkpoint: {path} is missing")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: invalid JSON ({e})") from e
+    if data.get("format") != FORMAT:
+        raise ValueError(f"{path}: format is {data.get('format')!r}, expected {FORMAT!r}")
+    if data.get("version") != VERSION:
+        raise ValueError(f"{path}: version {data.get('version')} not supported (this code reads {VERSION})")
+    try:
+        return ModelConfig.from_dict(data["config"])
+    except (TypeError, ValueError, KeyError) as e:
+        raise ValueError(f"{path}: bad model config: {e}") from e
+
+
+def load_into(module: nn.Module, file: str | os.PathLike, part: str) -> None:
+    """Load a safetensors file into `module`, raising one ValueError that names every missing,
+    unexpected or mis-shaped tensor."""
+    file = Path(file)
+    if not file.is_file():
+        raise FileNotFoundError(f"checkpoint file missing: {file}")
+    sd = load_file(str(file))
+    own = module.state_dict()
+    problems = []
+    for k in sorted(set(own) - set(sd)):
+        problems.append(f"{part}: missing tensor {k} (model shape {tuple(own[k].shape)})")
+    for k in sorted(set(sd) - set(own)):
+        problems.append(f"{part}: unexpected tensor {k} (checkpoint shape {tuple(sd[k].shape)})")
+    for k in sorted(set(sd) & set(own)):
+        if sd[k].shape != own[k].shape:
+            problems.append(f"{part}: {k}: checkpoint shape {tuple(sd[k].shape)} != model shape {tuple(own[k].shape)}")
+    if problems:
+        raise ValueError(f"{file} does not match the model built from its config.json:\n  " + "\n  ".join(problems))
+    ref = next(iter(own.values())) if own else None
+    dtype = ref.dtype if ref is not None and ref.is_floating_point() else torch.float32
+    module.load_state_dict({k: (v.to(dtype) if v.is_floating_point() else v) for k, v in sd.items()}, strict=True)

@@ -1,0 +1,173 @@
+"""Hybrid Self-Attention (paper Sec. Hybrid Self-Attention): Self + Reference + Multi-Head Full temporal, alpha-blended.
+
+    HybridAttn(f^i) = (1 - a_r - a_t) SelfAttn(f^i) + a_r RefAttn(f^i) + a_t TempAttn(f^i)      (alpha blender)
+    RefAttn(f^i)    = a_r0 Attn(w_r0^q f^i, w_r0^k f^0, w_r0^v f^0)
+                    + a_r1 Attn(w_r1^q f^i, w_r1^k f^{N-1}, w_r1^v f^{N-1})                  (eq. refattn_lora)
+    TempAttn(f^i)   = Attn(Q_t^{i,h}, K_t^{i_t,h}, V_t^{i_t,h}),  i_t = (i + h) mod N           (MHF temporal)
+
+A diffusers attention processor for `attn1` of every transformer block. The module
+(`Attention`) keeps owning the self-attention weights `to_q/to_k/to_v/to_out`; this
+processor owns the reference and temporal projections (copied from `to_q/to_k/to_v` at
+conversion), their switchable LoRA branches and the per-layer scalars a_r, a_t (zero at
+conversion, so the video UNet equals the image UNet). The three branches are blended
+before the shared output projection `to_out`: since the blend weights sum to one,
+`to_out(sum_i w_i a_i) == sum_i w_i to_out(a_i)` exactly, bias included.
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from diffusers.models.attention_processor import Attention
+from torch import nn
+
+from x2video.model.config import HybridConfig
+from x2video.model.context import AttnContext
+from x2video.model.lora import SwitchableQKV
+
+REF_BRANCHES = ("r0", "r1")
+
+
+def temporal_branches(interp_levels: int) -> tuple[str, ...]:
+    """LoRA branch names of MHF temporal attention: keyframe mode, then one per interpolation level."""
+    return ("key",) + tuple(f"interp{k}" for k in range(1, interp_levels + 1))
+
+
+def heads_split(x: torch.Tensor, heads: int) -> torch.Tensor:
+    """(B, L, H*d) -> (B, H, L, d)"""
+    b, n, c = x.shape
+    return x.view(b, n, heads, c // heads).transpose(1, 2)
+
+
+def heads_merge(x: torch.Tensor) -> torch.Tensor:
+    """(B, H, L, d) -> (B, L, H*d)"""
+    b, h, n, d = x.shape
+    return x.transpose(1, 2).reshape(b, n, h * d)
+
+
+def mhf_gather(kv: torch.Tensor, num_frames: int) -> torch.Tensor:
+    """Route head h of frame i to frame (i + h) mod N: (B*N, H, L, d) -> (B*N, H, L, d).
+
+    A gather over the frame axis per head, so the attention that follows costs exactly one
+    self-attention (each query still sees L keys)."""
+    bn, h, n, d = kv.shape
+    b = bn // num_frames
+    x = kv.view(b, num_frames, h, n, d)  # (B, N, H, L, d)
+    frame = torch.arange(num_frames, device=kv.device)
+    head = torch.arange(h, device=kv.device)
+    src = (frame[:, None] + head[None, :]) % num_frames  # (N, H): source frame of head h at frame i
+    return x[:, src, head[None, :]].reshape(bn, h, n, d)  # (B, N, H, L, d) -> (B*N, H, L, d)
+
+
+class HybridSelfAttnProcessor(nn.Module):
+    """`attn1` processor: Self + Reference + MHF temporal attention with switchable LoRA (see module doc)."""
+
+    def __init__(self, attn: Attention, hybrid: HybridConfig) -> None:
+        super().__init__()
+        self.interp_levels = hybrid.interp_levels
+        self.ref = SwitchableQKV(attn.to_q, attn.to_k, attn.to_v, REF_BRANCHES, hybrid.lora_rank, hybrid.lora_alpha)
+        self.temp = SwitchableQKV(
+            attn.to_q, attn.to_k, attn.to_v, temporal_branches(hybrid.interp_levels), hybrid.lora_rank, hybrid.lora_alpha
+        )
+        p = attn.to_q.weight
+        self.alpha_r = nn.Parameter(torch.zeros((), device=p.device, dtype=p.dtype))
+        self.alpha_t = nn.Parameter(torch.zeros((), device=p.device, dtype=p.dtype))
+
+    # diffusers calls processors as processor(attn, hidden_states, encoder_hidden_states=..., attention_mask=..., **kwargs)
+    # and inspects this signature to decide which cross_attention_kwargs to pass: `x2v` is ours.
+    def __call__(  # type: ignore[override]
+        self,
+        attn: Attention,
+        hidden_states: torch.Tensor,
+        encoder_hidden_states: torch.Tensor | None = None,
+        attention_mask: torch.Tensor | None = None,
+        temb: torch.Tensor | None = None,
+        x2v: AttnContext | None = None,
+    ) -> torch.Tensor:
+        if encoder_hidden_states is not None:
+            raise ValueError("HybridSelfAttnProcessor is a self-attention processor (attn1); got encoder_hidden_states")
+        residual = hidden_states
+        if attn.spatial_norm is not None:
+            hidden_states = attn.spatial_norm(hidden_states, temb)
+        input_ndim = hidden_states.ndim
+        if input_ndim == 4:
+            bn, channel, height, width = hidden_states.shape
+            hidden_states = hidden_states.view(bn, channel, height * width).transpose(1, 2)  # (BN, L, C)
+        if attn.group_norm is not None:
+            hidden_states = attn.group_norm(hidden_states.transpose(1, 2)).transpose(1, 2)
+        x = hidden_states  # (BN, L, C)
+        mask = None
+        if attention_mask is not None:
+            mask = attn.prepare_attention_mask(attention_mask, x.shape[1], x.shape[0])
+            mask = mask.view(x.shape[0], attn.heads, -1, mask.shape[-1])
+
+        # 1. SelfAttn(f^i): the pretrained path, unchanged.
+        out = self._attend(attn, attn.to_q(x), attn.to_k(x), attn.to_v(x), mask)  # (BN, H, L, d)
+
+        if x2v is not None:
+            use_ref = self._active(self.alpha_r)
+            use_temp = self._active(self.alpha_t) and x2v.num_frames > 1
+            if use_ref or use_temp:
+                blended = out * (1 - self.alpha_r - self.alpha_t)
+                if use_ref:
+                    blended = blended + self.alpha_r * self.reference(attn, x, x2v)
+                if use_temp:
+                    blended = blended + self.alpha_t * self.temporal(attn, x, x2v)
+                out = blended
+
+        out = heads_merge(out).to(x.dtype)  # (BN, L, H*d)
+        out = attn.to_out[1](attn.to_out[0](out))
+        if input_ndim == 4:
+            out = out.transpose(-1, -2).reshape(bn, channel, height, width)
+        if attn.residual_connection:
+            out = out + residual
+        return out / attn.rescale_output_factor
+
+    # -- branches ----------------------------------------------------------------
+    def reference(self, attn: Attention, x: torch.Tensor, ctx: AttnContext) -> torch.Tensor:
+        """RefAttn (eq. refattn_lora): (BN, L, C) -> (BN, H, L, d). Keyframe: r0 on the start
+        frame with weight 1; interpolation: r0 on the start and r1 on the end frame, 0.5 each."""
+        n = ctx.num_frames
+        bn, length, c = x.shape
+        frames = x.view(bn // n, n, length, c)  # (B, N, L, C)
+        positions = ctx.source_positions()
+        weights = (0.5, 0.5) if ctx.interpolating else (1.0,)
+        out: torch.Tensor | None = None
+        for branch, pos, w in zip(REF_BRANCHES, positions, weights):
+            q = self.ref.q(x, branch)  # (BN, L, C')
+            src = frames[:, pos]  # (B, L, C)
+            k = self.ref.k(src, branch).repeat_interleave(n, dim=0)  # (BN, L, C')
+            v = self.ref.v(src, branch).repeat_interleave(n, dim=0)  # (BN, L, C')
+            o = self._attend(attn, q, k, v, None) * w  # (BN, H, L, d)
+            out = o if out is None else out + o
+        assert out is not None
+        return out
+
+    def temporal(self, attn: Attention, x: torch.Tensor, ctx: AttnContext) -> torch.Tensor:
+        """MHF TempAttn: head h of frame i attends frame (i + h) mod N. (BN, L, C) -> (BN, H, L, d)."""
+        branch = ctx.temporal_branch(self.interp_levels)
+        q = heads_split(self.temp.q(x, branch), attn.heads)  # (BN, H, L, d)
+        k = heads_split(self.temp.k(x, branch), attn.heads)
+        v = heads_split(self.temp.v(x, branch), attn.heads)
+        if attn.norm_q is not None:
+            q = attn.norm_q(q)
+        if attn.norm_k is not None:
+            k = attn.norm_k(k)
+        k = mhf_gather(k, ctx.num_frames)  # (BN, H, L, d), head h from frame (i+h) mod N
+        v = mhf_gather(v, ctx.num_frames)
+        return F.scaled_dot_product_attention(q, k, v)
+
+    # -- helpers -------------------------------------------------------------------
+    @staticmethod
+    def _attend(attn: Attention, q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
+        """Multi-head SDPA of projected (B, L, C') tensors -> (B, H, L, d)."""
+        q, k, v = (heads_split(t, attn.heads) for t in (q, k, v))
+        if attn.norm_q is not None:
+            q = attn.norm_q(q)
+        if attn.norm_k is not None:
+            k = attn.norm_k(k)
+        return F.scaled_dot_product_attention(q, k, v, attn_mask=mask)
+
+    @staticmethod
+    def _active(alpha: torch.Tensor) -> bool:
+        """A branch is computed when its alpha is non-zero or gradients may flow to it (training)."""
+        return torch.is_grad_enabled() and alpha.requires_grad or bool(alpha.detach() != 0)

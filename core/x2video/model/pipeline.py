@@ -1,0 +1,253 @@
+"""`X2VideoModel`: the `RenderModel` the samplers drive (paper Fig. overview): VAE + text encoder + video UNet + schedule.
+
+Holds a video UNet (Hybrid Self-Attention, Masked Cross-Attention) or an image UNet (the
+per-frame XRGB-style baseline: frames run independently), a frozen `AutoencoderKL`, a text
+encoder and the `ModelConfig` with its latent scaling factors. `X2VideoModel.untrained(...)`
+builds randomly initialised weights for tests and demos; its output is noise-like and its
+`content_key()` starts with "untrained".
+"""
+from __future__ import annotations
+
+import copy
+import hashlib
+import logging
+import os
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+from diffusers import AutoencoderKL, UNet2DConditionModel
+from diffusers.schedulers.scheduling_ddim import rescale_zero_terminal_snr
+
+from x2video.conditioning import FrameConditioning
+from x2video.model.api import WindowInputs
+from x2video.model.checkpoint import PARTS, load_into, read_config, save_checkpoint
+from x2video.model.config import ModelConfig, preset
+from x2video.model.inputs import cond_channels, is_video_unet, run_unet
+from x2video.model.shading import classical_shading, shading_available
+from x2video.model.text import TextEncoder, build_text_encoder
+from x2video.model.unet import INTRINSIC_CHANNELS, build_unet, convert_image_to_video
+from x2video.model.vae import area_downsample, build_vae, encode_mode, from_vae_range_rgb, images_to_tensor, irradiance_to_unit, to_vae_range
+
+log = logging.getLogger(__name__)
+
+#: VAE-encoded intrinsic channels and their slots in the conditioning latents
+_VAE_SLOTS = {"albedo": 0, "normal": 4, "roughness": 8, "metallic": 12}
+_IRR_SLOT = 16
+_MASK_SLOT = INTRINSIC_CHANNELS  # 19
+_SHADING_SLOT = INTRINSIC_CHANNELS + 1  # 20
+
+
+def sd_alphas_cumprod(num_train_timesteps: int = 1000, beta_start: float = 0.00085, beta_end: float = 0.012) -> torch.Tensor:
+    """SD 2.1 scaled-linear betas rescaled to zero terminal SNR (Lin et al. 2024, Alg. 1) -> (T,) float64 alphas_cumprod."""
+    betas = torch.linspace(beta_start**0.5, beta_end**0.5, num_train_timesteps, dtype=torch.float64) ** 2
+    betas = rescale_zero_terminal_snr(betas)
+    return torch.cumprod(1.0 - betas, dim=0)
+
+
+def _prepare(module: torch.nn.Module, device: torch.device, dtype: torch.dtype) -> torch.nn.Module:
+    """Frozen, eval mode, on device; cast only when the dtype differs (diffusers warns on every cast)."""
+    module = module.to(device)
+    if next(module.parameters()).dtype != dtype:
+        module = module.to(dtype)
+    return module.eval().requires_grad_(False)
+
+
+class X2VideoModel:
+    """Implements `x2video.model.api.RenderModel` (see there for the contract of each method)."""
+
+    def __init__(
+        self,
+        config: ModelConfig,
+        unet: UNet2DConditionModel,
+        vae: AutoencoderKL,
+        text_encoder: TextEncoder | None = None,
+        lcm_unet: UNet2DConditionModel | None = None,
+        *,
+        device: torch.device | str = "cpu",
+        dtype: torch.dtype = torch.float32,
+        untrained: bool = False,
+        encode_batch: int = 8,
+    ) -> None:
+        self.config = config
+        self.device = torch.device(device)
+        self.dtype = dtype
+        self.unet = _prepare(unet, self.device, dtype)
+        self.vae = _prepare(vae, self.device, dtype)
+        self.lcm_unet = None if lcm_unet is None else _prepare(lcm_unet, self.device, dtype)
+        if text_encoder is None and (config.text.kind == "minilm" or config.text.path):
+            text_encoder = build_text_encoder(config.text.kind, config.text.max_length, config.unet.cross_attention_dim, config.text.path)
+        self.text_encoder = text_encoder
+        self.is_untrained = untrained
+        self.encode_batch = encode_batch
+        self.downsample = config.vae.downsample
+        self.latent_channels = config.vae.latent_channels
+        self.num_train_timesteps = config.num_train_timesteps
+        self._content_key: str | None = None
+        if is_video_unet(unet) != config.video:
+            raise ValueError(f"config says video={config.video} but the UNet has {unet.config.in_channels} input channels")
+
+    # -- construction -------------------------------------------------------------
+    @classmethod
+    def untrained(cls, name: str | ModelConfig = "tiny", *, seed: int = 0, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32, **overrides) -> "X2VideoModel":
+        """UNTRAINED (randomly initialised) weights of a preset, for tests and demos: renders are noise."""
+        cfg = preset(name, **overrides) if isinstance(name, str) else name
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            unet, vae = build_unet(cfg), build_vae(cfg.vae)
+        log.warning("X2VideoModel.untrained(%r): randomly initialised weights, output is not a render", cfg.name)
+        return cls(cfg, unet, vae, device=device, dtype=dtype, untrained=True)
+
+    @classmethod
+    def from_pretrained(cls, directory: str | os.PathLike, *, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32, text_encoder: TextEncoder | None = None) -> "X2VideoModel":
+        """Load a checkpoint directory written by `save_pretrained` (shapes validated by name)."""
+        directory = Path(directory)
+        cfg = read_config(directory)
+        unet, vae = build_unet(cfg), build_vae(cfg.vae)
+        load_into(unet, directory / "unet.safetensors", "unet")
+        load_into(vae, directory / "vae.safetensors", "vae")
+        lcm = None
+        if (directory / "lcm_unet.safetensors").is_file():
+            lcm = build_unet(cfg)
+            load_into(lcm, directory / "lcm_unet.safetensors", "lcm_unet")
+        model = cls(cfg, unet, vae, text_encoder, lcm, device=device, dtype=dtype)
+        model._content_key = None
+        return model
+
+    def save_pretrained(self, directory: str | os.PathLike, *, dtype: torch.dtype = torch.float32) -> Path:
+        """Write config.json + unet/vae[/lcm_unet].safetensors (fp32, bf16 or fp16) into `directory`."""
+        modules = {"unet": self.unet, "vae": self.vae}
+        if self.lcm_unet is not None:
+            modules["lcm_unet"] = self.lcm_unet
+        assert set(modules) <= set(PARTS)
+        return save_checkpoint(directory, self.config, modules, dtype)
+
+    def to_video(self, shading_prior: bool | None = None) -> "X2VideoModel":
+        """A video model converted from this image model (new inputs zero, alphas 0, same VAE and text encoder)."""
+        if self.config.video:
+            raise ValueError("model is already a video model")
+        sp = self.config.shading_prior if shading_prior is None else shading_prior
+        cfg = copy.deepcopy(self.config)
+        cfg.video, cfg.shading_prior = True, sp
+        unet = convert_image_to_video(self.unet, cfg.hybrid, sp)
+        return X2VideoModel(cfg, unet, self.vae, self.text_encoder, device=self.device, dtype=self.dtype, untrained=self.is_untrained)
+
+    # -- RenderModel ---------------------------------------------------------------
+    @property
+    def has_lcm(self) -> bool:
+        return self.lcm_unet is not None
+
+    @property
+    def cond_channels(self) -> int:
+        return cond_channels(self.config.shading_prior)
+
+    def alphas_cumprod(self) -> torch.Tensor:
+        return sd_alphas_cumprod(self.config.num_train_timesteps, self.config.beta_start, self.config.beta_end)
+
+    def content_key(self) -> str:
+        """sha256 of the config and the VAE weights (what `encode_frames` depends on); computed once.
+        Call `reset_content_key()` after changing VAE weights or latent scales in place."""
+        if self._content_key is None:
+            h = hashlib.sha256(self.config.to_json().encode())
+            for k, v in sorted(self.vae.state_dict().items()):
+                h.update(k.encode())
+                h.update(v.detach().to("cpu", torch.float32).contiguous().numpy().tobytes())
+            self._content_key = ("untrained-" if self.is_untrained else "") + h.hexdigest()[:32]
+        return self._content_key
+
+    def reset_content_key(self) -> None:
+        self._content_key = None
+
+    @torch.no_grad()
+    def encode_frames(self, frames: Sequence[FrameConditioning]) -> torch.Tensor:
+        if not frames:
+            raise ValueError("encode_frames: no frames")
+        sizes = {f.size for f in frames}
+        if len(sizes) != 1:
+            raise ValueError(f"encode_frames: frames differ in size: {sorted(sizes)}")
+        (H, W), f = sizes.pop(), self.downsample
+        if H % f or W % f:
+            raise ValueError(f"frame {frames[0].frame_index}: size {H}x{W} is not a multiple of the VAE factor {f}")
+        h, w = H // f, W // f
+        scales = self.config.latent_scales
+        out = torch.zeros(len(frames), self.cond_channels, h, w, device=self.device, dtype=self.dtype)  # (N, C_cond, h, w)
+        for name, slot in _VAE_SLOTS.items():
+            idx = [i for i, fr in enumerate(frames) if fr.channels.get(name) is not None]
+            if idx:
+                imgs = [to_vae_range(name, self._checked(frames[i], name, H, W)) for i in idx]
+                out[idx, slot : slot + 4] = self._encode(imgs) * scales[name]
+        idx = [i for i, fr in enumerate(frames) if fr.channels.get("irradiance") is not None]
+        if idx:
+            irr = images_to_tensor([irradiance_to_unit(self._checked(frames[i], "irradiance", H, W)) for i in idx], self.device, self.dtype)
+            out[idx, _IRR_SLOT : _IRR_SLOT + 3] = area_downsample(irr, (h, w))  # (n, 3, h, w) in [-1, 1]
+        masks = torch.from_numpy(np.stack([np.asarray(fr.amr_mask, np.float32) for fr in frames]))[:, None]  # (N, 1, H, W)
+        masks_lat = area_downsample(masks.to(self.device, self.dtype), (h, w))  # (N, 1, h, w)
+        out[:, _MASK_SLOT : _MASK_SLOT + 1] = masks_lat
+        if self.config.shading_prior:
+            idx = [i for i, fr in enumerate(frames) if shading_available(fr.channels)]
+            if idx:
+                imgs = [to_vae_range("shading", classical_shading(frames[i].channels, frames[i].amr_mask)) for i in idx]
+                z = self._encode(imgs) * scales["rgb"]  # (n, 4, h, w)
+                out[idx, _SHADING_SLOT : _SHADING_SLOT + 4] = z * (1 - masks_lat[idx])  # zero where A|M|R masked out
+        return out
+
+    @torch.no_grad()
+    def encode_image(self, rgb_linear: np.ndarray) -> torch.Tensor:
+        rgb = np.asarray(rgb_linear, np.float32)
+        if rgb.ndim != 3 or rgb.shape[-1] != 3:
+            raise ValueError(f"encode_image: expected an (H, W, 3) image, got shape {rgb.shape}")
+        if rgb.shape[0] % self.downsample or rgb.shape[1] % self.downsample:
+            raise ValueError(f"encode_image: size {rgb.shape[0]}x{rgb.shape[1]} is not a multiple of {self.downsample}")
+        return self._encode([to_vae_range("rgb", rgb)])[0] * self.config.latent_scales["rgb"]  # (4, h, w)
+
+    def encode_prompts(self, prompts: Sequence[str]) -> torch.Tensor:
+        if self.text_encoder is None:
+            raise ValueError(f"model {self.config.name!r} has no text encoder (config.text.path is empty)")
+        return self.text_encoder.encode(list(prompts)).to(self.device, self.dtype)  # (P, L, D)
+
+    @torch.no_grad()
+    def predict_v(self, x_t: torch.Tensor, t: torch.Tensor, window: WindowInputs, *, lcm: bool = False) -> torch.Tensor:
+        unet = self.unet
+        if lcm:
+            if self.lcm_unet is None:
+                raise ValueError("sampler 'lcm' needs distilled weights; this model has no lcm_unet.safetensors")
+            unet = self.lcm_unet
+        n = x_t.shape[0]
+        dev, dt = self.device, self.dtype
+        has_local = window.text_local.shape[0] > 0
+        return run_unet(
+            unet,
+            x_t.to(dev, dt),
+            torch.as_tensor(t, device=dev),
+            window.cond.to(dev, dt),
+            window.ref.to(dev, dt),
+            num_frames=n,
+            text_global=window.text_global.to(dev, dt),
+            ref_positions=window.ref_positions,
+            mode=window.mode,
+            level=window.level,
+            text_local=window.text_local.to(dev, dt)[None] if has_local else None,  # (1, P, L, D)
+            local_masks=window.local_masks.to(dev, dt) if has_local else None,  # (N, P, H, W)
+        )
+
+    @torch.no_grad()
+    def decode(self, latents: torch.Tensor) -> np.ndarray:
+        z = latents.to(self.device, self.dtype) / self.config.latent_scales["rgb"]  # (N, 4, h, w)
+        out = [from_vae_range_rgb(self.vae.decode(z[i : i + self.encode_batch]).sample) for i in range(0, z.shape[0], self.encode_batch)]
+        return torch.cat(out).cpu().numpy().astype(np.float32)  # (N, H, W, 3) linear
+
+    # -- helpers ------------------------------------------------------------------------
+    def _encode(self, images: list[np.ndarray]) -> torch.Tensor:
+        """(H, W, 3) arrays in [-1, 1] -> (n, 4, h, w) unscaled posterior-mode latents."""
+        return encode_mode(self.vae, images_to_tensor(images, self.device, self.dtype), self.encode_batch)
+
+    @staticmethod
+    def _checked(frame: FrameConditioning, name: str, H: int, W: int) -> np.ndarray:
+        x = frame.channels[name]
+        assert x is not None
+        if x.shape[:2] != (H, W):
+            raise ValueError(f"frame {frame.frame_index}: channel {name!r} is {x.shape[0]}x{x.shape[1]}, mask is {H}x{W}")
+        if not np.all(np.isfinite(x)):
+            raise ValueError(f"frame {frame.frame_index}: channel {name!r} holds NaN/Inf")
+        return x
