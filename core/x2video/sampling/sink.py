@@ -1,0 +1,164 @@
+"""`FrameSink`: writes a render's `FramesReady` events to an MP4 file or an EXR folder, in frame order, atomically.
+
+Recursive Sampling finishes frames out of order (keyframes first), so frames are staged on
+disk in a hidden folder beside the output as they arrive (memory holds none of them) and
+the output appears under its final name only when the render finishes: an MP4 is encoded
+from the staged frames into a temporary file and renamed; an EXR folder is renamed into
+place. A cancelled or failed render removes the staging folder and leaves no output.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from x2video.io.atomic import atomic_path
+from x2video.sampling.events import FramesReady, RenderCancelled, RenderEvent, RenderFailed, RenderFinished
+
+log = logging.getLogger(__name__)
+
+
+def _write_exr(path: Path, rgb: np.ndarray) -> None:
+    """Linear RGB (H, W, 3) as a half-float EXR with channels R, G, B."""
+    import OpenImageIO as oiio
+
+    h, w, _ = rgb.shape
+    spec = oiio.ImageSpec(w, h, 3, oiio.HALF)
+    spec.channelnames = ("R", "G", "B")
+    out = oiio.ImageOutput.create(str(path))
+    if out is None or not out.open(str(path), spec):
+        raise OSError(f"cannot write {path}: {oiio.geterror()}")
+    ok = out.write_image(np.ascontiguousarray(rgb, dtype=np.float32))
+    out.close()
+    if not ok:
+        raise OSError(f"cannot write {path}: {oiio.geterror()}")
+
+
+def _encode_mp4(path: Path, frames: Iterator[np.ndarray], fps: float, crf: int = 18) -> int:
+    """H.264 yuv420p MP4 of linear RGB frames (tone-mapped with `channels.tonemap`); returns the frame count."""
+    from fractions import Fraction
+
+    import av
+
+    from x2video.channels import tonemap
+
+    count = 0
+    with av.open(str(path), mode="w", format="mp4") as container:
+        stream = container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1000))
+        stream.pix_fmt = "yuv420p"
+        stream.options = {"crf": str(crf)}
+        for rgb in frames:
+            h, w = rgb.shape[:2]
+            if count == 0:
+                if h % 2 or w % 2:
+                    raise ValueError(f"MP4 (yuv420p) needs an even frame size, got {w}x{h}")
+                stream.width, stream.height = w, h
+            srgb = (tonemap(rgb) * 255.0 + 0.5).astype(np.uint8)  # (H, W, 3)
+            for packet in stream.encode(av.VideoFrame.from_ndarray(srgb, format="rgb24")):
+                container.mux(packet)
+            count += 1
+        for packet in stream.encode():
+            container.mux(packet)
+    return count
+
+
+class FrameSink:
+    """An `on_event` callback (or part of one) that writes finished frames to `out`.
+
+    `out` ending in .mp4 gives an H.264 MP4 at `fps`; anything else is a folder of
+    `000123.exr` files (shot frame numbers, linear half float, channels R, G, B).
+    `expected` (the frame indices of the render), when given, is checked on finish.
+    """
+
+    def __init__(self, out: str | Path, *, fps: float = 10.0, expected: list[int] | None = None) -> None:
+        self.out = Path(out)
+        self.fps = float(fps)
+        self.expected = None if expected is None else sorted(expected)
+        self.mp4 = self.out.suffix.lower() == ".mp4"
+        parent = self.out.parent
+        if not parent.is_dir():
+            raise FileNotFoundError(f"output folder {parent} does not exist")
+        if self.out.exists() and self.mp4 == self.out.is_dir():
+            kind = "a folder" if self.out.is_dir() else "a file"
+            raise ValueError(f"output {self.out} exists and is {kind}")
+        self._staging: Path | None = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.", suffix=".partial", dir=parent))
+        self._frames: set[int] = set()
+        self.result: Path | None = None
+
+    def _frame_path(self, index: int) -> Path:
+        assert self._staging is not None
+        return self._staging / (f"{index:06d}.npy" if self.mp4 else f"{index:06d}.exr")
+
+    def __call__(self, event: RenderEvent) -> None:
+        if isinstance(event, FramesReady):
+            for index, rgb in event.frames.items():
+                self.add(index, rgb)
+        elif isinstance(event, RenderFinished):
+            self.finish()
+        elif isinstance(event, (RenderCancelled, RenderFailed)):
+            self.abort()
+
+    def add(self, index: int, rgb: np.ndarray) -> None:
+        """Stage one linear RGB (H, W, 3) frame."""
+        if self._staging is None:
+            raise RuntimeError(f"frame sink for {self.out} is already closed")
+        if index in self._frames:
+            raise ValueError(f"frame {index} arrived twice")
+        if self.mp4:
+            np.save(self._frame_path(index), np.asarray(rgb, dtype=np.float16))
+        else:
+            _write_exr(self._frame_path(index), rgb)
+        self._frames.add(index)
+
+    def finish(self) -> Path:
+        """Write the output under its final name; returns it."""
+        if self._staging is None:
+            raise RuntimeError(f"frame sink for {self.out} is already closed")
+        order = sorted(self._frames)
+        try:
+            if not order:
+                raise ValueError(f"no frames were rendered for {self.out}")
+            if self.expected is not None and order != self.expected:
+                missing = sorted(set(self.expected) - set(order))
+                raise ValueError(f"render for {self.out} is missing frames {missing[:10]}")
+            if self.mp4:
+                frames = (np.load(self._frame_path(i)).astype(np.float32) for i in order)
+                with atomic_path(self.out) as tmp:
+                    _encode_mp4(tmp, frames, self.fps)
+            else:
+                self._replace_folder()
+        except BaseException:
+            self.abort()
+            raise
+        self.abort()  # removes what is left of the staging folder
+        self.result = self.out
+        log.info("wrote %d frames to %s", len(order), self.out)
+        return self.out
+
+    def _replace_folder(self) -> None:
+        assert self._staging is not None
+        old = None
+        if self.out.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.", suffix=".old", dir=self.out.parent))
+            os.replace(self.out, old / "previous")
+        os.replace(self._staging, self.out)
+        self._staging = None
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+
+    def abort(self) -> None:
+        """Drop everything staged; nothing appears under the output name."""
+        if self._staging is not None:
+            shutil.rmtree(self._staging, ignore_errors=True)
+            self._staging = None
+
+    def __enter__(self) -> "FrameSink":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.abort()

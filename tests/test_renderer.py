@@ -1,0 +1,211 @@
+"""Renderer with a fake RenderModel: event order, seeding, cache, reference plumbing, cancel, output sink."""
+from __future__ import annotations
+
+import dataclasses
+
+import av
+import numpy as np
+import pytest
+import torch
+from sampling_fake import FakeModel, make_shot
+
+from x2video.sampling.events import (
+    CancelToken,
+    FramesReady,
+    RenderCancelled,
+    RenderFailed,
+    RenderFinished,
+    RenderSettings,
+    RenderStarted,
+    StepDone,
+    WindowStarted,
+)
+from x2video.sampling.renderer import Renderer, select_steps
+from x2video.sampling.sink import FrameSink
+
+
+def run(renderer: Renderer, shot, settings: RenderSettings, edits=None, cancel=None, extra=None) -> list:
+    events: list = []
+
+    def on_event(e) -> None:
+        events.append(e)
+        if extra is not None:
+            extra(e)
+
+    renderer.render(shot, edits, settings, on_event=on_event, cancel=cancel)
+    return events
+
+
+def frames_of(events: list) -> dict[int, np.ndarray]:
+    out: dict[int, np.ndarray] = {}
+    for e in events:
+        if isinstance(e, FramesReady):
+            assert not set(e.frames) & set(out)
+            out.update(e.frames)
+    return out
+
+
+@pytest.mark.parametrize("scheme", ["recursive", "sequential"])
+def test_event_order(scheme: str) -> None:
+    shot = make_shot(18)
+    settings = RenderSettings(steps=3, window=5, scheme=scheme)
+    events = run(Renderer(FakeModel()), shot, settings)
+    assert isinstance(events[0], RenderStarted) and isinstance(events[-1], RenderFinished)
+    assert events[0].num_frames == 18 and events[-1].num_frames == 18
+    # per window: WindowStarted, StepDone 1..steps, FramesReady
+    body = events[1:-1]
+    assert len(body) % 5 == 0 and len(body) // 5 == events[0].num_windows
+    for i in range(0, len(body), 5):
+        w, steps, ready = body[i], body[i + 1 : i + 4], body[i + 4]
+        assert isinstance(w, WindowStarted) and isinstance(ready, FramesReady)
+        assert [(s.window, s.step, s.steps) for s in steps] == [(w.index, 1, 3), (w.index, 2, 3), (w.index, 3, 3)]
+        assert ready.window == w.index and ready.level == w.level and ready.mode == w.mode
+    ready = [e for e in events if isinstance(e, FramesReady)]
+    levels = [e.level for e in ready]
+    assert levels == sorted(levels, reverse=True)
+    if scheme == "recursive":
+        assert ready[0].mode == "key" and set(ready[0].frames) == {0, 16, 17}
+        assert all(e.mode == "interp" for e in ready[1:])
+        assert events[0].levels == [3, 2, 1]
+    frames = frames_of(events)
+    assert sorted(frames) == list(range(18))
+    assert all(f.shape == (16, 24, 3) and f.dtype == np.float32 for f in frames.values())
+
+
+def test_same_seed_same_frames_other_seed_differs() -> None:
+    shot = make_shot(9)
+    s = RenderSettings(steps=2, window=5, seed=7)
+    a = frames_of(run(Renderer(FakeModel()), shot, s))
+    b = frames_of(run(Renderer(FakeModel()), shot, s))
+    c = frames_of(run(Renderer(FakeModel()), shot, dataclasses.replace(s, seed=8)))
+    assert all(np.array_equal(a[i], b[i]) for i in a)
+    assert any(not np.array_equal(a[i], c[i]) for i in a)
+
+
+def test_conditioning_encoded_once_per_frame_and_cached_across_renders() -> None:
+    shot = make_shot(17)
+    model = FakeModel()
+    renderer = Renderer(model)
+    run(renderer, shot, RenderSettings(steps=1, window=5))
+    # level-2 frames appear in up to three windows; each is still encoded once
+    assert model.encoded_frames == 17
+    st = renderer.cache_stats()
+    assert st.misses == 17 and st.hits == 8 and st.entries == 17
+    run(renderer, shot, RenderSettings(steps=1, window=5, seed=3))
+    assert model.encoded_frames == 17 and renderer.cache_stats().hits == 8 + 25
+    # changed content misses; another model's weights miss
+    run(renderer, make_shot(17, seed=1), RenderSettings(steps=1, window=5))
+    assert model.encoded_frames == 34
+    other = Renderer(FakeModel(key="fake-v2"), cache=renderer.cache)
+    run(other, shot, RenderSettings(steps=1, window=5))
+    assert other.model.encoded_frames == 17
+
+
+def test_interpolation_windows_read_the_produced_end_latents() -> None:
+    shot = make_shot(17)
+    model = FakeModel()
+    renderer = Renderer(model)
+    events = run(renderer, shot, RenderSettings(steps=1, window=5))
+    order = [f for e in events if isinstance(e, FramesReady) for f in e.frames]
+    produced = dict(zip(order, torch.cat(model.decoded)))  # frame -> its clean latent
+    starts = [e for e in events if isinstance(e, WindowStarted)]
+    assert len(model.windows) == len(starts)  # one predict call per window at 1 step
+    for w, inputs in zip(starts, model.windows):
+        if w.mode == "interp":
+            assert inputs.ref_positions == (0, len(w.frames) - 1) and inputs.mode == "interp"
+            assert torch.equal(inputs.ref[0], produced[w.frames[0]]) and torch.equal(inputs.ref[-1], produced[w.frames[-1]])
+            assert inputs.ref[1:-1].abs().sum() == 0
+        else:
+            assert inputs.ref_positions == () and inputs.ref.abs().sum() == 0
+    # latents are dropped after their last use: only the 5 keyframes are ever held, not 17
+    assert renderer.peak_latents == 5
+
+
+def test_long_render_holds_few_latents() -> None:
+    shot = make_shot(65, height=8, width=8)
+    renderer = Renderer(FakeModel())
+    run(renderer, shot, RenderSettings(steps=1, window=5))
+    assert renderer.peak_latents == 17  # keyframes + level-2 frames, never level-1 frames
+
+
+def test_frame_range_and_sequential_references() -> None:
+    shot = make_shot(12)
+    model = FakeModel()
+    events = run(Renderer(model), shot, RenderSettings(steps=1, window=4, scheme="sequential", frames=(3, 10)))
+    assert sorted(frames_of(events)) == list(range(3, 10))
+    starts = [e for e in events if isinstance(e, WindowStarted)]
+    assert [w.frames for w in starts] == [[3, 4, 5, 6], [6, 7, 8, 9]]
+    assert model.windows[1].ref_positions == (0,) and model.windows[1].mode == "seq"
+
+
+def test_presets_and_lcm() -> None:
+    assert (select_steps(RenderSettings(preset="fast"), FakeModel()).sampler, select_steps(RenderSettings(preset="fast"), FakeModel()).steps) == ("ddim", 4)
+    fast = select_steps(RenderSettings(preset="fast"), FakeModel(has_lcm=True))
+    assert (fast.sampler, fast.steps) == ("lcm", 2)
+    q = select_steps(RenderSettings(preset="quality", steps=3), FakeModel(has_lcm=True))
+    assert (q.sampler, q.steps) == ("ddim", 20)
+    events = run(Renderer(FakeModel(has_lcm=True)), make_shot(5), RenderSettings(preset="fast"))
+    assert [e.steps for e in events if isinstance(e, StepDone)] == [2, 2]
+    with pytest.raises(ValueError, match="LCM weights"):
+        run(Renderer(FakeModel()), make_shot(5), RenderSettings(sampler="lcm", steps=2))
+
+
+def test_bad_input_fails_with_event() -> None:
+    events: list = []
+    shot = make_shot(5, height=12, width=24)  # 12 is not a multiple of 8
+    with pytest.raises(ValueError, match="multiple of the model's downsampling"):
+        Renderer(FakeModel()).render(shot, None, RenderSettings(), on_event=events.append)
+    assert isinstance(events[-1], RenderFailed) and "downsampling" in events[-1].error
+
+
+def test_cancel_mid_render_keeps_finished_frames(tmp_path) -> None:
+    shot = make_shot(17)
+    model = FakeModel()
+    token = CancelToken()
+    model.on_predict = lambda n: token.cancel() if n == 3 * 2 + 1 else None  # first step of window 2
+    out = tmp_path / "out.mp4"
+    sink = FrameSink(out, fps=10)
+    events = run(Renderer(model), shot, RenderSettings(steps=3, window=5), cancel=token, extra=sink)
+    assert model.predict_calls == 7  # stopped within one step
+    assert isinstance(events[-1], RenderCancelled)
+    done = frames_of(events)
+    assert events[-1].frames_done == sorted(done) == [0, 1, 2, 3, 4, 8, 12, 16]
+    assert not any(isinstance(e, RenderFinished) for e in events)
+    assert list(tmp_path.iterdir()) == []  # no partial output, no staging left
+
+
+@pytest.mark.parametrize("name", ["out.mp4", "frames"])
+def test_sink_writes_in_frame_order(tmp_path, name: str) -> None:
+    shot = make_shot(9, height=16, width=24)
+    out = tmp_path / name
+    sink = FrameSink(out, fps=12, expected=list(range(9)))
+    events = run(Renderer(FakeModel()), shot, RenderSettings(steps=1, window=5), extra=sink)
+    frames = frames_of(events)
+    assert sink.result == out and sorted(p.name for p in tmp_path.iterdir()) == [name]
+    if name.endswith(".mp4"):
+        with av.open(str(out)) as c:
+            decoded = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
+        assert len(decoded) == 9 and decoded[0].shape == (16, 24, 3)
+        from x2video.channels import tonemap
+
+        # frames arrive out of order (keyframes 0, 4, 8 first) but the video is in frame order
+        for i in (1, 4, 7):
+            want = tonemap(frames[i]) * 255
+            errs = [np.abs(d.astype(np.float32) - want).mean() for d in decoded]
+            assert int(np.argmin(errs)) == i
+    else:
+        import OpenImageIO as oiio
+
+        files = sorted(p.name for p in out.iterdir())
+        assert files == [f"{i:06d}.exr" for i in range(9)]
+        buf = oiio.ImageBuf(str(out / "000005.exr"))
+        assert buf.spec().channelnames == ("R", "G", "B")
+        np.testing.assert_allclose(buf.get_pixels(oiio.FLOAT), frames[5], atol=2e-3)
+
+
+def test_sink_rejects_incomplete(tmp_path) -> None:
+    sink = FrameSink(tmp_path / "a.mp4", expected=[0, 1])
+    sink.add(0, np.zeros((4, 4, 3), np.float32))
+    with pytest.raises(ValueError, match="missing frames \\[1\\]"):
+        sink.finish()
+    assert list(tmp_path.iterdir()) == []
