@@ -1,0 +1,141 @@
+"""Render speed of the tiny preset (paper Tab. acceleration "Time"): seconds per frame for DDIM-20, DDIM-4 and LCM-2,
+Recursive vs Sequential sampling, on this machine's CPU or on a GPU.
+
+Speed does not depend on the weights, so this runs UNTRAINED tiny weights (and, for LCM-2, an
+untrained copy of the UNet standing in for the distilled one: the same network, so the same
+cost per step) on a synthetic shot with all five channels. It times `Renderer.render` end to
+end: conditioning encoding, every UNet call, VAE decoding. Quality figures live elsewhere.
+
+    python bench/render.py [--frames 17] [--size 320x224] [--device cpu|cuda] [--fp16]
+
+Results are merged into bench/results/render.json under a key naming the device, so CPU and
+GPU runs sit side by side:
+    {"runs": {"<device label>": {"device", "dtype", "torch", "size": [W, H], "frames", "window",
+      "weights": "untrained tiny", "results": [{"sampler", "steps", "scheme", "seconds",
+      "seconds_per_frame", "first_frames_seconds", "windows", "unet_calls"}]}}}
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from x2video.io.atomic import write_json_atomic
+from x2video.model.pipeline import X2VideoModel
+from x2video.sampling.events import FramesReady, RenderSettings, StepDone
+from x2video.sampling.renderer import Renderer
+from x2video.shot import ArrayShot
+
+RESULTS = Path(__file__).resolve().parent / "results" / "render.json"
+CONFIGS = [("ddim", 20), ("ddim", 4), ("lcm", 2)]
+
+
+def synthetic_shot(frames: int, width: int, height: int, seed: int = 0) -> ArrayShot:
+    """Random but valid channels (the content does not change the cost)."""
+    rng = np.random.default_rng(seed)
+    n = rng.normal(size=(frames, height, width, 3)).astype(np.float32)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    return ArrayShot(
+        {
+            "albedo": rng.uniform(0, 1, (frames, height, width, 3)),
+            "normal": n,
+            "roughness": rng.uniform(0, 1, (frames, height, width, 1)),
+            "metallic": rng.uniform(0, 1, (frames, height, width, 1)),
+            "irradiance": rng.uniform(0, 2, (frames, height, width, 3)),
+        },
+        fps=10.0,
+        source="<synthetic bench shot>",
+    )
+
+
+def device_label(device: torch.device) -> str:
+    if device.type == "cuda":
+        return f"cuda: {torch.cuda.get_device_name(device)}"
+    return f"cpu: {platform.processor() or platform.machine()}, {os.cpu_count()} cores (torch threads {torch.get_num_threads()})"
+
+
+def time_render(renderer: Renderer, shot: ArrayShot, settings: RenderSettings) -> dict:
+    first: list[float] = []
+    steps = [0]
+    t0 = time.perf_counter()
+
+    def on_event(e) -> None:
+        if isinstance(e, FramesReady) and not first:
+            first.append(time.perf_counter() - t0)
+        elif isinstance(e, StepDone):
+            steps[0] += 1
+
+    windows = renderer.plan(shot, settings)
+    renderer.cache.clear()  # time the whole render, conditioning encoding included
+    renderer.render(shot, None, settings, on_event=on_event)
+    if renderer.model.device.type == "cuda":
+        torch.cuda.synchronize()
+    seconds = time.perf_counter() - t0
+    return {
+        "sampler": settings.sampler,
+        "steps": settings.steps,
+        "scheme": settings.scheme,
+        "seconds": round(seconds, 3),
+        "seconds_per_frame": round(seconds / shot.num_frames, 4),
+        "first_frames_seconds": round(first[0], 3),
+        "windows": len(windows),
+        "unet_calls": steps[0],
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=17, help="shot length L (17 = one keyframe window + 4 interpolation windows at N=5)")
+    ap.add_argument("--size", default="320x224", help="WxH")
+    ap.add_argument("--window", type=int, default=5)
+    ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    ap.add_argument("--fp16", action="store_true")
+    ap.add_argument("--out", type=Path, default=RESULTS)
+    args = ap.parse_args()
+    width, height = (int(v) for v in args.size.split("x"))
+    device = torch.device(args.device)
+    dtype = torch.float16 if args.fp16 else torch.float32
+
+    base = X2VideoModel.untrained("tiny", device=device, dtype=dtype)
+    lcm = X2VideoModel(base.config, base.unet, base.vae, base.text_encoder, copy.deepcopy(base.unet), device=device, dtype=dtype, untrained=True)
+    shot = synthetic_shot(args.frames, width, height)
+    renderers = {"ddim": Renderer(base), "lcm": Renderer(lcm)}
+    # warm-up: kernel selection, allocator, text encoder loading
+    for r in renderers.values():
+        r.render(shot, None, RenderSettings(steps=1, window=args.window, sampler="lcm" if r.model.has_lcm else "ddim"))
+
+    results = []
+    for scheme in ("recursive", "sequential"):
+        for sampler, steps in CONFIGS:
+            s = RenderSettings(sampler=sampler, steps=steps, window=args.window, scheme=scheme)
+            res = time_render(renderers[sampler], shot, s)
+            results.append(res)
+            print(f"{scheme:10s} {sampler}-{steps:<3d} {res['seconds_per_frame']:.3f} s/frame  "
+                  f"({res['seconds']:.1f} s, {res['windows']} windows, first frames after {res['first_frames_seconds']:.2f} s)")
+
+    label = device_label(device)
+    data = json.loads(args.out.read_text()) if args.out.is_file() else {"runs": {}}
+    data.setdefault("runs", {})[label] = {
+        "device": label,
+        "dtype": str(dtype).replace("torch.", ""),
+        "torch": torch.__version__,
+        "size": [width, height],
+        "frames": args.frames,
+        "window": args.window,
+        "weights": "untrained tiny (speed only); LCM-2 uses an untrained copy of the UNet",
+        "note": "end to end: conditioning encoding (cold cache), all UNet calls, VAE decoding",
+        "results": results,
+    }
+    write_json_atomic(args.out, data)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

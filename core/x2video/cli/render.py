@@ -1,0 +1,156 @@
+"""`x2video render`: render a shot (optionally with a project's edits) to an MP4 or an EXR folder."""
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+from x2video.sampling.events import (
+    FramesReady,
+    RenderEvent,
+    RenderSettings,
+    RenderStarted,
+    StepDone,
+)
+
+log = logging.getLogger(__name__)
+
+#: repository resources/ (shipped weights live in a sub-folder holding config.json + unet.safetensors)
+RESOURCES = Path(__file__).resolve().parents[3] / "resources"
+DEMO_CACHE = Path("~/.cache/x2video/demo").expanduser()
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    d = RenderSettings()
+    p = subparsers.add_parser(
+        "render",
+        help="render a shot to video with the X2Video model",
+        description="Render SHOT (a shot folder, or --demo) to OUT: a .mp4 file or a folder of EXR frames.",
+    )
+    p.add_argument("shot", nargs="?", type=Path, help="shot folder (or any layout `x2video info` reads)")
+    p.add_argument("--demo", action="store_true", help="render the bundled procedural demo shot (generated on first use)")
+    p.add_argument("--demo-dir", type=Path, default=DEMO_CACHE, help=f"where the demo shot is cached (default {DEMO_CACHE})")
+    p.add_argument("--project", type=Path, help="project file with edits, masks, prompts and reference frame")
+    p.add_argument("--out", type=Path, required=True, help="output: OUT.mp4 (H.264, sRGB) or a folder of linear EXR frames")
+    p.add_argument("--preset", choices=["fast", "quality"], help="fast = LCM-2 with distilled weights, else DDIM-4; quality = DDIM-20")
+    p.add_argument("--sampler", choices=["ddim", "lcm"], default=d.sampler, help="sampler (ignored with --preset)")
+    p.add_argument("--steps", type=int, default=d.steps, help=f"denoising steps per window (default {d.steps}; ignored with --preset)")
+    p.add_argument("--seed", type=int, default=d.seed, help="seed of the initial noise")
+    p.add_argument("--scheme", choices=["recursive", "sequential"], default=d.scheme, help="frame schedule")
+    p.add_argument("--window", type=int, default=d.window, help=f"frames per window N (default {d.window})")
+    p.add_argument("--frames", type=_frame_range, help="render only frames START:STOP of the shot")
+    p.add_argument("--weights", type=Path, help="model checkpoint folder (default: the weights shipped in resources/)")
+    p.add_argument("--untrained", action="store_true", help="use untrained tiny weights (smoke test: the output is noise)")
+    p.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
+    p.add_argument("--fp16", action="store_true", help="half precision (GPU)")
+    p.add_argument("--fps", type=float, help="MP4 frame rate (default: the shot's)")
+    p.set_defaults(func=run)
+
+
+def _frame_range(text: str) -> tuple[int, int]:
+    try:
+        a, b = (int(v) for v in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--frames wants START:STOP, got {text!r}") from None
+    return a, b
+
+
+def shipped_weights(resources: Path = RESOURCES) -> Path | None:
+    """The first folder under resources/ holding a model checkpoint (config.json + unet.safetensors)."""
+    if not resources.is_dir():
+        return None
+    found = sorted(p.parent for p in resources.glob("*/config.json") if (p.parent / "unet.safetensors").is_file())
+    return found[0] if found else None
+
+
+def load_model(weights: Path | None, untrained: bool, device: str | None, fp16: bool) -> Any:
+    import torch
+
+    from x2video.model.pipeline import X2VideoModel
+
+    dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
+    dtype = torch.float16 if fp16 else torch.float32
+    if untrained:
+        if weights is not None:
+            raise ValueError("--untrained and --weights exclude each other")
+        return X2VideoModel.untrained("tiny", device=dev, dtype=dtype)
+    if weights is None:
+        weights = shipped_weights()
+        if weights is None:
+            raise FileNotFoundError(
+                f"no trained weights in {RESOURCES} (a folder with config.json and unet.safetensors). "
+                "Train them with `x2video train ...` (see README), pass --weights DIR, "
+                "or add --untrained for a smoke render with random weights"
+            )
+    if not (weights / "config.json").is_file():
+        raise FileNotFoundError(f"{weights} is not a model checkpoint folder (no config.json)")
+    return X2VideoModel.from_pretrained(weights, device=dev, dtype=dtype)
+
+
+def load_inputs(args: argparse.Namespace) -> tuple[Any, Any, Path | None]:
+    """(shot, edits or None, folder that relative paths in the project refer to)."""
+    from x2video.io.shotdir import load_shot
+
+    if args.demo == (args.shot is not None):
+        raise ValueError("give either a SHOT folder or --demo")
+    if args.demo:
+        from x2video.procedural.demo import ensure_demo
+
+        folder = ensure_demo(args.demo_dir)
+    else:
+        folder = args.shot
+        if not folder.exists():
+            raise FileNotFoundError(f"shot {folder} does not exist")
+    shot = load_shot(folder)
+    if args.project is None:
+        return shot, None, None
+    from x2video.edits import load_project
+
+    if not args.project.is_file():
+        raise FileNotFoundError(f"project file {args.project} does not exist")
+    return shot, load_project(args.project), args.project.parent
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from x2video.sampling.renderer import Renderer, select_steps
+    from x2video.sampling.sink import FrameSink
+
+    settings = RenderSettings(
+        sampler=args.sampler,
+        steps=args.steps,
+        seed=args.seed,
+        window=args.window,
+        scheme=args.scheme,
+        frames=args.frames,
+        preset=args.preset,
+    )
+    shot, edits, base_dir = load_inputs(args)
+    model = load_model(args.weights, args.untrained, args.device, args.fp16)
+    resolved = select_steps(settings, model)
+    start, stop = settings.frames or (0, shot.num_frames)
+    renderer = Renderer(model)
+    t0 = time.perf_counter()
+    bar = tqdm(unit="step", desc=f"render {resolved.sampler}-{resolved.steps}", dynamic_ncols=True)
+    with FrameSink(args.out, fps=args.fps or shot.info.fps, expected=list(range(start, stop))) as sink:
+
+        def on_event(event: RenderEvent) -> None:
+            if isinstance(event, RenderStarted):
+                bar.reset(total=event.num_windows * resolved.steps)
+            elif isinstance(event, StepDone):
+                bar.update(1)
+            elif isinstance(event, FramesReady):
+                bar.set_postfix(level=event.level, frames=len(event.frames))
+            sink(event)
+
+        try:
+            renderer.render(shot, edits, settings, on_event=on_event, base_dir=base_dir)
+        finally:
+            bar.close()
+    seconds = time.perf_counter() - t0
+    n = stop - start
+    print(f"wrote {n} frames to {args.out} in {seconds:.1f} s ({seconds / n:.2f} s/frame)")
+    return 0
