@@ -1,0 +1,154 @@
+"""`FolderShot`: a folder per channel (`albedo/`, `normal/`, ...), frames as EXR/PNG/JPG/TIFF, read lazily.
+
+Covers our own shot folder (docs/SHOT_FORMAT.md, with shot.json/cameras.json) and outside
+footage laid out the same way with any `<prefix><number>.<ext>` numbering. Loading reads only
+the headers of each channel's first frame; pixels are read when a frame is asked for and kept
+in a small LRU cache.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from x2video.channels import SPECS
+from x2video.io.cache import LRU
+from x2video.io.convention import exposure_scale, log_luminance_sum, to_memory
+from x2video.io.image import read_image, read_spec
+from x2video.io.sequence import find_frames
+from x2video.io.shotdir import parse_cameras_json, parse_shot_json
+from x2video.shot import Shot, ShotInfo
+
+log = logging.getLogger(__name__)
+
+#: folder names accepted for each channel besides its own name
+ALIASES: dict[str, tuple[str, ...]] = {
+    "albedo": ("basecolor", "base_color"),
+    "normal": ("normals",),
+    "irradiance": ("shading",),
+    "rgb": ("beauty", "image"),
+    "ids": ("id", "object_id"),
+}
+#: at most this many frames (evenly spaced) are read to measure a shot's irradiance exposure
+EXPOSURE_SAMPLES = 16
+
+
+def channel_folders(root: Path) -> dict[str, Path]:
+    """Channel name -> folder, for the channel folders present in `root`."""
+    found: dict[str, Path] = {}
+    for name in (*SPECS, "motion"):
+        for cand in (name, *ALIASES.get(name, ())):
+            d = root / cand
+            if d.is_dir():
+                found[name] = d
+                break
+    return found
+
+
+class FolderShot(Shot):
+    """A lazily read folder-per-channel shot.
+
+    cache_size: how many decoded (channel, frame) arrays to keep (LRU).
+    normalize_irradiance: None = as shot.json says (`irradiance_normalized`), else force on/off:
+        when on, irradiance is scaled once per shot by the XRGB exposure factor (measured on up to
+        EXPOSURE_SAMPLES frames) and `info.irradiance_scale` holds the factor.
+    """
+
+    def __init__(self, root: str | Path, *, cache_size: int = 24, normalize_irradiance: bool | None = None):
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise FileNotFoundError(f"{self.root}: shot folder does not exist")
+        folders = channel_folders(self.root)
+        meta: dict[str, Any] = {}
+        if (self.root / "shot.json").is_file():
+            meta = parse_shot_json(self.root / "shot.json")
+        if not folders:
+            raise ValueError(
+                f"{self.root}: no channel folders (expected some of {', '.join((*SPECS, 'motion'))}/ with numbered frames)"
+            )
+        self._frames: dict[str, list[Path]] = {name: find_frames(d) for name, d in folders.items()}
+        motion = self._frames.pop("motion", None)
+        counts = {name: len(f) for name, f in self._frames.items()}
+        if not counts:
+            raise ValueError(f"{self.root}: only motion/ found, no image channels")
+        first = next(iter(counts))
+        n = meta.get("num_frames", counts[first])
+        ref_name = "shot.json" if "num_frames" in meta else f"{first}/"
+        for name, c in counts.items():
+            if c != n:
+                raise ValueError(f"{self.root / folders[name].name}: {c} frames, but {ref_name} has {n}")
+        if motion is not None and len(motion) not in (n, n - 1):
+            raise ValueError(f"{folders['motion']}: {len(motion)} motion frames for a shot of {n} frames (expected {n - 1} or {n})")
+        self._motion = motion
+        h, w = self._check_headers(meta)
+        poses = None
+        if (self.root / "cameras.json").is_file():
+            poses = parse_cameras_json(self.root / "cameras.json", n)
+        order = tuple(c for c in SPECS if c in self._frames)
+        self._cache = LRU(cache_size)
+        self.info = ShotInfo(
+            num_frames=n,
+            height=h,
+            width=w,
+            channels=order,
+            fps=float(meta.get("fps", 10.0)),
+            caption=str(meta.get("caption", "")),
+            object_captions=dict(meta.get("objects", {})),
+            poses=poses,
+            source=str(self.root),
+            extra=dict(meta.get("extra", {})),
+        )
+        if normalize_irradiance is None:
+            normalize_irradiance = not meta.get("irradiance_normalized", False)
+        if normalize_irradiance and "irradiance" in self._frames:
+            self.info.irradiance_scale = self._measure_exposure()
+
+    def _check_headers(self, meta: dict[str, Any]) -> tuple[int, int]:
+        sizes: dict[str, tuple[int, int]] = {}
+        for name, files in self._frames.items():
+            spec = read_spec(files[0])
+            sizes[name] = (spec.height, spec.width)
+        want = (meta["height"], meta["width"]) if "height" in meta and "width" in meta else next(iter(sizes.values()))
+        where = "shot.json" if "height" in meta else f"{next(iter(sizes))}/{self._frames[next(iter(sizes))][0].name}"
+        for name, s in sizes.items():
+            if s != want:
+                raise ValueError(f"{self._frames[name][0]}: size {s[1]}x{s[0]}, but {where} says {want[1]}x{want[0]}")
+        return want
+
+    def _measure_exposure(self) -> float:
+        n = self.info.num_frames
+        ts = sorted({int(round(i)) for i in np.linspace(0, n - 1, min(n, EXPOSURE_SAMPLES))})
+        total, count = 0.0, 0
+        for t in ts:
+            s, c = log_luminance_sum(self._decode("irradiance", t, scale=1.0))
+            total, count = total + s, count + c
+        scale = exposure_scale(total, count)
+        log.info("%s: irradiance exposure scale %.4g (measured on %d frames)", self.root, scale, len(ts))
+        return scale
+
+    def frame_path(self, name: str, t: int) -> Path:
+        """The file holding channel `name` of frame `t`."""
+        return (self._motion if name == "motion" else self._frames[name])[t]  # type: ignore[index]
+
+    def _decode(self, name: str, t: int, scale: float | None = None) -> np.ndarray:
+        path = self.frame_path(name, t)
+        img = read_image(path)
+        if (img.height, img.width) != (self.info.height, self.info.width):
+            raise ValueError(f"{path}: size {img.width}x{img.height}, the shot is {self.info.width}x{self.info.height}")
+        a = to_memory(name, img, where=f"{path} (frame {t})")
+        if name == "irradiance":
+            s = self.info.irradiance_scale if scale is None else scale
+            if s != 1.0:
+                a = a * np.float32(s)
+        return a
+
+    def _read(self, name: str, t: int) -> np.ndarray:
+        return self._cache.get_or((name, t), lambda: self._decode(name, t))
+
+    def motion(self, t: int) -> np.ndarray | None:
+        """(H, W, 2) float32 forward motion of frame t in pixels (NaN where unknown), or None if absent."""
+        if self._motion is None or not 0 <= t < len(self._motion):
+            return None
+        return self._cache.get_or(("motion", t), lambda: self._decode("motion", t))

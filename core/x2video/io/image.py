@@ -1,0 +1,182 @@
+"""Single-image read/write through OpenImageIO (EXR, PNG 8/16-bit, JPG, TIFF), channels indexed by name.
+
+OpenImageIO stores EXR channels sorted by layer name, so nothing here relies on channel order:
+`ImageData.channel(name)` / `ImageData.stack(names)` look channels up by name.
+Integer pixel formats of PNG/JPG/TIFF are normalised to [0, 1] (``ImageData.max_int`` tells the
+scale, for object ids); 32-bit integer EXR channels are read raw.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import OpenImageIO as oiio
+
+from x2video.io.atomic import atomic_path
+
+IMAGE_EXTENSIONS = (".exr", ".png", ".jpg", ".jpeg", ".tif", ".tiff")
+_RAW_INT = ("uint", "int", "uint32", "int32")
+_FORMATS = {"half": "half", "float": "float", "uint": "uint", "uint8": "uint8", "uint16": "uint16"}
+
+
+class ImageReadError(ValueError):
+    """An image file could not be read (missing, corrupt, truncated, unsupported)."""
+
+
+@dataclass
+class ImageData:
+    """One image: per-channel (H, W) arrays keyed by the file's channel names."""
+
+    path: str
+    width: int
+    height: int
+    channel_names: tuple[str, ...]
+    planes: dict[str, np.ndarray]
+    #: pixel format of the file's first channel ("half", "float", "uint8", "uint16", "uint", ...)
+    format: str
+    #: 255 / 65535 for 8/16-bit integer files (values were divided by it), None for float/raw-int
+    max_int: int | None = None
+    attributes: dict[str, Any] = field(default_factory=dict)
+
+    def channel(self, name: str) -> np.ndarray:
+        """(H, W) plane of channel `name`."""
+        try:
+            return self.planes[name]
+        except KeyError:
+            raise ImageReadError(f"{self.path}: no channel {name!r} (has {', '.join(self.channel_names)})") from None
+
+    def stack(self, names: Sequence[str], dtype: Any = np.float32) -> np.ndarray:
+        """(H, W, len(names)) array of the named channels, in the order asked."""
+        return np.stack([self.channel(n) for n in names], axis=-1).astype(dtype, copy=False)
+
+    def all(self) -> np.ndarray:
+        """(H, W, C) float32 array of all channels in file order."""
+        return self.stack(self.channel_names)
+
+
+def read_spec(path: str | Path) -> oiio.ImageSpec:
+    """The header of an image (size, channel names) without reading pixels."""
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ImageReadError(f"{path}: cannot open image ({oiio.geterror() or 'unknown error'})")
+    try:
+        return inp.spec().copy()
+    finally:
+        inp.close()
+
+
+def read_image(path: str | Path) -> ImageData:
+    """Read all channels of the first subimage of `path`."""
+    path = str(path)
+    if not Path(path).is_file():
+        raise ImageReadError(f"{path}: file does not exist")
+    inp = oiio.ImageInput.open(path)
+    if inp is None:
+        raise ImageReadError(f"{path}: cannot open image ({oiio.geterror() or 'unknown error'})")
+    try:
+        spec = inp.spec()
+        n = spec.nchannels
+        names = tuple(spec.channelnames) if spec.channelnames else tuple(f"c{i}" for i in range(n))
+        formats = [str(spec.channelformat(i)) for i in range(n)]
+        pixels = inp.read_image(0, 0, 0, n, "float")
+        if pixels is None:
+            raise ImageReadError(f"{path}: cannot read pixels ({inp.geterror() or 'corrupt or truncated file'})")
+        pixels = np.asarray(pixels, dtype=np.float32).reshape(spec.height, spec.width, n)
+        planes = {name: pixels[..., i] for i, name in enumerate(names)}
+        is_exr = path.lower().endswith(".exr")
+        for i, fmt in enumerate(formats):
+            if is_exr and fmt in _RAW_INT:
+                raw = inp.read_image(0, 0, i, i + 1, fmt)
+                if raw is None:
+                    raise ImageReadError(f"{path}: cannot read channel {names[i]!r} ({inp.geterror()})")
+                planes[names[i]] = np.asarray(raw).reshape(spec.height, spec.width)
+        max_int = {"uint8": 255, "uint16": 65535, "int8": 127, "int16": 32767}.get(formats[0]) if not is_exr else None
+        attrs = {}
+        for p in spec.extra_attribs:
+            if p.name.startswith("x2video:") or p.name in ("framesPerSecond", "oiio:ColorSpace"):
+                attrs[p.name] = p.value
+        return ImageData(path, spec.width, spec.height, names, planes, formats[0], max_int, attrs)
+    finally:
+        inp.close()
+
+
+def write_exr(
+    path: str | Path,
+    planes: Mapping[str, np.ndarray],
+    pixel_type: str | Mapping[str, str] = "half",
+    attributes: Mapping[str, Any] | None = None,
+    compression: str = "zip",
+) -> None:
+    """Write named (H, W) planes as one EXR, atomically.
+
+    pixel_type: "half" | "float" | "uint" for all channels, or a per-channel mapping. "uint"
+    channels are written raw (no normalisation); a file mixing "uint" with float types is
+    written as separate raw passes, so keep ids in their own file or store them as "float".
+    """
+    names = list(planes)
+    if not names:
+        raise ValueError(f"{path}: no channels to write")
+    arrays = [np.asarray(planes[n]) for n in names]
+    h, w = arrays[0].shape[:2]
+    for n, a in zip(names, arrays):
+        if a.shape != (h, w):
+            raise ValueError(f"{path}: channel {n!r} has shape {a.shape}, expected {(h, w)}")
+    types = [pixel_type] * len(names) if isinstance(pixel_type, str) else [pixel_type.get(n, "half") for n in names]
+    for t in types:
+        if t not in ("half", "float", "uint"):
+            raise ValueError(f"{path}: unknown EXR pixel type {t!r}")
+    if "uint" in types and len(set(types)) > 1:
+        raise ValueError(f"{path}: cannot mix raw 'uint' channels with float ones in one file; store ids as 'float'")
+    spec = oiio.ImageSpec(w, h, len(names), oiio.TypeDesc(types[0]))
+    spec.channelnames = tuple(names)
+    if len(set(types)) > 1:
+        spec.channelformats = tuple(oiio.TypeDesc(t) for t in types)
+    spec.attribute("compression", compression)
+    for k, v in (attributes or {}).items():
+        spec.attribute(k, v)
+    if types[0] == "uint":
+        data = np.ascontiguousarray(np.stack(arrays, -1).astype(np.uint32))
+    else:
+        data = np.ascontiguousarray(np.stack(arrays, -1).astype(np.float32))
+    _write(path, spec, data)
+
+
+def write_ldr(path: str | Path, pixels: np.ndarray, bits: int = 8) -> None:
+    """Write an (H, W, C) array of values in [0, 1] as an 8- or 16-bit PNG/JPG/TIFF, atomically.
+
+    Integer arrays (uint8/uint16) are written as they are.
+    """
+    a = np.asarray(pixels)
+    if a.ndim == 2:
+        a = a[..., None]
+    if a.dtype == np.uint8:
+        data, fmt = a, "uint8"
+    elif a.dtype == np.uint16:
+        data, fmt = a, "uint16"
+    else:
+        if bits not in (8, 16):
+            raise ValueError(f"{path}: bits must be 8 or 16, got {bits}")
+        maxv = 255 if bits == 8 else 65535
+        data = np.round(np.clip(a.astype(np.float32), 0.0, 1.0) * maxv).astype(np.uint8 if bits == 8 else np.uint16)
+        fmt = "uint8" if bits == 8 else "uint16"
+    h, w, c = data.shape
+    spec = oiio.ImageSpec(w, h, c, oiio.TypeDesc(fmt))
+    if c == 1:
+        spec.channelnames = ("Y",)
+    _write(path, spec, np.ascontiguousarray(data))
+
+
+def _write(path: str | Path, spec: oiio.ImageSpec, data: np.ndarray) -> None:
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None:
+            raise ValueError(f"{path}: no image writer for this extension ({oiio.geterror()})")
+        try:
+            if not out.open(str(tmp), spec):
+                raise OSError(f"{path}: cannot open for writing ({out.geterror()})")
+            if not out.write_image(data):
+                raise OSError(f"{path}: write failed ({out.geterror()})")
+        finally:
+            out.close()

@@ -1,0 +1,53 @@
+"""`load_shot(path)`: detect a shot's format (folder per channel, multi-layer EXR, XRGB set) and load it lazily."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from x2video.shot import Shot
+
+
+def detect_format(path: str | Path) -> str:
+    """"folder" | "multilayer" | "xrgb" for what `path` holds; ValueError when none fits."""
+    from x2video.io.folder import channel_folders
+
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{p}: does not exist")
+    if p.is_file():
+        if p.suffix.lower() == ".exr":
+            return "multilayer"
+        if p.name.lower().endswith(tuple(f"-{c}{e}" for c in ("albedo", "normal", "roughness", "metallic", "irradiance", "ref") for e in (".png", ".jpg", ".jpeg", ".exr"))):
+            return "xrgb"
+        raise ValueError(f"{p}: not a shot (give a shot folder, a multi-layer EXR, or an XRGB '<name>-albedo.png' file)")
+    if (p / "shot.json").is_file() or channel_folders(p):
+        return "folder"
+    from x2video.io.xrgb import find_xrgb_sets
+
+    if find_xrgb_sets(p, strict=False):
+        return "xrgb"
+    exrs = [q for q in p.iterdir() if q.suffix.lower() == ".exr" and not q.name.startswith(".")]
+    if exrs:
+        return "multilayer"
+    raise ValueError(
+        f"{p}: no shot found (expected channel folders albedo/ normal/ ..., multi-layer EXR frames, or XRGB '<name>-albedo.png' files)"
+    )
+
+
+def load_shot(path: str | Path, *, cache_size: int = 24, **kwargs: Any) -> Shot:
+    """Load the shot at `path` lazily, whatever its format.
+
+    Extra keyword arguments go to the format's loader (`normalize_irradiance` for all of them).
+    """
+    fmt = detect_format(path)
+    if fmt == "folder":
+        from x2video.io.folder import FolderShot
+
+        return FolderShot(path, cache_size=cache_size, **kwargs)
+    if fmt == "multilayer":
+        from x2video.io.multilayer import MultilayerShot
+
+        return MultilayerShot(path, cache_size=cache_size, **kwargs)
+    from x2video.io.xrgb import XRGBShot
+
+    return XRGBShot(path, cache_size=cache_size, **kwargs)

@@ -1,0 +1,252 @@
+"""Our shot folder (docs/SHOT_FORMAT.md): `ShotWriter` writes one, shot.json/cameras.json (de)serialisers.
+
+`load_shot` (re-exported here) reads it back lazily as a `FolderShot`.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from x2video.channels import SPECS
+from x2video.io.atomic import write_json_atomic
+from x2video.io.image import write_exr
+from x2video.shot import CameraPose, Shot, ShotInfo
+
+log = logging.getLogger(__name__)
+
+FORMAT_NAME = "x2video-shot"
+FORMAT_VERSION = 1
+#: channels a shot folder may hold, with their EXR component names and pixel type
+FOLDER_CHANNELS: dict[str, tuple[tuple[str, ...], str]] = {
+    **{name: (spec.suffixes, "uint" if name == "ids" else ("float" if name == "depth" else "half")) for name, spec in SPECS.items()},
+    "motion": (("X", "Y"), "float"),
+}
+_SHOT_KEYS = {
+    "format", "version", "num_frames", "width", "height", "fps", "caption", "objects", "irradiance_normalized", "extra",
+}
+
+
+def frame_name(t: int, ext: str = ".exr") -> str:
+    return f"{t:06d}{ext}"
+
+
+# -- shot.json / cameras.json ----------------------------------------------------------------
+def shot_json(info: ShotInfo, irradiance_normalized: bool = True) -> dict[str, Any]:
+    """The shot.json document describing `info`."""
+    return {
+        "format": FORMAT_NAME,
+        "version": FORMAT_VERSION,
+        "num_frames": int(info.num_frames),
+        "width": int(info.width),
+        "height": int(info.height),
+        "fps": float(info.fps),
+        "caption": info.caption,
+        "objects": {str(k): v for k, v in sorted(info.object_captions.items())},
+        "irradiance_normalized": bool(irradiance_normalized),
+        "extra": _jsonable(info.extra, "extra"),
+    }
+
+
+def cameras_json(poses: list[CameraPose]) -> dict[str, Any]:
+    """The cameras.json document for per-frame `poses`."""
+    frames = []
+    for t, p in enumerate(poses):
+        m = np.asarray(p.cam_to_world, dtype=np.float64)
+        if m.shape != (4, 4):
+            raise ValueError(f"camera pose of frame {t}: cam_to_world has shape {m.shape}, expected (4, 4)")
+        entry: dict[str, Any] = {"frame": t, "cam_to_world": m.tolist()}
+        if p.fov_y_deg is not None:
+            entry["fov_y_deg"] = float(p.fov_y_deg)
+        frames.append(entry)
+    return {"convention": "opengl_cam_to_world", "frames": frames}
+
+
+def read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text ({exc})") from None
+
+
+def parse_shot_json(path: Path) -> dict[str, Any]:
+    """Read and check shot.json; returns the document (missing optional fields filled in)."""
+    doc = read_json(path)
+    if not isinstance(doc, dict):
+        raise ValueError(f"{path}: expected a JSON object")
+    if doc.get("format", FORMAT_NAME) != FORMAT_NAME:
+        raise ValueError(f"{path}: field 'format' is {doc.get('format')!r}, expected {FORMAT_NAME!r}")
+    version = doc.get("version", FORMAT_VERSION)
+    if not isinstance(version, int) or version > FORMAT_VERSION:
+        raise ValueError(f"{path}: field 'version' is {version!r}; this x2video reads shot folders up to version {FORMAT_VERSION}")
+    unknown = set(doc) - _SHOT_KEYS
+    if unknown:
+        log.warning("%s: ignoring unknown field(s) %s", path, ", ".join(sorted(unknown)))
+    for key in ("num_frames", "width", "height"):
+        if key in doc and (not isinstance(doc[key], int) or doc[key] <= 0):
+            raise ValueError(f"{path}: field {key!r} must be a positive integer, got {doc[key]!r}")
+    if "fps" in doc and (not isinstance(doc["fps"], (int, float)) or doc["fps"] <= 0):
+        raise ValueError(f"{path}: field 'fps' must be a positive number, got {doc['fps']!r}")
+    objects = doc.get("objects", {})
+    if not isinstance(objects, dict):
+        raise ValueError(f"{path}: field 'objects' must map object ids to captions")
+    try:
+        doc["objects"] = {int(k): str(v) for k, v in objects.items()}
+    except ValueError:
+        raise ValueError(f"{path}: field 'objects' has a key that is not an integer object id: {list(objects)}") from None
+    if not isinstance(doc.get("extra", {}), dict):
+        raise ValueError(f"{path}: field 'extra' must be a JSON object")
+    return doc
+
+
+def parse_cameras_json(path: Path, num_frames: int) -> list[CameraPose]:
+    """Read cameras.json; one pose per frame, in frame order."""
+    doc = read_json(path)
+    frames = doc.get("frames") if isinstance(doc, dict) else None
+    if not isinstance(frames, list):
+        raise ValueError(f"{path}: expected {{'convention': 'opengl_cam_to_world', 'frames': [...]}}")
+    conv = doc.get("convention", "opengl_cam_to_world")
+    if conv != "opengl_cam_to_world":
+        raise ValueError(f"{path}: field 'convention' is {conv!r}, expected 'opengl_cam_to_world'")
+    poses: dict[int, CameraPose] = {}
+    for i, f in enumerate(frames):
+        try:
+            t = int(f.get("frame", i))
+            m = np.asarray(f["cam_to_world"], dtype=np.float64)
+        except (KeyError, TypeError, ValueError, AttributeError):
+            raise ValueError(f"{path}: frames[{i}] needs 'frame' and a 4x4 'cam_to_world'") from None
+        if m.shape != (4, 4) or not np.isfinite(m).all():
+            raise ValueError(f"{path}: frames[{i}].cam_to_world is not a finite 4x4 matrix (shape {m.shape})")
+        fov = f.get("fov_y_deg")
+        poses[t] = CameraPose(cam_to_world=m, fov_y_deg=None if fov is None else float(fov))
+    missing = [t for t in range(num_frames) if t not in poses]
+    if missing:
+        raise ValueError(f"{path}: no camera pose for frame(s) {missing[:5]}{'...' if len(missing) > 5 else ''} of {num_frames}")
+    return [poses[t] for t in range(num_frames)]
+
+
+def _jsonable(obj: Any, where: str) -> Any:
+    try:
+        return json.loads(json.dumps(obj))
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"ShotInfo.{where} is not JSON-serialisable: {exc}") from None
+
+
+# -- writing ----------------------------------------------------------------------------------
+class ShotWriter:
+    """Writes a shot folder frame by frame; `close()` (or leaving the `with` block) writes the metadata.
+
+    >>> with ShotWriter("out/shot", info) as w:
+    ...     for t in range(info.num_frames):
+    ...         w.write_frame(t, {"albedo": a, "normal": n, "ids": ids, "motion": flow})
+
+    Arrays are in memory convention (float32 (H, W, C), int for ids, (H, W) accepted for one
+    component); "motion" is (H, W, 2) float32 pixels to frame t+1 (NaN allowed) and may be
+    omitted on the last frame. Every image is written atomically; shot.json and cameras.json
+    (from `info.poses`, when present) are written last, so a folder without shot.json is an
+    unfinished one. `close()` checks every written channel has all its frames.
+    """
+
+    def __init__(self, out_dir: str | Path, info: ShotInfo, *, irradiance_normalized: bool = True, overwrite: bool = False):
+        self.out_dir = Path(out_dir)
+        self.info = info
+        self.irradiance_normalized = irradiance_normalized
+        if info.num_frames <= 0 or info.height <= 0 or info.width <= 0:
+            raise ValueError(f"ShotWriter: info needs positive num_frames/height/width, got {info.num_frames}/{info.height}/{info.width}")
+        if info.poses is not None and len(info.poses) != info.num_frames:
+            raise ValueError(f"ShotWriter: info.poses has {len(info.poses)} poses for {info.num_frames} frames")
+        if (self.out_dir / "shot.json").exists():
+            if not overwrite:
+                raise ValueError(f"{self.out_dir}: already holds a shot (shot.json); pass overwrite=True to replace it")
+            self._clear()
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        self._written: dict[str, set[int]] = {}
+        self._closed = False
+
+    def _clear(self) -> None:
+        (self.out_dir / "shot.json").unlink()
+        for name in FOLDER_CHANNELS:
+            d = self.out_dir / name
+            if d.is_dir():
+                for p in d.glob("[0-9][0-9][0-9][0-9][0-9][0-9].exr"):
+                    p.unlink()
+
+    def write_frame(self, t: int, channels: Mapping[str, np.ndarray]) -> None:
+        """Write the given channels of frame `t` (one EXR per channel)."""
+        if self._closed:
+            raise ValueError(f"{self.out_dir}: ShotWriter already closed")
+        if not 0 <= t < self.info.num_frames:
+            raise IndexError(f"frame {t} outside the shot's {self.info.num_frames} frames")
+        for name, arr in channels.items():
+            if name not in FOLDER_CHANNELS:
+                raise ValueError(f"frame {t}: unknown channel {name!r} (one of {', '.join(FOLDER_CHANNELS)})")
+            suffixes, ptype = FOLDER_CHANNELS[name]
+            a = np.asarray(arr)
+            if a.ndim == 2:
+                a = a[..., None]
+            want = (self.info.height, self.info.width, len(suffixes))
+            if a.shape != want:
+                raise ValueError(f"frame {t}: channel {name!r} has shape {a.shape}, expected {want}")
+            if ptype == "uint":
+                if a.dtype.kind == "f":
+                    a = np.rint(a)
+                if a.min(initial=0) < 0:
+                    raise ValueError(f"frame {t}: channel {name!r} has negative object ids")
+            planes = {s: a[..., i] for i, s in enumerate(suffixes)}
+            attrs = {"x2video:frame": int(t), "x2video:channel": name}
+            write_exr(self.out_dir / name / frame_name(t), planes, ptype, attrs)
+            self._written.setdefault(name, set()).add(t)
+
+    def close(self) -> None:
+        """Check completeness, then write shot.json and cameras.json atomically."""
+        if self._closed:
+            return
+        n = self.info.num_frames
+        for name, done in self._written.items():
+            need = set(range(n - 1)) if name == "motion" else set(range(n))
+            missing = sorted(need - done)
+            if missing:
+                raise ValueError(f"{self.out_dir}: channel {name!r} is missing frame(s) {missing[:5]}{'...' if len(missing) > 5 else ''}")
+        if not self._written:
+            raise ValueError(f"{self.out_dir}: no frames were written")
+        if self.info.poses is not None:
+            write_json_atomic(self.out_dir / "cameras.json", cameras_json(self.info.poses))
+        write_json_atomic(self.out_dir / "shot.json", shot_json(self.info, self.irradiance_normalized))
+        self._closed = True
+
+    def __enter__(self) -> "ShotWriter":
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        if exc_type is None:
+            self.close()
+
+
+def write_shot_folder(shot: Shot, out_dir: str | Path, *, overwrite: bool = False, progress: Any = None) -> Path:
+    """Copy every frame of `shot` (and its motion, when it has some) into a shot folder."""
+    info = shot.info
+    normalized = True  # what the loader returns is already in the model's exposure
+    with ShotWriter(out_dir, info, irradiance_normalized=normalized, overwrite=overwrite) as w:
+        motion = getattr(shot, "motion", None)
+        for t in range(info.num_frames):
+            frame = shot.frame(t)
+            if callable(motion) and t < info.num_frames - 1:
+                m = motion(t)
+                if m is not None:
+                    frame["motion"] = m
+            w.write_frame(t, frame)
+            if progress is not None:
+                progress(t)
+    return Path(out_dir)
+
+
+def load_shot(path: str | Path, **kwargs: Any) -> Shot:
+    """Load any supported shot (see `x2video.io.load.load_shot`)."""
+    from x2video.io.load import load_shot as _load
+
+    return _load(path, **kwargs)
