@@ -4,3 +4,43 @@ import os
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
+
+
+# --- Qt: fail any test that leaves a worker or thread running (editor tests; napari's pattern) ---------
+import sys as _sys
+import threading as _threading
+
+import pytest as _pytest
+
+
+@_pytest.fixture(autouse=True)
+def _no_dangling_qt_threads():
+    """After each test: no superqt worker still registered, the Qt thread pool idle, no extra QThread alive.
+
+    Only checks when the test imported Qt. A test that starts a render or export must wait for
+    it (or cancel and wait) before it ends; otherwise this fails it.
+    """
+    before = set(_threading.enumerate())
+    yield
+    if "PySide6" not in _sys.modules:
+        return
+    from PySide6.QtCore import QThreadPool
+
+    problems = []
+    if "superqt.utils._qthreading" in _sys.modules:
+        from superqt.utils._qthreading import WorkerBase
+
+        running = [w for w in WorkerBase._worker_set]
+        if running:
+            for w in running:  # do not let one test's worker poison the next: stop it, then fail
+                w.quit()
+            WorkerBase.await_workers(10_000)
+            problems.append(f"{len(running)} superqt worker(s) still running: {running}")
+    pool = QThreadPool.globalInstance()
+    if not pool.waitForDone(2000):
+        problems.append(f"{pool.activeThreadCount()} Qt thread-pool thread(s) still busy")
+    extra = [t for t in _threading.enumerate() if t not in before and t.is_alive() and not t.daemon and t.name != "MainThread"]
+    if extra:
+        problems.append(f"non-daemon threads left running: {[t.name for t in extra]}")
+    if problems:
+        _pytest.fail("test left threads running: " + "; ".join(problems))

@@ -43,6 +43,7 @@ class RenderState:
     level_order: list[int] = field(default_factory=list)
     windows: dict[int, WindowRecord] = field(default_factory=dict)
     windows_per_level: dict[int, int] = field(default_factory=dict)
+    windows_done: Counter = field(default_factory=Counter)  # level -> windows finished
     num_frames: int = 0
     num_windows: int = 0
     steps_per_window: int = 0
@@ -70,6 +71,7 @@ class RenderState:
         self.arrivals.clear()
         self.windows.clear()
         self.windows_per_level = dict(windows_per_level or {})
+        self.windows_done = Counter()
         self.level_order = []
         self.steps_per_window = steps_per_window
         self.steps_done = 0
@@ -93,10 +95,12 @@ class RenderState:
             self.in_flight = list(ev.frames)
         elif isinstance(ev, StepDone):
             self.steps_done += 1
+            self.steps_per_window = ev.steps
         elif isinstance(ev, FramesReady):
             rec = self.windows.get(ev.window)
             if rec is not None:
                 rec.seconds = ev.seconds
+            self.windows_done[ev.level] += 1
             for t, img in ev.frames.items():
                 self.frames[t] = np.asarray(img, dtype=np.float16)
                 self.levels[t] = ev.level
@@ -123,9 +127,8 @@ class RenderState:
     # -- derived figures -------------------------------------------------------
     def level_progress(self) -> list[tuple[int, int, int]]:
         """[(level, windows finished, windows planned)] in run order; planned is 0 when unknown."""
-        done = Counter(w.level for w in self.windows.values() if w.seconds is not None)
-        levels = self.level_order or sorted(set(done), reverse=True)
-        return [(lv, done.get(lv, 0), self.windows_per_level.get(lv, 0)) for lv in levels]
+        levels = self.level_order or sorted(set(self.windows_done), reverse=True)
+        return [(lv, self.windows_done.get(lv, 0), self.windows_per_level.get(lv, 0)) for lv in levels]
 
     def eta_seconds(self) -> float | None:
         """Remaining seconds, from the mean time per denoising step so far (None before the first step)."""

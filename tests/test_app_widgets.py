@@ -1,0 +1,116 @@
+"""Editor building blocks on their own: display transforms, viewer input, timeline marks, charts, render state."""
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("PySide6")
+pytest.importorskip("pytestqt")
+
+from PySide6.QtCore import QPoint, QPointF, Qt  # noqa: E402
+
+from x2video.sampling.events import FramesReady, RenderFinished, RenderStarted, StepDone, WindowStarted  # noqa: E402
+from x2video_app.charts import Charts, find_bench_points  # noqa: E402
+from x2video_app.display import channel_to_u8, ids_palette, overlay_masks, side_by_side  # noqa: E402
+from x2video_app.render_state import RenderState  # noqa: E402
+from x2video_app.timeline import Timeline  # noqa: E402
+from x2video_app.viewer import Viewer  # noqa: E402
+
+
+def test_display_transforms():
+    alb = np.full((4, 6, 3), 0.214, np.float32)  # linear 0.214 ~ sRGB 0.5
+    u8 = channel_to_u8("albedo", alb, (4, 6))
+    assert u8.dtype == np.uint8 and u8.shape == (4, 6, 3) and abs(int(u8[0, 0, 0]) - 128) <= 1
+    n = np.zeros((4, 6, 3), np.float32)
+    n[..., 2] = 1
+    assert tuple(channel_to_u8("normal", n, (4, 6))[0, 0]) == (128, 128, 255)
+    assert channel_to_u8("albedo", None, (4, 6)).shape == (4, 6, 3)  # dropped: checkerboard
+    ids = np.array([[0, 1], [2, 1]], np.int32)
+    pal = ids_palette(ids)
+    assert (pal[0, 0] == 0).all() and (pal[0, 1] == pal[1, 1]).all() and not (pal[0, 1] == pal[1, 0]).all()
+    base = np.zeros((8, 8, 3), np.uint8)
+    m = np.zeros((8, 8), np.float32)
+    m[2:6, 2:6] = 1
+    over = overlay_masks(base, [(m, (255, 0, 0))])
+    assert over[0, 0].sum() == 0 and over[4, 4, 0] > 0 and over[2, 2, 0] == 255
+    assert side_by_side(base, base, gap=4).shape == (8, 20, 3)
+
+
+def test_viewer_zoom_and_stroke_signals(qtbot):
+    v = Viewer()
+    qtbot.addWidget(v)
+    v.resize(400, 300)
+    v.show()
+    img = np.zeros((64, 80, 3), np.uint8)
+    img[:, 40:] = 200
+    v.set_image(img)
+    z0 = v.zoom_level
+    v.zoom(2.0)
+    assert v.zoom_level == pytest.approx(2 * z0)
+    v.fit()
+    v.set_tool("brush")
+    pts = []
+    v.sigStrokePoint.connect(lambda x, y, s: pts.append((x, y, s)))
+    centre = v.mapFromScene(QPointF(40, 32))
+    with qtbot.waitSignal(v.sigStrokeEnd):
+        qtbot.mousePress(v.viewport(), Qt.MouseButton.LeftButton, pos=centre)
+        qtbot.mouseMove(v.viewport(), centre + QPoint(20, 0))
+        qtbot.mouseRelease(v.viewport(), Qt.MouseButton.LeftButton, pos=centre + QPoint(20, 0))
+    assert pts[0][2] is True and abs(pts[0][0] - 40) < 2 and abs(pts[0][1] - 32) < 2
+    with pytest.raises(ValueError, match="unknown tool"):
+        v.set_tool("lasso")
+
+
+def test_timeline_scrub_and_play(qtbot):
+    tl = Timeline()
+    qtbot.addWidget(tl)
+    tl.resize(600, 50)
+    tl.show()
+    tl.set_num_frames(20, fps=50)
+    tl.bar.set_state(20, {0, 10, 19}, {0: 2, 10: 2, 19: 2, 5: 1}, 2)
+    got = []
+    tl.sigFrame.connect(got.append)
+    bar = tl.bar
+    qtbot.mouseClick(bar, Qt.MouseButton.LeftButton, pos=QPoint(int(bar._x(10.5)), 20))
+    assert got[-1] == 10
+    tl.set_current(3)
+    with qtbot.waitSignal(tl.sigFrame, timeout=2000) as blocker:
+        tl.play_button.setChecked(True)
+    assert blocker.args == [4]
+    tl.stop()
+
+
+def test_bench_points_found_in_nested_results(tmp_path, qtbot):
+    res = {"rows": [{"name": "DDIM-20", "seconds_per_frame": 2.0, "psnr": 24.1}, {"name": "LCM-2", "seconds_per_frame": 0.3, "psnr": 22.0}],
+           "other": {"psnr": 1.0}}
+    (tmp_path / "render.json").write_text(json.dumps(res))
+    (tmp_path / "broken.json").write_text("{not json")
+    assert sorted(p[0] for p in find_bench_points(res)) == ["DDIM-20", "LCM-2"]
+    c = Charts(tmp_path)
+    qtbot.addWidget(c)
+    assert "2 settings" in c.bench_note.text()
+    c.reset(2)
+    c.add_window(0, 2, 1.5)
+    c.add_window(1, 1, 0.7)
+    assert c.windows == [(0, 2, 1.5), (1, 1, 0.7)]
+
+
+def test_render_state_tracks_levels_keyframes_and_eta():
+    st = RenderState()
+    seen = []
+    st.changed.connect(seen.append)
+    st.begin(steps_per_window=2, windows_per_level={2: 1, 1: 2})
+    st.apply(RenderStarted(num_frames=9, num_windows=3, levels=[2, 1]))
+    st.apply(WindowStarted(index=0, frames=[0, 4, 8], mode="key", level=2))
+    assert st.in_flight == [0, 4, 8]
+    st.apply(StepDone(window=0, step=1, steps=2))
+    assert st.eta_seconds() is not None
+    img = np.zeros((2, 2, 3), np.float32)
+    st.apply(FramesReady(window=0, frames={0: img, 4: img, 8: img}, level=2, mode="key", seconds=0.1))
+    st.apply(FramesReady(window=1, frames={1: img, 2: img, 3: img}, level=1, mode="interp", seconds=0.1))
+    assert st.keyframes == {0, 4, 8} and st.levels[2] == 1 and st.top_level == 2
+    assert st.level_progress() == [(2, 1, 1), (1, 1, 2)]
+    st.apply(RenderFinished(num_frames=6, seconds=0.2))
+    assert st.status == "finished" and st.time_to_first_keyframe() is not None
+    assert [a[2] for a in st.arrivals] == ["key"] * 3 + ["interp"] * 3
+    assert len(seen) == 7

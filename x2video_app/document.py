@@ -1,0 +1,245 @@
+"""The editor's Qt-free state model: the open shot, its Edits, the current frame and view, and the render.
+
+Views subscribe to the `Signal`s here and never own state; every change of the Edits goes
+through a method of this class (undo commands call them too), which bumps `version` so the
+edited-channel cache and the window title stay right.
+"""
+from __future__ import annotations
+
+import copy
+import logging
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from x2video.conditioning import FrameConditioning
+from x2video.shot import Shot
+from x2video_app import edit_ops
+from x2video_app.display import MASK_COLOURS, VIEW_MODES, channel_to_u8, checker, overlay_masks, side_by_side
+from x2video_app.render_state import RenderState
+from x2video_app.signals import Signal
+
+log = logging.getLogger(__name__)
+
+
+class Document:
+    """One open shot and what the person did to it."""
+
+    def __init__(self) -> None:
+        self.shot: Shot | None = None
+        self.shot_path: str | None = None
+        self.project_path: Path | None = None
+        self.edits: Any = None  # x2video.edits.Edits
+        self.frame = 0
+        self.view = "albedo"
+        self.selected_mask = -1
+        self.edit_global = True
+        self.version = 0
+        self.render = RenderState()
+        #: per-mask display state that is not part of the Edits (visibility in the overlay)
+        self.hidden: set[int] = set()
+        self._cond_cache: dict[int, tuple[int, FrameConditioning]] = {}
+        self._stroke: tuple[int, int, np.ndarray, np.ndarray] | None = None  # (mask, t, before, working)
+        self._last_pt: tuple[float, float] | None = None
+        # signals
+        self.shot_changed = Signal("shot_changed")
+        self.frame_changed = Signal("frame_changed")
+        self.view_changed = Signal("view_changed")
+        self.edits_changed = Signal("edits_changed")  # (kind: str)
+        self.selection_changed = Signal("selection_changed")
+
+    # -- shot / project --------------------------------------------------------
+    def set_shot(self, shot: Shot, path: str | None, edits: Any = None, project_path: Path | None = None) -> None:
+        self.shot, self.shot_path = shot, path
+        self.edits = edits if edits is not None else edit_ops.new_edits(shot)
+        self.project_path = project_path
+        self.frame = 0
+        self.selected_mask = 0 if edit_ops.num_masks(self.edits) else -1
+        self.edit_global = self.selected_mask < 0
+        self.hidden.clear()
+        self.render = RenderState() if self.render is None else self.render
+        self.render.frames.clear()
+        self.render.levels.clear()
+        self.render.keyframes.clear()
+        self.render.status = "idle"
+        self._bump()
+        self.shot_changed.emit()
+        self.edits_changed.emit("all")
+        self.selection_changed.emit()
+        self.frame_changed.emit(self.frame)
+
+    @property
+    def num_frames(self) -> int:
+        return 0 if self.shot is None else self.shot.num_frames
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return (224, 320) if self.shot is None else self.shot.size
+
+    def set_frame(self, t: int) -> None:
+        t = max(0, min(self.num_frames - 1, int(t)))
+        if t != self.frame:
+            self.frame = t
+            self.frame_changed.emit(t)
+
+    def set_view(self, view: str) -> None:
+        if view not in VIEW_MODES:
+            raise ValueError(f"unknown view {view!r}; one of {VIEW_MODES}")
+        if view != self.view:
+            self.view = view
+            self.view_changed.emit(view)
+
+    # -- edits (every mutation funnels through here) ---------------------------
+    def _bump(self) -> None:
+        self.version += 1
+        self._cond_cache.clear()
+
+    def changed(self, kind: str) -> None:
+        """Call after mutating `self.edits` (undo commands do)."""
+        self._bump()
+        self.edits_changed.emit(kind)
+
+    def snapshot(self) -> Any:
+        """A deep copy of the Edits (undo of structural changes: add/remove mask)."""
+        return copy.deepcopy(self.edits)
+
+    def restore(self, edits: Any, selected: int | None = None) -> None:
+        self.edits = copy.deepcopy(edits)
+        if selected is not None:
+            self.selected_mask = selected
+        self.selected_mask = min(self.selected_mask, edit_ops.num_masks(self.edits) - 1)
+        self.changed("all")
+        self.selection_changed.emit()
+
+    def select_mask(self, i: int) -> None:
+        i = i if 0 <= i < edit_ops.num_masks(self.edits) else -1
+        if i != self.selected_mask:
+            self.selected_mask = i
+            if i < 0:
+                self.edit_global = True
+            self.selection_changed.emit()
+
+    def set_edit_global(self, on: bool) -> None:
+        self.edit_global = bool(on) or self.selected_mask < 0
+        self.selection_changed.emit()
+
+    def edit_target(self) -> int | None:
+        """None = the whole frame, else the mask index parametric edits apply to."""
+        return None if self.edit_global or self.selected_mask < 0 else self.selected_mask
+
+    def mask_colour(self, i: int) -> tuple[int, int, int]:
+        return edit_ops.mask_colour(self.edits, i) or MASK_COLOURS[i % len(MASK_COLOURS)]
+
+    def masks_summary(self) -> list[dict]:
+        return [
+            {
+                "name": edit_ops.mask_name(self.edits, i),
+                "colour": self.mask_colour(i),
+                "visible": i not in self.hidden,
+                "prompt": edit_ops.mask_prompt(self.edits, i),
+                "mask_out": edit_ops.mask_out(self.edits, i),
+            }
+            for i in range(edit_ops.num_masks(self.edits))
+        ]
+
+    # -- painting --------------------------------------------------------------
+    def begin_stroke(self, x: float, y: float, radius: float, erase: bool) -> bool:
+        """Start a brush/eraser stroke on the selected mask at frame `self.frame`; False when no mask is selected."""
+        if self.selected_mask < 0 or self.shot is None:
+            return False
+        m = edit_ops.get_mask(self.edits, self.selected_mask, self.frame, self.size)
+        self._stroke = (self.selected_mask, self.frame, m.copy(), m.copy())
+        self._last_pt = None
+        self.stroke_to(x, y, radius, erase)
+        return True
+
+    def stroke_to(self, x: float, y: float, radius: float, erase: bool) -> None:
+        if self._stroke is None:
+            return
+        i, t, _, work = self._stroke
+        val = 0.0 if erase else 1.0
+        r = max(1, int(round(radius)))
+        p = (int(round(x)), int(round(y)))
+        if self._last_pt is None:
+            cv2.circle(work, p, r, val, -1, lineType=cv2.LINE_8)
+        else:
+            cv2.line(work, self._last_pt, p, val, 2 * r, lineType=cv2.LINE_8)
+            cv2.circle(work, p, r, val, -1, lineType=cv2.LINE_8)
+        self._last_pt = p
+        edit_ops.set_mask(self.edits, i, t, work)
+        self.changed("mask")
+
+    def end_stroke(self) -> tuple[int, int, np.ndarray, np.ndarray] | None:
+        """Finish the stroke: (mask, frame, before, after) for the undo command, or None if nothing changed."""
+        s, self._stroke, self._last_pt = self._stroke, None, None
+        if s is None:
+            return None
+        i, t, before, after = s
+        return None if np.array_equal(before, after) else (i, t, before, after.copy())
+
+    def fill_from_id(self, x: float, y: float) -> tuple[int, int, np.ndarray, np.ndarray] | None:
+        """Add the object under (x, y) on the current frame to the selected mask (needs the ids channel)."""
+        if self.selected_mask < 0 or self.shot is None or not self.shot.has("ids"):
+            return None
+        h, w = self.size
+        xi, yi = int(x), int(y)
+        if not (0 <= xi < w and 0 <= yi < h):
+            return None
+        ids = self.shot.channel("ids", self.frame)[..., 0]
+        before = edit_ops.get_mask(self.edits, self.selected_mask, self.frame, self.size)
+        after = np.maximum(before, edit_ops.mask_from_ids(ids, int(ids[yi, xi])))
+        if np.array_equal(before, after):
+            return None
+        return self.selected_mask, self.frame, before, after
+
+    def set_mask_frame(self, i: int, t: int, m: np.ndarray) -> None:
+        edit_ops.set_mask(self.edits, i, t, m)
+        self.changed("mask")
+
+    # -- edited channels and what the viewer shows -----------------------------
+    def conditioning(self, t: int) -> FrameConditioning:
+        hit = self._cond_cache.get(t)
+        if hit is not None and hit[0] == self.version:
+            return hit[1]
+        cond = edit_ops.apply(self.shot, self.edits, t)
+        if len(self._cond_cache) > 8:
+            self._cond_cache.clear()
+        self._cond_cache[t] = (self.version, cond)
+        return cond
+
+    def mask_layers(self, t: int) -> list[tuple[np.ndarray, tuple[int, int, int]]]:
+        out = []
+        for i in range(edit_ops.num_masks(self.edits)):
+            if i in self.hidden:
+                continue
+            out.append((edit_ops.get_mask(self.edits, i, t, self.size), self.mask_colour(i)))
+        return out
+
+    def rendered_u8(self, t: int) -> np.ndarray:
+        img = self.render.frames.get(t)
+        return checker(self.size) if img is None else channel_to_u8("rgb", img.astype(np.float32), self.size)
+
+    def display_image(self) -> np.ndarray:
+        """uint8 (H, W, 3) for the current view and frame."""
+        if self.shot is None:
+            return checker(self.size)
+        t, v = self.frame, self.view
+        if v in ("albedo", "normal", "roughness", "metallic", "irradiance"):
+            base = channel_to_u8(v, self.conditioning(t).channels.get(v), self.size)
+        elif v == "ids":
+            base = channel_to_u8("ids", self.shot.channel("ids", t) if self.shot.has("ids") else None, self.size)
+        elif v == "masks":
+            cond = self.conditioning(t)
+            base = channel_to_u8("albedo", cond.channels.get("albedo"), self.size)
+            return overlay_masks(base, self.mask_layers(t))
+        elif v == "reference":
+            ref = edit_ops.reference_image(self.shot, self.edits)
+            base = checker(self.size) if ref is None else channel_to_u8("rgb", ref, self.size)
+        elif v == "rendered":
+            base = self.rendered_u8(t)
+        else:  # side-by-side: edited albedo | rendered output
+            cond = self.conditioning(t)
+            base = side_by_side(channel_to_u8("albedo", cond.channels.get("albedo"), self.size), self.rendered_u8(t))
+        return base

@@ -1,0 +1,170 @@
+"""Turns what the person does in the panels and the viewer into undoable commands on the Document."""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from PySide6.QtCore import QObject
+from PySide6.QtWidgets import QFileDialog
+
+from x2video_app import edit_ops
+from x2video_app.commands import PaintCommand, SetValueCommand, SnapshotCommand
+from x2video_app.display import MASK_COLOURS
+
+if TYPE_CHECKING:
+    from x2video_app.main_window import MainWindow
+
+
+class EditActions(QObject):
+    def __init__(self, win: "MainWindow") -> None:
+        super().__init__(win)
+        self.win = win
+        self.doc = win.doc
+        self.undo = win.undo
+        self._erase = False
+        self._connect()
+
+    @property
+    def e(self) -> Any:
+        return self.doc.edits
+
+    def _connect(self) -> None:
+        w, mp, ep, sp = self.win, self.win.mask_panel, self.win.edit_panel, self.win.scene_panel
+        v = w.viewer
+        v.sigStrokePoint.connect(self.stroke_point)
+        v.sigStrokeEnd.connect(self.stroke_end)
+        v.sigPick.connect(self.pick)
+        mp.sigTool.connect(self.set_tool)
+        mp.sigBrushSize.connect(v.set_brush_radius)
+        mp.sigAdd.connect(self.add_mask)
+        mp.sigRemove.connect(self.remove_mask)
+        mp.sigSelect.connect(self.doc.select_mask)
+        mp.sigVisible.connect(self.set_visible)
+        mp.sigColour.connect(lambda i, c: self._set(("colour", i), f"Mask colour", lambda val: edit_ops.set_mask_colour(self.e, i, val), self.doc.mask_colour(i), c, "masks"))
+        mp.sigRename.connect(lambda i, n: None if n == edit_ops.mask_name(self.e, i) else self._set(("name", i), "Rename mask", lambda val: edit_ops.set_mask_name(self.e, i, val), edit_ops.mask_name(self.e, i), n, "masks"))
+        mp.sigPrompt.connect(self.set_local_prompt)
+        mp.sigMaskOut.connect(lambda i, on: self._set(("maskout", i), "Mask out A|M|R", lambda val: edit_ops.set_mask_out(self.e, i, val), edit_ops.mask_out(self.e, i), on, "masks"))
+        mp.sigPropagate.connect(self.propagate)
+        mp.sigClearFrame.connect(self.clear_frame)
+        ep.sigParam.connect(self.set_param)
+        ep.sigTarget.connect(self.doc.set_edit_global)
+        ep.sigReset.connect(self.reset_params)
+        sp.sigGlobalPrompt.connect(self.set_global_prompt)
+        sp.sigDrop.connect(lambda n, on: self._set(("drop", n), f"{'Drop' if on else 'Keep'} {n}", lambda val: edit_ops.set_dropped(self.e, n, val), n in edit_ops.dropped(self.e), on, "channels"))
+        sp.sigLoadReference.connect(self.load_reference_dialog)
+        sp.sigUseRendered.connect(self.use_rendered_reference)
+        sp.sigClearReference.connect(self.clear_reference)
+
+    def _set(self, key: tuple, text: str, setter, old, new, kind: str, final: bool = True) -> None:
+        if old == new and final:
+            return
+        self.undo.push(SetValueCommand(self.doc, key, text, setter, old, new, kind, final=final))
+
+    # -- painting --------------------------------------------------------------
+    def set_tool(self, tool: str) -> None:
+        self.win.viewer.set_tool(tool)
+        self.win.mask_panel.set_tool(tool)
+        if tool in ("brush", "eraser", "fill") and self.doc.view not in ("masks", "albedo", "normal", "roughness", "metallic", "irradiance", "ids"):
+            self.doc.set_view("masks")
+
+    def stroke_point(self, x: float, y: float, starting: bool) -> None:
+        r = self.win.viewer._brush_radius
+        erase = self.win.viewer.tool == "eraser"
+        if starting:
+            if self.doc.selected_mask < 0:
+                self.add_mask()
+            if self.doc.view not in ("masks",):
+                self.doc.set_view("masks")
+            self.doc.begin_stroke(x, y, r, erase)
+        else:
+            self.doc.stroke_to(x, y, r, erase)
+
+    def stroke_end(self) -> None:
+        res = self.doc.end_stroke()
+        if res is not None:
+            i, t, before, after = res
+            self.undo.push(PaintCommand(self.doc, i, t, before, after, "Erase" if self.win.viewer.tool == "eraser" else "Paint stroke"))
+
+    def pick(self, x: float, y: float) -> None:
+        if self.doc.selected_mask < 0:
+            self.add_mask()
+        res = self.doc.fill_from_id(x, y)
+        if res is None:
+            if self.doc.shot is not None and not self.doc.shot.has("ids"):
+                self.win.statusBar().showMessage("This shot has no object ids: fill needs the ids channel.", 5000)
+            return
+        i, t, before, after = res
+        self.undo.push(PaintCommand(self.doc, i, t, before, after, "Fill object"))
+
+    def clear_frame(self, i: int) -> None:
+        t = self.doc.frame
+        before = edit_ops.get_mask(self.e, i, t, self.doc.size)
+        if before.any():
+            self.undo.push(PaintCommand(self.doc, i, t, before, np.zeros_like(before), "Clear mask"))
+
+    def propagate(self, i: int) -> None:
+        t = self.doc.frame
+        if not edit_ops.get_mask(self.e, i, t, self.doc.size).any():
+            self.win.statusBar().showMessage(f"Mask '{edit_ops.mask_name(self.e, i)}' is empty on frame {t}: paint it first.", 5000)
+            return
+        self.win.statusBar().showMessage("Propagating the mask along the shot (optical flow)…")
+        self.undo.push(SnapshotCommand(self.doc, f"Propagate mask from frame {t}", lambda: edit_ops.propagate(self.doc.shot, self.e, i, t), select_after=i))
+        self.win.statusBar().showMessage(f"Mask propagated from frame {t} to {self.doc.num_frames} frames.", 5000)
+
+    # -- masks -----------------------------------------------------------------
+    def add_mask(self) -> None:
+        n = edit_ops.num_masks(self.e)
+        name = f"mask {n + 1}"
+        colour = MASK_COLOURS[n % len(MASK_COLOURS)]
+        self.undo.push(SnapshotCommand(self.doc, f"Add {name}", lambda: edit_ops.add_mask(self.e, name, colour), select_after=n))
+        self.doc.set_edit_global(False)
+
+    def remove_mask(self, i: int) -> None:
+        name = edit_ops.mask_name(self.e, i)
+        self.undo.push(SnapshotCommand(self.doc, f"Remove {name}", lambda: edit_ops.remove_mask(self.e, i), select_after=max(-1, i - 1)))
+
+    def set_visible(self, i: int, on: bool) -> None:
+        (self.doc.hidden.discard if on else self.doc.hidden.add)(i)
+        self.win.refresh_view()
+
+    def set_local_prompt(self, i: int, text: str) -> None:
+        self._set(("prompt", i), "Local prompt", lambda val: edit_ops.set_mask_prompt(self.e, i, val), edit_ops.mask_prompt(self.e, i), text, "prompts")
+
+    def set_global_prompt(self, text: str) -> None:
+        self._set(("gprompt",), "Global prompt", lambda val: edit_ops.set_global_prompt(self.e, val), edit_ops.global_prompt(self.e), text, "prompts")
+
+    # -- parametric edits ------------------------------------------------------
+    def set_param(self, key: str, value: Any, final: bool) -> None:
+        target = self.doc.edit_target()
+        old = edit_ops.get_params(self.e, target).get(key)
+        where = "frame" if target is None else edit_ops.mask_name(self.e, target)
+        self._set(("param", target, key), f"{key.replace('_', ' ')} ({where})", lambda val, t=target, k=key: edit_ops.set_param(self.e, t, k, val), old, value, "params", final)
+
+    def reset_params(self) -> None:
+        target = self.doc.edit_target()
+        self.undo.push(SnapshotCommand(self.doc, "Reset edits", lambda: edit_ops.reset_params(self.e, target), select_after=self.doc.selected_mask))
+
+    # -- reference -------------------------------------------------------------
+    def load_reference_dialog(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self.win, "Reference image", "", "Images (*.png *.jpg *.jpeg *.exr *.tif *.tiff)")
+        if path:
+            self.load_reference(path)
+
+    def load_reference(self, path: str) -> None:
+        try:
+            img = edit_ops.read_image(path)
+        except Exception as e:  # a bad file: say which and keep the project
+            self.win.show_error("Cannot read reference image", f"{path}:\n{e}")
+            return
+        self.undo.push(SnapshotCommand(self.doc, "Load reference", lambda: edit_ops.set_reference_image(self.e, path, img, self.doc.frame), select_after=self.doc.selected_mask))
+
+    def use_rendered_reference(self) -> None:
+        t = self.doc.frame
+        img = self.doc.render.frames.get(t)
+        if img is None:
+            self.win.statusBar().showMessage(f"Frame {t} is not rendered yet: render it first or load an image.", 5000)
+            return
+        self.undo.push(SnapshotCommand(self.doc, f"Use rendered frame {t} as reference", lambda: edit_ops.set_reference_image(self.e, None, img.astype(np.float32), t), select_after=self.doc.selected_mask))
+
+    def clear_reference(self) -> None:
+        self.undo.push(SnapshotCommand(self.doc, "Clear reference", lambda: edit_ops.clear_reference(self.e), select_after=self.doc.selected_mask))

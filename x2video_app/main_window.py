@@ -1,0 +1,383 @@
+"""The X2Video Studio main window: viewer, timeline, docks for masks/edits/scene/render/charts, menus; `run(argv)`."""
+from __future__ import annotations
+
+import logging
+import sys
+from pathlib import Path
+
+from PySide6.QtCore import QSettings, Qt, QTimer
+from PySide6.QtGui import QAction, QKeySequence, QUndoStack
+from PySide6.QtWidgets import (
+    QApplication,
+    QComboBox,
+    QDockWidget,
+    QHBoxLayout,
+    QLabel,
+    QMainWindow,
+    QMessageBox,
+    QPushButton,
+    QCheckBox,
+    QVBoxLayout,
+    QWidget,
+)
+
+from x2video.sampling.events import FramesReady, RenderStarted, WindowStarted
+from x2video_app import edit_ops
+from x2video_app.charts import Charts
+from x2video_app.display import VIEW_MODES
+from x2video_app.document import Document
+from x2video_app.edit_actions import EditActions
+from x2video_app.edit_panel import EditPanel
+from x2video_app.mask_panel import MaskPanel
+from x2video_app.model_source import HOW_TO_GET_WEIGHTS, ModelChoice, has_weights, weights_dir
+from x2video_app.project_controller import ProjectController
+from x2video_app.render_controller import RenderController
+from x2video_app.render_panel import RenderPanel
+from x2video_app.scene_panel import ScenePanel
+from x2video_app.style import apply_style
+from x2video_app.timeline import Timeline
+from x2video_app.viewer import Viewer
+
+log = logging.getLogger(__name__)
+APP_NAME = "X2Video Studio"
+BENCH_RESULTS = Path(__file__).resolve().parents[1] / "bench" / "results"
+
+
+class MainWindow(QMainWindow):
+    def __init__(self, bench_dir: Path | None = None, autosave_ms: int = 180_000) -> None:
+        super().__init__()
+        self.doc = Document()
+        self.undo = QUndoStack(self)
+        self.setWindowTitle(f"{APP_NAME}[*]")
+        self.resize(1440, 900)
+        self.ask = self._ask  # replaceable in tests: (title, text, buttons, default) -> button
+        self.errors_shown: list[tuple[str, str]] = []  # (title, text) of every error dialog, for tests
+
+        # central: view bar + viewer + timeline
+        self.viewer = Viewer()
+        self.view_box = QComboBox()
+        for v in VIEW_MODES:
+            self.view_box.addItem(v.replace("-", " "), v)
+        self.view_box.setToolTip("Channel shown in the viewer (1-9, 0); intrinsic channels show your edits live")
+        self.fit_button = QPushButton("Fit")
+        self.follow_box = QCheckBox("Follow render")
+        self.follow_box.setChecked(True)
+        self.follow_box.setToolTip("While rendering, show each frame as it finishes")
+        self.info_label = QLabel()
+        bar = QHBoxLayout()
+        bar.setContentsMargins(4, 4, 4, 0)
+        bar.addWidget(QLabel("View"))
+        bar.addWidget(self.view_box)
+        bar.addWidget(self.fit_button)
+        bar.addWidget(self.follow_box)
+        bar.addStretch(1)
+        bar.addWidget(self.info_label)
+        self.timeline = Timeline()
+        central = QWidget()
+        cl = QVBoxLayout(central)
+        cl.setContentsMargins(0, 0, 0, 0)
+        cl.setSpacing(2)
+        cl.addLayout(bar)
+        cl.addWidget(self.viewer, 1)
+        cl.addWidget(self.timeline)
+        self.setCentralWidget(central)
+
+        # docks
+        self.mask_panel = MaskPanel()
+        self.edit_panel = EditPanel()
+        self.scene_panel = ScenePanel()
+        self.render_panel = RenderPanel()
+        self.charts = Charts(bench_dir if bench_dir is not None else BENCH_RESULTS)
+        self.docks = {}
+        for name, w, area in (
+            ("Masks & prompts", self.mask_panel, Qt.DockWidgetArea.RightDockWidgetArea),
+            ("Parametric edits", self.edit_panel, Qt.DockWidgetArea.RightDockWidgetArea),
+            ("Scene", self.scene_panel, Qt.DockWidgetArea.RightDockWidgetArea),
+            ("Render", self.render_panel, Qt.DockWidgetArea.LeftDockWidgetArea),
+            ("Charts", self.charts, Qt.DockWidgetArea.LeftDockWidgetArea),
+        ):
+            d = QDockWidget(name, self)
+            d.setObjectName(name)
+            d.setWidget(w)
+            d.setFeatures(QDockWidget.DockWidgetFeature.DockWidgetMovable | QDockWidget.DockWidgetFeature.DockWidgetFloatable)
+            self.addDockWidget(area, d)
+            self.docks[name] = d
+        self.tabifyDockWidget(self.docks["Masks & prompts"], self.docks["Scene"])
+        self.docks["Masks & prompts"].raise_()
+        self.resizeDocks([self.docks["Render"], self.docks["Masks & prompts"]], [300, 380], Qt.Orientation.Horizontal)
+        self.resizeDocks([self.docks["Render"], self.docks["Charts"]], [420, 300], Qt.Orientation.Vertical)
+        self.model_status = QLabel()
+        self.statusBar().addPermanentWidget(self.model_status)
+
+        # controllers
+        self.render_ctl = RenderController(self.doc, self)
+        self.edits = EditActions(self)
+        self.project = ProjectController(self, autosave_ms=autosave_ms)
+        self._build_menus()
+        self._connect()
+        self.choose_default_model()
+        self.refresh_all()
+
+    # -- construction ----------------------------------------------------------
+    def _build_menus(self) -> None:
+        mb = self.menuBar()
+        f = mb.addMenu("&File")
+        self.act_open_shot = f.addAction("Open shot…", self.project.open_shot_dialog, QKeySequence("Ctrl+Shift+O"))
+        self.act_open_project = f.addAction("Open project…", self.project.open_project_dialog, QKeySequence.StandardKey.Open)
+        self.act_open_demo = f.addAction("Open demo shot", self.project.open_demo)
+        f.addSeparator()
+        self.act_save = f.addAction("Save project", self.project.save, QKeySequence.StandardKey.Save)
+        self.act_save_as = f.addAction("Save project as…", self.project.save_as, QKeySequence.StandardKey.SaveAs)
+        f.addSeparator()
+        self.act_export_mp4 = f.addAction("Export MP4…", lambda: self.project.export_dialog("mp4"))
+        self.act_export_exr = f.addAction("Export EXR sequence…", lambda: self.project.export_dialog("exr"))
+        f.addSeparator()
+        f.addAction("Quit", self.close, QKeySequence.StandardKey.Quit)
+        e = mb.addMenu("&Edit")
+        self.act_undo = self.undo.createUndoAction(self, "Undo")
+        self.act_undo.setShortcut(QKeySequence.StandardKey.Undo)
+        self.act_redo = self.undo.createRedoAction(self, "Redo")
+        self.act_redo.setShortcut(QKeySequence.StandardKey.Redo)
+        e.addAction(self.act_undo)
+        e.addAction(self.act_redo)
+        v = mb.addMenu("&View")
+        for i, mode in enumerate(VIEW_MODES):
+            a = v.addAction(mode, lambda m=mode: self.doc.set_view(m))
+            a.setShortcut(QKeySequence(str((i + 1) % 10)))
+        v.addSeparator()
+        for d in self.docks.values():
+            v.addAction(d.toggleViewAction())
+        r = mb.addMenu("&Render")
+        self.act_render = r.addAction("Render", self.start_render, QKeySequence("Ctrl+R"))
+        self.act_cancel = r.addAction("Cancel render", self.render_ctl.cancel, QKeySequence("Esc"))
+        r.addSeparator()
+        self.act_untrained = QAction("Use the UNTRAINED tiny model (smoke test)", self, checkable=True)
+        self.act_untrained.toggled.connect(self._untrained_toggled)
+        r.addAction(self.act_untrained)
+        h = mb.addMenu("&Help")
+        h.addAction("About the model weights…", lambda: QMessageBox.information(self, "Model weights", HOW_TO_GET_WEIGHTS.format(dir=weights_dir())))
+
+    def _connect(self) -> None:
+        doc = self.doc
+        doc.frame_changed.connect(lambda t: self.refresh_view())
+        doc.frame_changed.connect(self.timeline.set_current)
+        doc.view_changed.connect(self._view_changed)
+        doc.edits_changed.connect(self._edits_changed)
+        doc.selection_changed.connect(self.refresh_panels)
+        doc.shot_changed.connect(self._shot_changed)
+        self.view_box.currentIndexChanged.connect(lambda i: doc.set_view(self.view_box.itemData(i)))
+        self.fit_button.clicked.connect(self.viewer.fit)
+        self.timeline.sigFrame.connect(doc.set_frame)
+        self.viewer.sigHover.connect(self._hover)
+        self.render_panel.sigRender.connect(self.start_render)
+        self.render_panel.sigCancel.connect(self.render_ctl.cancel)
+        self.render_ctl.sigEvent.connect(self._render_event)
+        self.render_ctl.sigRunning.connect(self._running)
+        self.render_ctl.sigError.connect(self._render_error)
+        self.undo.cleanChanged.connect(lambda clean: self.setWindowModified(not clean))
+        self._eta_timer = QTimer(self)
+        self._eta_timer.timeout.connect(lambda: self.render_panel.show_state(self.doc.render))
+
+    # -- model -----------------------------------------------------------------
+    def choose_default_model(self) -> None:
+        d = weights_dir()
+        if has_weights(d):
+            self.render_ctl.set_model(ModelChoice("pretrained", d))
+            self.model_status.setText(f"Model: {d}")
+        else:
+            self.render_ctl.choice = None
+            self.model_status.setText("No model weights in resources/ — Render menu: use the untrained tiny model")
+            self.statusBar().showMessage(f"Model weights not found in {d}; renders need them (or the untrained tiny model for a smoke test).", 15000)
+        self._update_model_label()
+
+    def _untrained_toggled(self, on: bool) -> None:
+        if on:
+            self.render_ctl.set_model(ModelChoice("untrained"))
+        else:
+            self.choose_default_model()
+        self._update_model_label()
+
+    def _update_model_label(self) -> None:
+        c = self.render_ctl.choice
+        text = c.label if c is not None else "Model: none (weights missing)"
+        self.model_status.setText(text)
+        self.render_panel.model_label.setText(text)
+        self.render_panel.model_label.setStyleSheet("color: #ffb347;" if c is None or c.kind == "untrained" else "")
+
+    # -- rendering ---------------------------------------------------------------
+    def start_render(self) -> bool:
+        if self.doc.shot is None or self.render_ctl.running:
+            return False
+        if self.render_ctl.choice is None:
+            b = self.ask(
+                "Model weights missing",
+                HOW_TO_GET_WEIGHTS.format(dir=weights_dir()) + "\n\nRender with the untrained tiny model now?",
+                QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.Cancel,
+                QMessageBox.StandardButton.Cancel,
+            )
+            if b != QMessageBox.StandardButton.Yes:
+                return False
+            self.act_untrained.setChecked(True)
+        settings = self.render_ctl.settings(**self.render_panel.values())
+        if self.follow_box.isChecked() and self.doc.view not in ("rendered", "side-by-side"):
+            self.doc.set_view("rendered")
+        ok = self.render_ctl.start(settings)
+        if ok:
+            self.charts.reset(1)
+            self.refresh_timeline()
+        return ok
+
+    def _running(self, running: bool) -> None:
+        self.render_panel.set_running(running)
+        self.act_render.setEnabled(not running)
+        self.act_cancel.setEnabled(running)
+        if running:
+            self._eta_timer.start(500)
+        else:
+            self._eta_timer.stop()
+        self.render_panel.show_state(self.doc.render)
+        self.refresh_timeline()
+
+    def _render_event(self, ev) -> None:
+        st = self.doc.render
+        if isinstance(ev, RenderStarted):
+            self.charts.reset(max(ev.levels) if ev.levels else 1)
+        elif isinstance(ev, FramesReady):
+            self.charts.add_window(ev.window, ev.level, ev.seconds)
+            if self.follow_box.isChecked():
+                self.doc.set_frame(min(ev.frames))
+            if self.doc.frame in ev.frames:
+                self.refresh_view()
+        elif isinstance(ev, WindowStarted):
+            pass
+        self.render_panel.show_state(st)
+        self.refresh_timeline()
+        if st.status in ("finished", "cancelled", "failed"):
+            self.refresh_view()
+            self.statusBar().showMessage(self.render_panel.status_label.text().replace("\n", "  "), 10000)
+
+    def _render_error(self, kind: str, message: str) -> None:
+        if kind == "weights":
+            self.act_untrained.setChecked(False)
+            b = self.ask("Model weights missing", message + "\n\nUse the untrained tiny model instead?",
+                         QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No, QMessageBox.StandardButton.No)
+            if b == QMessageBox.StandardButton.Yes:
+                self.act_untrained.setChecked(True)
+        elif kind == "oom":
+            self.show_error("Out of memory", "The render ran out of memory:\n" + message +
+                            "\n\nYour project is intact. Try a smaller window N, a shorter frame range, the fast preset, "
+                            "or close other programs, then render again.")
+        else:
+            self.show_error("Render failed", message + "\n\nYour project is intact; frames that finished are kept.")
+
+    # -- dialogs -----------------------------------------------------------------
+    def _ask(self, title: str, text: str, buttons, default):
+        return QMessageBox.question(self, title, text, buttons, default)
+
+    def show_error(self, title: str, text: str) -> None:
+        self.errors_shown.append((title, text))
+        log.warning("%s: %s", title, text)
+        if QApplication.platformName() == "offscreen":
+            self.statusBar().showMessage(f"{title}: {text.splitlines()[0]}", 15000)
+            return
+        QMessageBox.critical(self, title, text)
+
+    # -- refresh -----------------------------------------------------------------
+    def _shot_changed(self) -> None:
+        self.undo.clear()
+        n = self.doc.num_frames
+        fps = self.doc.shot.info.fps if self.doc.shot is not None else 10.0
+        self.timeline.set_num_frames(n, fps)
+        self.charts.reset(1)
+        self.refresh_all()
+
+    def _view_changed(self, view: str) -> None:
+        self.view_box.blockSignals(True)
+        self.view_box.setCurrentIndex(VIEW_MODES.index(view))
+        self.view_box.blockSignals(False)
+        self.refresh_view()
+
+    def _edits_changed(self, kind: str) -> None:
+        self.refresh_view()
+        if kind != "mask":
+            self.refresh_panels()
+        else:
+            self._update_coverage()
+
+    def refresh_all(self) -> None:
+        self.refresh_view()
+        self.refresh_panels()
+        self.refresh_timeline()
+        self.render_panel.show_state(self.doc.render)
+        self.project.update_title()
+
+    def refresh_view(self) -> None:
+        self.viewer.set_image(self.doc.display_image())
+        s = self.doc.shot
+        if s is not None:
+            rendered = "rendered" if self.doc.frame in self.doc.render.frames else "not rendered"
+            lvl = self.doc.render.levels.get(self.doc.frame)
+            self.info_label.setText(f"{s.size[1]}×{s.size[0]}  frame {self.doc.frame}/{s.num_frames - 1}  ({rendered}{'' if lvl is None else f', level {lvl}'})")
+
+    def refresh_timeline(self) -> None:
+        st = self.doc.render
+        self.timeline.set_num_frames(max(1, self.doc.num_frames), self.doc.shot.info.fps if self.doc.shot else 10.0)
+        self.timeline.bar.set_state(max(1, self.doc.num_frames), st.keyframes, st.levels, st.top_level, st.in_flight)
+        self.timeline.set_current(self.doc.frame)
+
+    def refresh_panels(self) -> None:
+        if self.doc.edits is None:
+            return
+        self.mask_panel.set_masks(self.doc.masks_summary(), self.doc.selected_mask)
+        self._update_coverage()
+        target = self.doc.edit_target()
+        name = "the whole frame" if target is None else f"mask '{edit_ops.mask_name(self.doc.edits, target)}'"
+        self.edit_panel.set_params(edit_ops.get_params(self.doc.edits, target), name, target is None, self.doc.selected_mask >= 0)
+        ref = edit_ops.reference_image(self.doc.shot, self.doc.edits) if self.doc.shot is not None else None
+        self.scene_panel.set_values(edit_ops.global_prompt(self.doc.edits), edit_ops.dropped(self.doc.edits), ref, edit_ops.reference_text(self.doc.edits))
+
+    def _update_coverage(self) -> None:
+        i = self.doc.selected_mask
+        if i < 0 or self.doc.shot is None:
+            self.mask_panel.set_coverage("Add a mask, then paint it in the viewer.")
+            return
+        frames = edit_ops.mask_frames(self.doc.edits, i)
+        self.mask_panel.set_coverage(f"Painted on {len(frames)} of {self.doc.num_frames} frames")
+
+    def _hover(self, x: float, y: float) -> None:
+        if self.doc.shot is None:
+            return
+        h, w = self.doc.size
+        xi, yi = int(x), int(y)
+        if 0 <= xi < w and 0 <= yi < h:
+            msg = f"x {xi}  y {yi}"
+            if self.doc.shot.has("ids"):
+                oid = int(self.doc.shot.channel("ids", self.doc.frame)[yi, xi, 0])
+                cap = self.doc.shot.info.object_captions.get(oid, "")
+                msg += f"  object {oid}" + (f" ({cap})" if cap else "")
+            self.statusBar().showMessage(msg, 3000)
+
+    # -- closing -----------------------------------------------------------------
+    def closeEvent(self, ev) -> None:
+        if not self.project.confirm_discard("quit"):
+            ev.ignore()
+            return
+        if self.render_ctl.running:
+            self.render_ctl.cancel()
+            self.render_ctl.wait(60000)
+        self.project.shutdown()
+        QSettings("x2video", "studio").setValue("geometry", self.saveGeometry())
+        ev.accept()
+
+
+def run(argv: list[str]) -> int:
+    """Start the editor: `python -m x2video_app [SHOT|PROJECT]` (no argument: the demo shot)."""
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    app = QApplication.instance() or QApplication(sys.argv[:1] + list(argv))
+    app.setApplicationName(APP_NAME)
+    apply_style(app)
+    win = MainWindow()
+    win.show()
+    target = argv[0] if argv else None
+    QTimer.singleShot(0, lambda: win.project.open_path(target) if target else win.project.open_demo())
+    return app.exec()

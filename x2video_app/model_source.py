@@ -1,0 +1,66 @@
+"""Where the editor's model comes from: shipped weights in resources/ by default, or an explicitly
+labelled untrained tiny model (smoke renders only)."""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+#: The repository's resources/ folder (the shipped fp16 safetensors live there).
+REPO_RESOURCES = Path(__file__).resolve().parents[1] / "resources"
+
+HOW_TO_GET_WEIGHTS = (
+    "The shipped model weights were not found in {dir}.\n\n"
+    "To get them: pull the repository's resources/ folder (the fp16 safetensors and the model card), "
+    "or train them yourself with the `x2video train` command (see resources/MODEL_CARD.md for the exact "
+    "commands), or point the X2VIDEO_WEIGHTS environment variable at a checkpoint folder.\n\n"
+    "You can still try the editor with an UNTRAINED tiny model: it runs the whole pipeline "
+    "(keyframes, interpolation levels, progress, cancel, export) but its frames are noise-like, not renders."
+)
+
+
+def has_weights(d: Path | None) -> bool:
+    """A checkpoint folder as `X2VideoModel.save_pretrained` writes it: config.json, unet and vae safetensors."""
+    if d is None:
+        return False
+    d = Path(d)
+    return all((d / f).is_file() for f in ("config.json", "unet.safetensors", "vae.safetensors"))
+
+
+def weights_dir() -> Path:
+    """X2VIDEO_WEIGHTS if set; else resources/ or the first folder directly inside it holding a checkpoint."""
+    env = os.environ.get("X2VIDEO_WEIGHTS")
+    if env:
+        return Path(env)
+    if has_weights(REPO_RESOURCES):
+        return REPO_RESOURCES
+    if REPO_RESOURCES.is_dir():
+        for sub in sorted(p for p in REPO_RESOURCES.iterdir() if p.is_dir()):
+            if has_weights(sub):
+                return sub
+    return REPO_RESOURCES
+
+
+@dataclass(frozen=True)
+class ModelChoice:
+    """What to load: 'pretrained' (from `path`) or 'untrained' (the tiny preset, random weights)."""
+
+    kind: str
+    path: Path | None = None
+
+    @property
+    def label(self) -> str:
+        return f"Model: {self.path}" if self.kind == "pretrained" else "Model: UNTRAINED tiny (smoke test; frames are not meaningful)"
+
+
+def load_model(choice: ModelChoice):
+    """Build the model (slow: call it off the GUI thread)."""
+    from x2video.model.pipeline import X2VideoModel
+
+    if choice.kind == "pretrained":
+        if choice.path is None or not has_weights(choice.path):
+            raise FileNotFoundError(HOW_TO_GET_WEIGHTS.format(dir=choice.path))
+        return X2VideoModel.from_pretrained(choice.path)
+    if choice.kind == "untrained":
+        return X2VideoModel.untrained("tiny")
+    raise ValueError(f"unknown model choice {choice.kind!r}")

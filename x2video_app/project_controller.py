@@ -1,0 +1,233 @@
+"""Opening shots, projects and the demo; saving; autosave to a side file with recovery; the unsaved-changes guard;
+and export (MP4 / EXR sequence) with a progress dialog."""
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from PySide6.QtCore import QObject, Qt, QTimer
+from PySide6.QtWidgets import QApplication, QCheckBox, QFileDialog, QMessageBox, QProgressDialog
+from superqt.utils import create_worker
+
+from x2video_app import edit_ops, exporter
+from x2video_app.demo import demo_dir, ensure_demo
+
+if TYPE_CHECKING:
+    from x2video_app.main_window import MainWindow
+
+log = logging.getLogger(__name__)
+
+
+def autosave_path(project: Path | None, shot_path: str | None) -> Path:
+    """The side file autosave writes: beside the project, or in the cache for an unsaved one."""
+    if project is not None:
+        return project.with_name(project.stem + ".autosave" + project.suffix)
+    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "x2video" / "autosave"
+    stem = Path(shot_path).name if shot_path else "untitled"
+    return cache / f"{stem}.autosave{edit_ops.PROJECT_SUFFIX}"
+
+
+class ProjectController(QObject):
+    def __init__(self, win: "MainWindow", autosave_ms: int = 180_000) -> None:
+        super().__init__(win)
+        self.win = win
+        self.doc = win.doc
+        self.timer = QTimer(self)
+        self.timer.timeout.connect(self.autosave)
+        if autosave_ms > 0:
+            self.timer.start(autosave_ms)
+        self.export_worker = None
+        #: recovered autosave: unsaved under the project's name although the undo stack is clean
+        self.force_dirty = False
+        win.undo.cleanChanged.connect(lambda _c: self.update_title())
+
+    # -- title / dirty ---------------------------------------------------------
+    @property
+    def dirty(self) -> bool:
+        return self.force_dirty or not self.win.undo.isClean()
+
+    def update_title(self) -> None:
+        name = self.doc.project_path.name if self.doc.project_path else (Path(self.doc.shot_path).name if self.doc.shot_path else "untitled")
+        self.win.setWindowTitle(f"{name}[*] — X2Video Studio")
+        self.win.setWindowModified(self.dirty)
+
+    def confirm_discard(self, what: str) -> bool:
+        """True when there are no unsaved changes, or the person chose to save or discard them."""
+        if not self.dirty:
+            return True
+        b = self.win.ask(
+            "Unsaved changes",
+            f"The project has unsaved changes. Save them before you {what}?",
+            QMessageBox.StandardButton.Save | QMessageBox.StandardButton.Discard | QMessageBox.StandardButton.Cancel,
+            QMessageBox.StandardButton.Save,
+        )
+        if b == QMessageBox.StandardButton.Save:
+            return self.save()
+        return b == QMessageBox.StandardButton.Discard
+
+    # -- opening ---------------------------------------------------------------
+    def open_shot_dialog(self) -> None:
+        path = QFileDialog.getExistingDirectory(self.win, "Open shot folder")
+        if path:
+            self.open_path(path)
+
+    def open_project_dialog(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self.win, "Open project", "", f"X2Video project (*{edit_ops.PROJECT_SUFFIX} *.json)")
+        if path:
+            self.open_path(path)
+
+    def open_path(self, path: str | Path) -> bool:
+        """Open a shot (folder or file the loaders read) or a project file; errors keep the current project."""
+        p = Path(path)
+        if not self.confirm_discard("open another file"):
+            return False
+        try:
+            if edit_ops.is_project_file(p):
+                return self._open_project(p)
+            shot = edit_ops.load_shot(p)
+        except Exception as e:
+            self.win.show_error("Cannot open", f"{p}:\n{e}")
+            return False
+        self.doc.set_shot(shot, str(p))
+        self.force_dirty = False
+        self.update_title()
+        self.win.statusBar().showMessage(f"Opened {p} ({shot.num_frames} frames, {shot.size[1]}×{shot.size[0]}, channels: {', '.join(shot.channels)})", 8000)
+        return True
+
+    def _open_project(self, p: Path, recovering_from: Path | None = None) -> bool:
+        side = autosave_path(p, None)
+        if recovering_from is None and side.exists() and side.stat().st_mtime > p.stat().st_mtime:
+            b = self.win.ask(
+                "Recover autosaved work?",
+                f"An autosave newer than {p.name} exists ({time.ctime(side.stat().st_mtime)}), probably from a crash. Recover it?",
+                QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No,
+                QMessageBox.StandardButton.Yes,
+            )
+            if b == QMessageBox.StandardButton.Yes:
+                return self._open_project(side, recovering_from=p)
+        shot_path, edits = edit_ops.load_project(p)
+        shot = edit_ops.load_shot(shot_path)
+        self.doc.set_shot(shot, str(shot_path), edits, project_path=recovering_from or p)
+        self.force_dirty = recovering_from is not None
+        self.update_title()
+        self.win.statusBar().showMessage(f"Opened project {p}", 8000)
+        return True
+
+    def open_demo(self) -> bool:
+        """Open the demo shot, generating it first (with a progress dialog) if it is not cached."""
+        d = demo_dir()
+        if not edit_ops.looks_like_shot(d):
+            dlg = QProgressDialog("Generating the demo shot (procedural room)…", None, 0, 0, self.win)
+            dlg.setWindowTitle("X2Video Studio")
+            dlg.setWindowModality(Qt.WindowModality.WindowModal)
+            dlg.show()
+            QApplication.processEvents()
+            try:
+                ensure_demo(d, poll=QApplication.processEvents)
+            except Exception as e:
+                dlg.close()
+                self.win.show_error("Cannot make the demo shot", f"{e}\n\nOpen a shot folder with File → Open shot.")
+                return False
+            dlg.close()
+        return self.open_path(d)
+
+    # -- saving ----------------------------------------------------------------
+    def save(self) -> bool:
+        if self.doc.shot is None:
+            return False
+        if self.doc.project_path is None:
+            return self.save_as()
+        return self.save_to(self.doc.project_path)
+
+    def save_as(self) -> bool:
+        if self.doc.shot is None:
+            return False
+        path, _ = QFileDialog.getSaveFileName(self.win, "Save project", f"project{edit_ops.PROJECT_SUFFIX}", f"X2Video project (*{edit_ops.PROJECT_SUFFIX})")
+        return bool(path) and self.save_to(Path(path))
+
+    def save_to(self, path: Path) -> bool:
+        try:
+            edit_ops.save_project(path, self.doc.shot_path, self.doc.edits)
+        except Exception as e:
+            self.win.show_error("Cannot save project", f"{path}:\n{e}")
+            return False
+        old_side = autosave_path(self.doc.project_path, self.doc.shot_path)
+        self.doc.project_path = Path(path)
+        self.win.undo.setClean()
+        self.force_dirty = False
+        for side in {old_side, autosave_path(self.doc.project_path, None)}:
+            edit_ops.remove_project(side)
+        self.update_title()
+        self.win.statusBar().showMessage(f"Saved {path}", 5000)
+        return True
+
+    def autosave(self) -> Path | None:
+        """Write the side file when there are unsaved changes (timer; also callable directly)."""
+        if self.doc.shot is None or not self.dirty:
+            return None
+        side = autosave_path(self.doc.project_path, self.doc.shot_path)
+        try:
+            edit_ops.save_project(side, self.doc.shot_path, self.doc.edits)
+        except Exception as e:  # autosave must never interrupt the person
+            log.warning("autosave to %s failed: %s", side, e)
+            return None
+        self.win.statusBar().showMessage(f"Autosaved to {side}", 3000)
+        return side
+
+    def shutdown(self) -> None:
+        """Clean exit: nothing left to recover."""
+        self.timer.stop()
+        if not self.dirty:
+            edit_ops.remove_project(autosave_path(self.doc.project_path, self.doc.shot_path))
+
+    # -- export ----------------------------------------------------------------
+    def export_dialog(self, kind: str) -> None:
+        n, done = self.doc.num_frames, len(self.doc.render.frames)
+        if self.doc.shot is None or done < n:
+            self.win.show_error("Nothing to export yet", f"{done} of {n} frames are rendered. Render the whole shot first.")
+            return
+        if kind == "mp4":
+            path, _ = QFileDialog.getSaveFileName(self.win, "Export MP4", "render.mp4", "MP4 video (*.mp4)")
+            with_channels = False
+        else:
+            path = QFileDialog.getExistingDirectory(self.win, "Export EXR sequence into folder")
+            box = QMessageBox(QMessageBox.Icon.Question, "EXR export", "Also write the edited intrinsic channels?", QMessageBox.StandardButton.Ok, self.win)
+            cb = QCheckBox("include edited albedo/normal/roughness/metallic/irradiance")
+            box.setCheckBox(cb)
+            box.exec()
+            with_channels = cb.isChecked()
+        if path:
+            self.export(kind, Path(path), with_channels)
+
+    def export(self, kind: str, path: Path, with_channels: bool = False):
+        """Export in a worker with a progress dialog; returns the worker (tests wait on `finished`)."""
+        frames = dict(self.doc.render.frames)
+        shot, edits, fps = self.doc.shot, self.doc.edits, self.doc.shot.info.fps
+        dlg = QProgressDialog(f"Exporting {path.name}…", "Cancel", 0, len(frames), self.win)
+        dlg.setWindowTitle("Export")
+        dlg.setMinimumDuration(300)
+        if kind == "mp4":
+            worker = create_worker(exporter.export_mp4, frames, path, fps)
+        else:
+            worker = create_worker(exporter.export_exr, frames, path, shot, edits if with_channels else None)
+        worker.yielded.connect(lambda i: dlg.setValue(i))
+        dlg.canceled.connect(worker.quit)
+
+        def failed(e: BaseException) -> None:
+            self.win.show_error("Export failed", f"{path}:\n{type(e).__name__}: {e}")
+
+        def finished() -> None:
+            dlg.reset()
+            dlg.close()
+            self.export_worker = None
+            if not worker.abort_requested:
+                self.win.statusBar().showMessage(f"Exported {path}", 8000)
+
+        worker.errored.connect(failed)
+        worker.finished.connect(finished)
+        self.export_worker = worker
+        worker.start()
+        return worker

@@ -1,0 +1,135 @@
+"""Starts, feeds and cancels renders: keeps one long-lived Renderer (its latent cache survives between
+renders), builds the model off the GUI thread, and applies the worker's events to the Document."""
+from __future__ import annotations
+
+import copy
+import logging
+import time
+from typing import Any, Callable
+
+from PySide6.QtCore import QObject, Signal
+
+from x2video.sampling.events import FramesReady, RenderEvent, RenderSettings
+from x2video_app.document import Document
+from x2video_app.model_source import ModelChoice, load_model
+from x2video_app.render_worker import RenderWorker
+
+log = logging.getLogger(__name__)
+
+
+def is_out_of_memory(exc: BaseException) -> bool:
+    text = f"{type(exc).__name__}: {exc}".lower()
+    return isinstance(exc, MemoryError) or "out of memory" in text or "outofmemory" in text
+
+
+class RenderController(QObject):
+    """sigEvent(event) after the Document applied it; sigRunning(bool); sigError(kind, message)."""
+
+    sigEvent = Signal(object)
+    sigRunning = Signal(bool)
+    sigError = Signal(str, str)  # kind: "oom" | "weights" | "render"
+
+    def __init__(self, doc: Document, parent: QObject | None = None) -> None:
+        super().__init__(parent)
+        self.doc = doc
+        self.choice: ModelChoice | None = None
+        self.renderer: Any = None  # x2video.sampling.renderer.Renderer, built on first render
+        self.worker: RenderWorker | None = None
+        #: replaceable for tests: builds a Renderer from a ModelChoice (runs in the worker thread)
+        self.renderer_factory: Callable[[ModelChoice], Any] = self._default_factory
+        self.pressed_at: float | None = None
+
+    @staticmethod
+    def _default_factory(choice: ModelChoice) -> Any:
+        from x2video.sampling.renderer import Renderer
+
+        return Renderer(load_model(choice))
+
+    def set_model(self, choice: ModelChoice) -> None:
+        if choice != self.choice:
+            self.choice = choice
+            self.renderer = None  # a new model means a new Renderer (and cache)
+
+    @property
+    def running(self) -> bool:
+        return self.worker is not None
+
+    def settings(self, preset: str, seed: int, window: int, scheme: str) -> RenderSettings:
+        return RenderSettings(preset=preset, seed=seed, window=window, scheme=scheme)
+
+    def start(self, settings: RenderSettings) -> bool:
+        """Start a render of the document's shot and edits; False when one is running or nothing is open."""
+        if self.worker is not None or self.doc.shot is None or self.choice is None:
+            return False
+        self.pressed_at = time.perf_counter()
+        steps = 20 if settings.preset == "quality" else (2 if self.renderer is not None and getattr(self.renderer.model, "has_lcm", False) else 4)
+        per_level: dict[int, int] = {}
+        try:
+            from x2video.sampling.planner import plan
+
+            for w in plan(settings.scheme, self.doc.num_frames, settings.window, None):
+                per_level[w.level] = per_level.get(w.level, 0) + 1
+        except Exception as e:  # a plan we cannot show must not stop the render; the Renderer reports the error
+            log.warning("could not plan for the progress bars: %s", e)
+        self.doc.render.begin(steps, per_level)
+        shot, edits = self.doc.shot, copy.deepcopy(self.doc.edits)  # the person keeps editing during the render
+        base_dir = self.doc.project_path.parent if self.doc.project_path is not None else None
+
+        def run(shot, edits, settings, on_event, cancel):
+            if self.renderer is None:
+                self.renderer = self.renderer_factory(self.choice)
+            if cancel.cancelled:
+                return None
+            return self.renderer.render(shot, edits, settings, on_event, cancel, base_dir=base_dir)
+
+        w = RenderWorker(run, shot, edits, settings)
+        w.signals.event.connect(self._on_event)
+        w.errored.connect(self._on_error)
+        w.finished.connect(self._on_finished)
+        self.worker = w
+        self.sigRunning.emit(True)
+        w.start()
+        return True
+
+    def cancel(self) -> None:
+        if self.worker is not None:
+            self.worker.quit()
+
+    def wait(self, timeout_ms: int = 30000) -> bool:
+        """Block (processing events) until the worker ends; for closing the window and tests."""
+        from PySide6.QtCore import QCoreApplication, QDeadlineTimer
+
+        deadline = QDeadlineTimer(timeout_ms)
+        while self.worker is not None and not deadline.hasExpired():
+            QCoreApplication.processEvents()
+            time.sleep(0.005)
+        return self.worker is None
+
+    # -- slots (GUI thread) ----------------------------------------------------
+    def _on_event(self, ev: RenderEvent) -> None:
+        self.doc.render.apply(ev)
+        self.sigEvent.emit(ev)
+
+    def _on_error(self, exc: BaseException) -> None:
+        if self.doc.render.status == "running":
+            self.doc.render.fail(f"{type(exc).__name__}: {exc}")
+        if isinstance(exc, FileNotFoundError):
+            self.renderer = None
+            self.sigError.emit("weights", str(exc))
+        elif is_out_of_memory(exc):
+            self.sigError.emit("oom", f"{type(exc).__name__}: {exc}")
+        else:
+            log.error("render failed", exc_info=exc)
+            self.sigError.emit("render", f"{type(exc).__name__}: {exc}")
+
+    def _on_finished(self) -> None:
+        w, self.worker = self.worker, None
+        if w is not None and self.doc.render.status == "running":
+            # cancelled before the Renderer started: nothing emitted RenderCancelled
+            from x2video.sampling.events import RenderCancelled
+
+            self._on_event(RenderCancelled(frames_done=sorted(self.doc.render.frames)))
+        self.sigRunning.emit(False)
+
+
+__all__ = ["RenderController", "is_out_of_memory", "FramesReady"]
