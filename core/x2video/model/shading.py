@@ -29,12 +29,13 @@ _C1 = np.array([1.0, 0.0425, 1.04, -0.04], np.float32)
 
 
 def env_brdf_approx(roughness: np.ndarray, n_dot_v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Split-sum GGX environment BRDF scale A and bias B (Karis 2014), elementwise on (H, W) arrays."""
+    """Split-sum GGX environment BRDF scale A and bias B (Karis 2014), elementwise on (H, W) arrays.
+    The fit dips slightly below zero (B ~ -0.002) for rough surfaces; both are clamped at 0."""
     r = roughness[..., None] * _C0 + _C1  # (H, W, 4)
     a004 = np.minimum(r[..., 0] * r[..., 0], np.exp2(-9.28 * n_dot_v)) * r[..., 0] + r[..., 1]
     a = a004 * -1.04 + r[..., 2]
     b = a004 * 1.04 + r[..., 3]
-    return a.astype(np.float32), b.astype(np.float32)
+    return np.maximum(a, 0).astype(np.float32), np.maximum(b, 0).astype(np.float32)
 
 
 def _one(x: np.ndarray | None) -> np.ndarray | None:
