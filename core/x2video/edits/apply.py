@@ -1,0 +1,98 @@
+"""`apply_edits`: the pure function from (Shot, Edits, frame) to the model's `FrameConditioning`."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from x2video.channels import INTRINSIC
+from x2video.conditioning import FrameConditioning
+from x2video.edits.model import Edits
+from x2video.edits.ops import MaskOut
+from x2video.shot import Shot
+
+
+def apply_edits(shot: Shot, edits: Edits, t: int) -> FrameConditioning:
+    """The edited intrinsic channels of frame `t`, the A|M|R union mask and the local-prompt masks.
+
+    Pure: reads the shot and the edits, modifies neither. Channels missing from the shot or in
+    `edits.dropped` are None. Ops run in list order; `MaskOut` ops zero their channels inside
+    the mask and add the region (mask > 0.5) to `amr_mask`. `local_masks` follow
+    `edits.prompts().local`.
+    """
+    edits.validate()
+    h, w = shot.size
+    channels: dict[str, np.ndarray | None] = {
+        n: (shot.channel(n, t) if shot.has(n) and n not in edits.dropped else None) for n in INTRINSIC
+    }
+    cache: dict[str, np.ndarray] = {}
+
+    def mask(name: str | None) -> np.ndarray | None:
+        if name is None:
+            return None
+        if name not in cache:
+            cache[name] = edits.masks[name].at(shot, t)
+        return cache[name]
+
+    amr = np.zeros((h, w), np.float32)
+    for op in edits.ops:
+        m = mask(op.mask)
+        op.apply(channels, m)
+        if isinstance(op, MaskOut) and m is not None:
+            amr = np.maximum(amr, (m > 0.5).astype(np.float32))
+    names = edits.local_prompt_masks()
+    local = np.stack([mask(n) for n in names]) if names else np.zeros((0, h, w), np.float32)  # (P, H, W)
+    return FrameConditioning(channels=channels, amr_mask=amr, local_masks=local.astype(np.float32), frame_index=t)
+
+
+def resolve_reference(shot: Shot, edits: Edits, base_dir: str | Path | None = None) -> tuple[int, np.ndarray] | None:
+    """(frame index where the reference sits, linear RGB float32 (H, W, 3) at the shot's size), or None.
+
+    An image file sits at frame 0; PNG/JPG are sRGB-decoded, EXR taken as linear (negatives and
+    NaN zeroed). A different aspect ratio is centre-cropped to the shot's before resizing. A shot
+    frame reference is `rgb/` of that frame.
+    """
+    ref = edits.reference
+    if ref is None:
+        return None
+    if ref.frame is not None:
+        if not shot.has("rgb"):
+            raise ValueError(f"reference frame {ref.frame}: shot {shot.info.source!r} has no rgb channel")
+        if not 0 <= ref.frame < shot.num_frames:
+            raise ValueError(f"reference frame {ref.frame} outside the shot's {shot.num_frames} frames")
+        return ref.frame, shot.channel("rgb", ref.frame).astype(np.float32)
+    from x2video.io.convention import zero_nonfinite
+    from x2video.io.image import read_image
+    from x2video.channels import srgb_to_linear
+
+    path = Path(ref.path)  # type: ignore[arg-type]
+    if not path.is_absolute() and base_dir is not None:
+        path = Path(base_dir) / path
+    img = read_image(path)
+    colour = [c for c in img.channel_names if c not in ("A", "a")]
+    if len(colour) == 1:
+        colour = colour * 3
+    names = [c for c in ("R", "G", "B") if c in img.planes] if all(c in img.planes for c in "RGB") else colour[:3]
+    rgb = img.stack(names)
+    rgb = zero_nonfinite(rgb, str(path), "reference")
+    rgb = srgb_to_linear(rgb) if img.max_int is not None else np.maximum(rgb, 0)
+    return 0, fit_image(rgb, shot.size)
+
+
+def fit_image(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Centre-crop `rgb` to the aspect ratio of `size` = (H, W), then resize to it (area when shrinking)."""
+    H, W = size
+    h, w = rgb.shape[:2]
+    if h * W > w * H:  # too tall
+        ch = max(1, round(w * H / W))
+        y0 = (h - ch) // 2
+        rgb = rgb[y0 : y0 + ch]
+    elif h * W < w * H:  # too wide
+        cw = max(1, round(h * W / H))
+        x0 = (w - cw) // 2
+        rgb = rgb[:, x0 : x0 + cw]
+    if rgb.shape[:2] == (H, W):
+        return np.ascontiguousarray(rgb, dtype=np.float32)
+    interp = cv2.INTER_AREA if rgb.shape[0] > H else cv2.INTER_LINEAR
+    return cv2.resize(np.ascontiguousarray(rgb, dtype=np.float32), (W, H), interpolation=interp)
