@@ -1,25 +1,24 @@
 """Mask propagation with DIS optical flow on a synthetic translating textured sequence."""
+import cv2
 import numpy as np
 
 from x2video.edits import propagate_mask
 from x2video.shot import ArrayShot
 
 T, H, W = 11, 96, 128
-DX, DY = 2, 1  # pixels per frame
+DX, DY = 1.6, 0.7  # pixels per frame (sub-pixel, so bilinear resampling is exercised)
 
 
 def _scene():
     rng = np.random.default_rng(3)
-    big = rng.random((H + 40, W + 60, 3)).astype(np.float32)
-    import cv2
-
+    big = rng.random((H, W, 3)).astype(np.float32)
     big = cv2.GaussianBlur(big, (0, 0), 1.5)
     big = (big - big.min()) / (big.max() - big.min())
     frames, masks = [], []
     for t in range(T):
-        # camera pans: content moves by (+DX, +DY) per frame
-        y0, x0 = 20 - DY * t, 30 - DX * t
-        frames.append(big[y0 : y0 + H, x0 : x0 + W])
+        # the content moves by (+DX, +DY) per frame (mirrored border brings in new texture)
+        A = np.float32([[1, 0, DX * t], [0, 1, DY * t]])
+        frames.append(cv2.warpAffine(big, A, (W, H), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT_101))
         m = np.zeros((H, W), np.float32)
         cy, cx = 40 + DY * t, 50 + DX * t
         yy, xx = np.mgrid[:H, :W]

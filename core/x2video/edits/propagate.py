@@ -27,11 +27,16 @@ def flow_image(shot: Shot, t: int) -> np.ndarray:
     return np.round(np.mean(parts, axis=0) * 255).astype(np.uint8)
 
 
-def warp(mask: np.ndarray, flow_back: np.ndarray) -> np.ndarray:
-    """Pull `mask` (H, W) along `flow_back` (H, W, 2): out(x) = mask(x + flow_back(x))."""
-    h, w = mask.shape
+def warp(image: np.ndarray, flow_back: np.ndarray, border: int = cv2.BORDER_CONSTANT) -> np.ndarray:
+    """Pull `image` (H, W[, C]) along `flow_back` (H, W, 2): out(x) = image(x + flow_back(x)), bilinear."""
+    h, w = flow_back.shape[:2]
     gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    return cv2.remap(mask.astype(np.float32), gx + flow_back[..., 0], gy + flow_back[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return cv2.remap(image.astype(np.float32), gx + flow_back[..., 0], gy + flow_back[..., 1], cv2.INTER_LINEAR, borderMode=border, borderValue=0)
+
+
+def compose(step_back: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """Flow from frame t to t0, given step_back (t -> t-1) and acc (t-1 -> t0); both (H, W, 2)."""
+    return step_back + warp(acc, step_back, cv2.BORDER_REPLICATE)
 
 
 def propagate_mask(
@@ -46,8 +51,9 @@ def propagate_mask(
 ) -> dict[int, np.ndarray]:
     """Carry `mask` (H, W) painted on frame `t0` to the other frames (default: all), step by step.
 
-    Each step computes DIS flow from frame t+-1 back to the previous one and pulls the mask along
-    it; a binary input mask is re-binarised (>= 0.5) after every step so it does not blur.
+    Each step computes DIS flow from frame t back to the previous one and chains it onto the
+    flow back to t0, so the painted mask is resampled once per frame (no blur build-up); a binary
+    input mask stays binary (>= 0.5).
     Returns {frame: (H, W) float32} including t0. `on_progress(done, total)` is called per
     frame; `should_stop()` returning True ends early with what was done.
     """
@@ -66,13 +72,14 @@ def propagate_mask(
     total = (fwd_end - t0) + (t0 - back_end)
     done = 0
     for step, end in ((1, fwd_end), (-1, back_end)):
-        cur, img_cur = mask, flow_image(shot, t0)
+        acc, img_cur = np.zeros((*mask.shape, 2), np.float32), flow_image(shot, t0)  # (H, W, 2) flow to t0
         for t in range(t0 + step, end + step, step):
             if should_stop is not None and should_stop():
                 return {k: v for k, v in out.items() if k in wanted}
             img_next = flow_image(shot, t)
-            flow_back = dis.calc(img_next, img_cur, None)  # (H, W, 2): pixel of frame t -> its place in the previous one
-            cur = warp(cur, flow_back)
+            step_back = dis.calc(img_next, img_cur, None)  # (H, W, 2): pixel of frame t -> its place in the previous one
+            acc = compose(step_back, acc)
+            cur = warp(mask, acc)
             if binary:
                 cur = (cur >= 0.5).astype(np.float32)
             out[t] = cur
