@@ -14,6 +14,16 @@ from pathlib import Path
 from typing import Any, Iterator
 
 
+def _umask() -> int:
+    old = os.umask(0)
+    os.umask(old)
+    return old
+
+
+#: files we create get the usual permissions (mkstemp would leave them 0600)
+_FILE_MODE = 0o666 & ~_umask()
+
+
 def temp_path_for(path: str | Path) -> Path:
     """A fresh, unused temporary path beside `path` that ends with the same suffix."""
     path = Path(path)
@@ -34,6 +44,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     tmp = temp_path_for(path)
     try:
         yield tmp
+        os.chmod(tmp, _FILE_MODE)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):

@@ -20,7 +20,7 @@ def detect_format(path: str | Path) -> str:
         if p.name.lower().endswith(tuple(f"-{c}{e}" for c in ("albedo", "normal", "roughness", "metallic", "irradiance", "ref") for e in (".png", ".jpg", ".jpeg", ".exr"))):
             return "xrgb"
         raise ValueError(f"{p}: not a shot (give a shot folder, a multi-layer EXR, or an XRGB '<name>-albedo.png' file)")
-    if (p / "shot.json").is_file() or channel_folders(p):
+    if channel_folders(p):
         return "folder"
     from x2video.io.xrgb import find_xrgb_sets
 
@@ -29,6 +29,8 @@ def detect_format(path: str | Path) -> str:
     exrs = [q for q in p.iterdir() if q.suffix.lower() == ".exr" and not q.name.startswith(".")]
     if exrs:
         return "multilayer"
+    if (p / "shot.json").is_file():
+        return "folder"  # FolderShot names what is missing
     raise ValueError(
         f"{p}: no shot found (expected channel folders albedo/ normal/ ..., multi-layer EXR frames, or XRGB '<name>-albedo.png' files)"
     )
