@@ -1,0 +1,103 @@
+"""`x2video info SHOT`: frames, size, channels present, value ranges and problems found."""
+from __future__ import annotations
+
+import argparse
+import json
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("info", help="describe a shot: frames, size, channels, value ranges, problems")
+    p.add_argument("shot", type=Path, help="shot folder, multi-layer EXR (folder or file), or XRGB set")
+    p.add_argument("--frames", type=int, default=8, help="scan this many evenly spaced frames for ranges (0 = all; default 8)")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.set_defaults(func=run)
+
+
+def inspect(path: Path, frames: int = 8, progress: Any = None) -> dict[str, Any]:
+    """The report `x2video info` prints, as a dict (ranges over the scanned frames; problems as text)."""
+    from x2video.io import detect_format, load_shot
+
+    problems: list[str] = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fmt = detect_format(path)
+        shot = load_shot(path)
+        n = shot.num_frames
+        ts = list(range(n)) if frames <= 0 or frames >= n else sorted({int(round(v)) for v in np.linspace(0, n - 1, frames)})
+        ranges: dict[str, list[float]] = {}
+        for i, t in enumerate(ts):
+            for c in shot.channels:
+                try:
+                    a = shot.channel(c, t)
+                except ValueError as exc:
+                    problems.append(str(exc))
+                    continue
+                lo, hi = float(a.min()), float(a.max())
+                r = ranges.setdefault(c, [lo, hi])
+                r[0], r[1] = min(r[0], lo), max(r[1], hi)
+                if c == "normal":
+                    norms = np.linalg.norm(a, axis=-1)
+                    zero = int((norms < 0.5).sum())
+                    if zero:
+                        problems.append(f"frame {t}: {zero} pixel(s) without a normal (zero vector)")
+            if progress is not None:
+                progress(i, len(ts))
+        problems += [str(w.message) for w in caught]
+    missing = [c for c in ("albedo", "normal", "roughness", "metallic", "irradiance") if c not in shot.channels]
+    info = shot.info
+    return {
+        "path": str(path),
+        "format": fmt,
+        "frames": n,
+        "width": info.width,
+        "height": info.height,
+        "fps": info.fps,
+        "channels": list(shot.channels),
+        "dropped": missing,
+        "motion": bool(getattr(shot, "_motion", None)),
+        "poses": info.poses is not None,
+        "irradiance_scale": info.irradiance_scale,
+        "caption": info.caption,
+        "objects": {str(k): v for k, v in info.object_captions.items()},
+        "scanned_frames": ts,
+        "ranges": ranges,
+        "problems": problems,
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    bar = tqdm(desc="scanning", unit="frame", leave=False, disable=args.json)
+    def progress(i: int, total: int) -> None:
+        bar.total = total
+        bar.update(1)
+
+    report = inspect(args.shot, args.frames, progress)
+    bar.close()
+    if args.json:
+        print(json.dumps(report, indent=1))
+        return 0
+    print(f"{report['path']}  ({report['format']})")
+    print(f"  frames   {report['frames']}  at {report['fps']:g} fps, {report['width']}x{report['height']}")
+    print(f"  channels {', '.join(report['channels'])}" + (f"  (dropped: {', '.join(report['dropped'])})" if report["dropped"] else ""))
+    print(f"  poses    {'yes' if report['poses'] else 'no'}   irradiance scale {report['irradiance_scale']:.4g}")
+    if report["caption"]:
+        print(f"  caption  {report['caption']}")
+    for k, v in report["objects"].items():
+        print(f"  object {k}: {v}")
+    print(f"  value ranges over {len(report['scanned_frames'])} frame(s):")
+    for c, (lo, hi) in report["ranges"].items():
+        print(f"    {c:<11s} {lo:10.4g} .. {hi:<10.4g}")
+    if report["problems"]:
+        print(f"  problems ({len(report['problems'])}):")
+        for p in report["problems"][:50]:
+            print(f"    - {p}")
+    else:
+        print("  problems: none found")
+    return 0
