@@ -44,18 +44,22 @@ def heads_merge(x: torch.Tensor) -> torch.Tensor:
     return x.transpose(1, 2).reshape(b, n, h * d)
 
 
-def mhf_gather(kv: torch.Tensor, num_frames: int) -> torch.Tensor:
-    """Route head h of frame i to frame (i + h) mod N: (B*N, H, L, d) -> (B*N, H, L, d).
+def mhf_gather(kv: torch.Tensor, num_frames: int, heads: int) -> torch.Tensor:
+    """Route head h of frame i to frame (i + h) mod N: projected keys or values (B*N, L, H*d) -> (B*N, H, L, d).
 
-    A gather over the frame axis per head, so the attention that follows costs exactly one
-    self-attention (each query still sees L keys)."""
-    bn, h, n, d = kv.shape
-    b = bn // num_frames
-    x = kv.view(b, num_frames, h, n, d)  # (B, N, H, L, d)
-    frame = torch.arange(num_frames, device=kv.device)
-    head = torch.arange(h, device=kv.device)
-    src = (frame[:, None] + head[None, :]) % num_frames  # (N, H): source frame of head h at frame i
-    return x[:, src, head[None, :]].reshape(bn, h, n, d)  # (B, N, H, L, d) -> (B*N, H, L, d)
+    One strided copy per head straight into the attention layout, so the routing costs the
+    same copy SDPA makes of self-attention's transposed keys anyway; the attention that
+    follows costs exactly one self-attention (each query still sees L keys)."""
+    bn, length, c = kv.shape
+    b, n, d = bn // num_frames, num_frames, c // heads
+    src = kv.view(b, n, length, heads, d)  # (B, N, L, H, d)
+    out = kv.new_empty(b, n, heads, length, d)  # (B, N, H, L, d)
+    for h in range(heads):
+        s = h % n  # frame i reads frame i + s (mod N) through head h
+        out[:, : n - s, h] = src[:, s:, :, h]
+        if s:
+            out[:, n - s :, h] = src[:, :s, :, h]
+    return out.view(bn, heads, length, d)
 
 
 class HybridSelfAttnProcessor(nn.Module):
@@ -146,14 +150,12 @@ class HybridSelfAttnProcessor(nn.Module):
         """MHF TempAttn: head h of frame i attends frame (i + h) mod N. (BN, L, C) -> (BN, H, L, d)."""
         branch = ctx.temporal_branch(self.interp_levels)
         q = heads_split(self.temp.q(x, branch), attn.heads)  # (BN, H, L, d)
-        k = heads_split(self.temp.k(x, branch), attn.heads)
-        v = heads_split(self.temp.v(x, branch), attn.heads)
+        k = mhf_gather(self.temp.k(x, branch), ctx.num_frames, attn.heads)  # (BN, H, L, d), head h from frame (i+h) mod N
+        v = mhf_gather(self.temp.v(x, branch), ctx.num_frames, attn.heads)
         if attn.norm_q is not None:
             q = attn.norm_q(q)
         if attn.norm_k is not None:
-            k = attn.norm_k(k)
-        k = mhf_gather(k, ctx.num_frames)  # (BN, H, L, d), head h from frame (i+h) mod N
-        v = mhf_gather(v, ctx.num_frames)
+            k = attn.norm_k(k)  # per-head norm: commutes with the frame routing
         return F.scaled_dot_product_attention(q, k, v)
 
     # -- helpers -------------------------------------------------------------------

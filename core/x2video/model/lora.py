@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import Iterable
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 
@@ -26,11 +27,17 @@ class LoRA(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.up(self.down(x)) * self.scale
 
+    def delta(self) -> torch.Tensor:
+        """The update as a dense (out, in) weight: scale * up @ down."""
+        return (self.up.weight @ self.down.weight) * self.scale
+
 
 class SwitchableQKV(nn.Module):
     """q/k/v projections (base weights copied from a self-attention) plus named LoRA branches.
 
-    `q(x, branch)` = `to_q(x) + lora[branch].q(x)`; same for k and v.
+    `q(x, branch)` = `to_q(x) + lora[branch].q(x)`, computed as one linear with the merged
+    weight `W + scale * up @ down` (building it costs C*r*C, far below one projection of
+    the L*N tokens, so a branch is as cheap as the plain projection); same for k and v.
     """
 
     def __init__(self, to_q: nn.Linear, to_k: nn.Linear, to_v: nn.Linear, branches: Iterable[str], rank: int, scale: float = 1.0) -> None:
@@ -58,13 +65,19 @@ class SwitchableQKV(nn.Module):
         return self.lora[name]  # type: ignore[return-value]
 
     def q(self, x: torch.Tensor, branch: str) -> torch.Tensor:
-        return self.to_q(x) + self._branch(branch)["q"](x)
+        return _merged(self.to_q, self._branch(branch)["q"], x)
 
     def k(self, x: torch.Tensor, branch: str) -> torch.Tensor:
-        return self.to_k(x) + self._branch(branch)["k"](x)
+        return _merged(self.to_k, self._branch(branch)["k"], x)
 
     def v(self, x: torch.Tensor, branch: str) -> torch.Tensor:
-        return self.to_v(x) + self._branch(branch)["v"](x)
+        return _merged(self.to_v, self._branch(branch)["v"], x)
+
+
+def _merged(base: nn.Linear, lora: nn.Module, x: torch.Tensor) -> torch.Tensor:
+    """base(x) + lora(x) as a single linear with the merged weight (differentiable in both)."""
+    assert isinstance(lora, LoRA)
+    return F.linear(x, base.weight + lora.delta().to(base.weight.dtype), base.bias)
 
 
 def _copy_linear(src: nn.Linear) -> nn.Linear:
