@@ -1,0 +1,257 @@
+"""`x2video train vae|cache|image|video|lcm`: the training stages (issue 5), each resumable, with a progress bar."""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import time
+from pathlib import Path
+from typing import Callable
+
+log = logging.getLogger(__name__)
+
+
+def _ints(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(v) for v in text.split(","))
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of integers") from e
+
+
+def _size(text: str) -> tuple[int, int]:
+    from x2video.train.data import parse_size
+
+    try:
+        return parse_size(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from e
+
+
+def _loop_args(p: argparse.ArgumentParser, steps: int, lr: float, ema: float = 0.999) -> None:
+    g = p.add_argument_group("optimisation (resumes from the newest step-* checkpoint in --out)")
+    g.add_argument("--steps", type=int, default=steps, help=f"total optimiser steps (default {steps})")
+    g.add_argument("--lr", type=float, default=lr, help=f"peak AdamW learning rate (default {lr})")
+    g.add_argument("--warmup", type=int, default=50, help="linear warm-up steps")
+    g.add_argument("--lr-half-every", type=int, default=0, help="halve the learning rate every N steps (paper: 20000); 0 = constant")
+    g.add_argument("--ema", type=float, default=ema, help="EMA decay of the saved weights (0 = no EMA)")
+    g.add_argument("--ckpt-every", type=int, default=500, help="checkpoint every N steps (and at the end)")
+    g.add_argument("--keep", type=int, default=2, help="step checkpoints kept on disk")
+    g.add_argument("--time-limit", type=float, default=0.0, help="stop with a checkpoint after this many minutes (0 = none)")
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--mixed-precision", choices=("no", "fp16", "bf16"), default="no", help="accelerate mixed precision (GPU)")
+    g.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch's default; 1 is fastest on a busy machine)")
+
+
+def _aug_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("conditioning augmentation")
+    g.add_argument("--channel-drop", type=float, default=0.5, help="probability of dropping each intrinsic channel")
+    g.add_argument("--prompt-drop", type=float, default=0.3, help='probability the global prompt is ""')
+    g.add_argument("--mask-p", type=float, default=0.5, help="probability a sample has A|M|R-masked objects")
+    g.add_argument("--max-masks", type=int, default=5, help="most masked objects (local prompts) per sample")
+
+
+def _window_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("windows")
+    g.add_argument("--frames", type=int, default=5, help="N: frames per window")
+    g.add_argument("--levels", type=int, default=3, help="K: recursive levels (keyframe strides (N-1)^(k-1), interpolation levels 1..K)")
+    g.add_argument("--ref-p", type=float, default=0.5, help="probability a window carries its reference frame(s)")
+
+
+def _loop_cfg(a: argparse.Namespace):
+    from x2video.train.loop import LoopConfig
+
+    if a.threads:
+        import torch
+
+        torch.set_num_threads(a.threads)
+    if a.steps < 1:
+        raise ValueError("--steps must be >= 1")
+    return LoopConfig(steps=a.steps, lr=a.lr, warmup=a.warmup, lr_half_every=a.lr_half_every, ema_decay=a.ema,
+                      ckpt_every=a.ckpt_every, keep_ckpts=a.keep, time_limit_s=a.time_limit * 60, seed=a.seed,
+                      mixed_precision=a.mixed_precision)
+
+
+def _aug(a: argparse.Namespace):
+    from x2video.train.batches import AugmentConfig
+
+    return AugmentConfig(channel_drop_p=a.channel_drop, prompt_drop_p=a.prompt_drop, mask_p=a.mask_p, max_masks=a.max_masks)
+
+
+def _window(a: argparse.Namespace):
+    from x2video.train.batches import WindowConfig
+
+    return WindowConfig(frames=a.frames, levels=a.levels, ref_p_key=a.ref_p, ref_p_interp=a.ref_p)
+
+
+class Progress:
+    """A tqdm bar fed by the loop's on_step callback; prints the step-time split once."""
+
+    def __init__(self, total: int, desc: str) -> None:
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=total, desc=desc, unit="step", dynamic_ncols=True)
+        self.t0 = time.perf_counter()
+
+    def __call__(self, s) -> None:
+        self.bar.n = s.step
+        self.bar.set_postfix(loss=f"{s.loss:.4f}", steps_s=f"{s.steps_per_s:.2f}", samples_s=f"{s.samples_per_s:.1f}", refresh=False)
+        self.bar.refresh()
+        if s.timing:
+            t = s.timing
+            total = t["data"] + t["forward"] + t["backward"]
+            self.bar.write(f"step time {total:.3f} s = data {t['data']:.3f} + forward {t['forward']:.3f} + backward/optimiser {t['backward']:.3f}")
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def _run(desc: str, steps: int, fn: Callable) -> dict:
+    bar = Progress(steps, desc)
+    try:
+        return fn(bar)
+    finally:
+        bar.close()
+
+
+def _print_result(result: dict) -> None:
+    print(json.dumps(result, indent=1))
+
+
+# -- stages -------------------------------------------------------------------------
+def cmd_vae(a: argparse.Namespace) -> int:
+    from x2video.train.data import open_dataset
+    from x2video.train.vae_stage import VAEStageConfig, run_vae_stage
+
+    loop = _loop_cfg(a)
+    ds = open_dataset(a.data)
+    stage = VAEStageConfig(preset=a.preset, vae_channels=a.vae_channels, layers_per_block=a.vae_layers, size=a.size, crop=a.crop,
+                           batch=a.batch, kl_weight=a.kl_weight, pool_frames_per_room=a.pool_frames, eval_frames_per_room=a.eval_frames,
+                           seed=a.seed)
+    _print_result(_run("vae", loop.steps, lambda bar: run_vae_stage(ds["train"], ds["test"], a.out, stage, loop, bar)))
+    return 0
+
+
+def cmd_cache(a: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from x2video.train.cache import build_cache
+    from x2video.train.data import open_dataset
+    from x2video.train.runs import load_vae
+
+    if a.threads:
+        import torch
+
+        torch.set_num_threads(a.threads)
+    ds = open_dataset(a.data, need_test=False)
+    cfg, vae = load_vae(a.vae)
+    total = sum(s.num_frames for v in ds.values() for s in v)
+    bar = tqdm(total=total, desc="cache", unit="frame", dynamic_ncols=True)
+    t0 = time.perf_counter()
+
+    def progress(done: int, tot: int) -> None:
+        bar.n = done
+        bar.refresh()
+
+    try:
+        info = build_cache(ds, vae, cfg, a.out, size=a.size, batch=a.batch, progress=progress)
+    finally:
+        bar.close()
+    secs = time.perf_counter() - t0
+    rooms = {s: sum(1 for r in info.rooms if r["split"] == s) for s in ("train", "test")}
+    _print_result({"cache": str(a.out), "frames": total, "rooms": rooms, "size": info.size, "latent_size": info.latent_size,
+                   "prompts": len(info.prompts), "seconds": round(secs, 1), "frames_per_s": round(total / max(secs, 1e-9), 2)})
+    return 0
+
+
+def cmd_image(a: argparse.Namespace) -> int:
+    from x2video.train.diffusion_stages import ImageStageConfig, run_image_stage
+
+    loop = _loop_cfg(a)
+    stage = ImageStageConfig(preset=a.preset, unet_channels=a.unet_channels, shading_prior=not a.no_shading_prior, batch=a.batch,
+                             seed=a.seed, augment=_aug(a))
+    _print_result(_run("image", loop.steps, lambda bar: run_image_stage(a.cache, a.out, stage, loop, bar)))
+    return 0
+
+
+def cmd_video(a: argparse.Namespace) -> int:
+    from x2video.train.diffusion_stages import VideoStageConfig, run_video_stage
+
+    loop = _loop_cfg(a)
+    sp = None if a.shading_prior is None else a.shading_prior == "on"
+    stage = VideoStageConfig(batch=a.batch, shading_prior=sp, seed=a.seed, augment=_aug(a), window=_window(a))
+    _print_result(_run("video", loop.steps, lambda bar: run_video_stage(a.init, a.cache, a.out, stage, loop, bar)))
+    return 0
+
+
+def cmd_lcm(a: argparse.Namespace) -> int:
+    from x2video.train.lcm_stage import LCMStageConfig, run_lcm_stage
+
+    loop = _loop_cfg(a)
+    stage = LCMStageConfig(batch=a.batch, target_ema=a.target_ema, seed=a.seed, augment=_aug(a), window=_window(a))
+    _print_result(_run("lcm", loop.steps, lambda bar: run_lcm_stage(a.teacher, a.cache, a.out, stage, loop, bar)))
+    return 0
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("train", help="train the VAE, cache latents, train the image, video and LCM models",
+                              description="Training stages, in order: vae -> cache -> image -> video -> lcm. Each is resumable: "
+                                          "run the same command again (with a larger --steps) to continue.")
+    sub = p.add_subparsers(dest="stage", metavar="STAGE")
+    sub.required = True
+
+    s = sub.add_parser("vae", help="train the AutoencoderKL on rgb/albedo/normal/roughness/metallic crops")
+    s.add_argument("--data", type=Path, required=True, help="data set folder with train/ and test/ rooms")
+    s.add_argument("--out", type=Path, required=True, help="run folder")
+    s.add_argument("--preset", default="tiny", help="model preset giving the default VAE sizes (tiny, small, sd21)")
+    s.add_argument("--vae-channels", type=_ints, default=None, help="VAE block widths, e.g. 32,64,128 (f = 2^(n-1) = 4)")
+    s.add_argument("--vae-layers", type=int, default=None, help="ResNet layers per VAE block")
+    s.add_argument("--size", type=_size, default=None, help="resize frames to WxH first (the diffusion size, e.g. 160x112)")
+    s.add_argument("--crop", type=int, default=64, help="square crop side")
+    s.add_argument("--batch", type=int, default=16, help="crops per batch")
+    s.add_argument("--kl-weight", type=float, default=1e-6, help="KL weight per pixel")
+    s.add_argument("--pool-frames", type=int, default=16, help="frames per training room held in memory")
+    s.add_argument("--eval-frames", type=int, default=2, help="held-out frames per test room for the PSNR report")
+    _loop_args(s, steps=2000, lr=2e-4)
+    s.set_defaults(func=cmd_vae)
+
+    s = sub.add_parser("cache", help="encode every frame of the data set once with the frozen VAE")
+    s.add_argument("--data", type=Path, required=True, help="data set folder with train/ (and test/) rooms")
+    s.add_argument("--vae", type=Path, required=True, help="VAE run folder (newest checkpoint) or model folder")
+    s.add_argument("--size", type=_size, default=None, help="encode frames resized to WxH (e.g. 160x112); default native")
+    s.add_argument("--out", type=Path, required=True, help="cache folder")
+    s.add_argument("--batch", type=int, default=8, help="frames per VAE call")
+    s.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
+    s.set_defaults(func=cmd_cache)
+
+    s = sub.add_parser("image", help="XRGB-style image UNet on cached latents")
+    s.add_argument("--cache", type=Path, required=True)
+    s.add_argument("--out", type=Path, required=True)
+    s.add_argument("--preset", default="tiny", help="UNet preset (tiny, small, sd21)")
+    s.add_argument("--unet-channels", type=_ints, default=None, help="UNet block widths overriding the preset, e.g. 32,64,128")
+    s.add_argument("--no-shading-prior", action="store_true", help="the paper's layout: no classical shading input")
+    s.add_argument("--batch", type=int, default=16, help="frames per batch")
+    _aug_args(s)
+    _loop_args(s, steps=2000, lr=1e-4)
+    s.set_defaults(func=cmd_image)
+
+    s = sub.add_parser("video", help="convert the image UNet to the video UNet and train it on windows")
+    s.add_argument("--init", type=Path, required=True, help="image run (newest checkpoint) or image model folder")
+    s.add_argument("--cache", type=Path, required=True)
+    s.add_argument("--out", type=Path, required=True)
+    s.add_argument("--batch", type=int, default=2, help="windows per batch")
+    s.add_argument("--shading-prior", choices=("on", "off"), default=None, help="default: as the image model")
+    _aug_args(s)
+    _window_args(s)
+    _loop_args(s, steps=2000, lr=5e-5)
+    s.set_defaults(func=cmd_video)
+
+    s = sub.add_parser("lcm", help="LCM distillation of the video model for 2-step sampling")
+    s.add_argument("--teacher", type=Path, required=True, help="video run (newest checkpoint) or video model folder")
+    s.add_argument("--cache", type=Path, required=True)
+    s.add_argument("--out", type=Path, required=True)
+    s.add_argument("--batch", type=int, default=2, help="windows per batch")
+    s.add_argument("--target-ema", type=float, default=0.95, help="EMA decay of the target network")
+    _aug_args(s)
+    _window_args(s)
+    _loop_args(s, steps=1000, lr=1e-5, ema=0.99)
+    s.set_defaults(func=cmd_lcm)

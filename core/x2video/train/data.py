@@ -1,0 +1,89 @@
+"""Training data on disk: the train/test room folders of `x2video dataset make`, and frames resized to the training size.
+
+A data set folder holds one shot folder per room (docs/SHOT_FORMAT.md) under `train/` and
+`test/` (held-out rooms, never trained on). A folder of shot folders without the split
+sub-folders is read as one split.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from x2video.shot import Shot
+
+SPLITS = ("train", "test")
+
+
+def shot_dirs(data_dir: str | Path, split: str) -> list[Path]:
+    """The shot folders (those holding a shot.json) of one split of a data set, sorted by name."""
+    root = Path(data_dir)
+    if not root.is_dir():
+        raise FileNotFoundError(f"data set folder not found: {root}")
+    base = root / split
+    if not base.is_dir():
+        if (root / "shot.json").is_file():
+            raise ValueError(f"{root} is one shot folder; --data wants a data set folder with train/ and test/ rooms")
+        return []
+    return sorted(p for p in base.iterdir() if p.is_dir() and (p / "shot.json").is_file())
+
+
+def open_split(data_dir: str | Path, split: str) -> list[Shot]:
+    """Lazily opened shots of one split (`x2video.io.shotdir.load_shot`)."""
+    from x2video.io.shotdir import load_shot
+
+    return [load_shot(p) for p in shot_dirs(data_dir, split)]
+
+
+def open_dataset(data_dir: str | Path, need_test: bool = True) -> dict[str, list[Shot]]:
+    """{'train': [...], 'test': [...]} shots of a data set folder; errors name what is missing."""
+    out = {s: open_split(data_dir, s) for s in SPLITS}
+    if not out["train"]:
+        raise FileNotFoundError(f"{data_dir}: no training rooms (expected {Path(data_dir) / 'train'}/<room>/shot.json)")
+    if need_test and not out["test"]:
+        raise FileNotFoundError(f"{data_dir}: no held-out rooms (expected {Path(data_dir) / 'test'}/<room>/shot.json)")
+    return out
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """'160x112' -> (width, height)."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError as e:
+        raise ValueError(f"size {text!r} is not WIDTHxHEIGHT (e.g. 160x112)") from e
+    if w <= 0 or h <= 0:
+        raise ValueError(f"size {text!r} must be positive")
+    return w, h
+
+
+def resize_channel(name: str, x: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:
+    """One channel (H, W, C) -> (h, w, C) at size=(w, h): area averaging (normals re-normalised),
+    nearest neighbour for object ids. Returns the input when the size already matches."""
+    if size is None or (x.shape[1], x.shape[0]) == tuple(size):
+        return x
+    w, h = size
+    if name == "ids":
+        y = cv2.resize(x[..., 0].astype(np.int32), (w, h), interpolation=cv2.INTER_NEAREST)
+        return y[..., None]
+    if x.shape[0] < h or x.shape[1] < w:
+        interp = cv2.INTER_LINEAR
+    else:
+        interp = cv2.INTER_AREA
+    y = cv2.resize(np.ascontiguousarray(x, np.float32), (w, h), interpolation=interp)
+    if y.ndim == 2:
+        y = y[..., None]
+    if name == "normal":
+        n = np.linalg.norm(y, axis=-1, keepdims=True)
+        y = np.where(n > 1e-3, y / np.maximum(n, 1e-6), 0.0).astype(np.float32)
+    return y
+
+
+def read_frame(shot: Shot, t: int, names: tuple[str, ...], size: tuple[int, int] | None) -> dict[str, np.ndarray]:
+    """The named channels of frame t at `size`; a missing channel raises naming the shot and frame."""
+    out = {}
+    for name in names:
+        if not shot.has(name):
+            raise ValueError(f"shot {shot.info.source!r} frame {t}: channel {name!r} is missing; training needs it")
+        out[name] = resize_channel(name, shot.channel(name, t), size)
+    return out

@@ -1,0 +1,46 @@
+"""The v-prediction diffusion loss (paper eq. loss) on the SD 2.1 schedule with zero-terminal-SNR rescaling.
+
+    x_t = sqrt(a_t) x_0 + sqrt(1 - a_t) eps,   v = sqrt(a_t) eps - sqrt(1 - a_t) x_0
+    L   = || v - v_theta(x_t, t, c) ||^2
+
+One timestep per window (a window is denoised jointly at inference), fresh noise per frame.
+The schedule is the sampler's (`x2video.sampling.samplers.SCHEDULE`), so what is trained is
+what DDIM/LCM sample.
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from diffusers import DDPMScheduler, UNet2DConditionModel
+
+from x2video.model.inputs import run_unet
+from x2video.sampling.samplers import SCHEDULE
+from x2video.train.batches import Batch
+
+
+def noise_scheduler() -> DDPMScheduler:
+    """The training noise schedule: SD 2.1 scaled-linear betas, zero terminal SNR, v-prediction."""
+    keys = ("num_train_timesteps", "beta_start", "beta_end", "beta_schedule", "prediction_type", "rescale_betas_zero_snr", "clip_sample")
+    return DDPMScheduler(**{k: SCHEDULE[k] for k in keys})
+
+
+def predict(unet: UNet2DConditionModel, x_t: torch.Tensor, t: torch.Tensor, b: Batch) -> torch.Tensor:
+    """v_theta for a batch: x_t (BN, 4, h, w), t (B,) per window -> (BN, 4, h, w)."""
+    return run_unet(
+        unet, x_t, t, b.cond, b.ref,
+        num_frames=b.num_frames, text_global=b.text_global, ref_positions=b.ref_positions,
+        mode=b.mode, level=b.level, text_local=b.text_local, local_masks=b.local_masks,
+    )
+
+
+def v_loss(unet: UNet2DConditionModel, sched: DDPMScheduler, b: Batch) -> tuple[torch.Tensor, dict[str, float]]:
+    """MSE between predicted and true velocity for random per-window timesteps."""
+    bn = b.x0.shape[0]
+    t = torch.randint(0, sched.config.num_train_timesteps, (b.windows,), device=b.x0.device)  # (B,)
+    t_frames = t.repeat_interleave(b.num_frames)  # (BN,)
+    noise = torch.randn_like(b.x0)
+    x_t = sched.add_noise(b.x0, noise, t_frames)
+    target = sched.get_velocity(b.x0, noise, t_frames)
+    v = predict(unet, x_t, t, b)
+    loss = F.mse_loss(v.float(), target.float())
+    return loss, {"t_mean": float(t.float().mean()), "frames": float(bn)}

@@ -1,0 +1,139 @@
+"""Image stage (the XRGB of our world) and video stage (paper Sec. Implementation) on the latent cache.
+
+Image stage: a freshly initialised XRGB-layout image UNet, v-prediction, single frames,
+channel dropout, A|M|R masks, global prompt, no reference. Video stage: the image UNet
+converted to the video UNet (Hybrid Self-Attention alphas 0, new inputs zero), windows of
+N=5 frames in keyframe or interpolation mode at level k (selecting the LoRA branches),
+references with p ~ 0.5, local prompts in Masked Cross-Attention; all parameters trainable.
+Both save `X2VideoModel` folders (`from_pretrained` loads `step-*/model/`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import torch
+from diffusers import UNet2DConditionModel
+
+from x2video.model.checkpoint import load_into, read_config, save_checkpoint
+from x2video.model.config import ModelConfig, UNetConfig, preset
+from x2video.model.unet import build_unet, convert_image_to_video
+from x2video.train.batches import AugmentConfig, LatentData, WindowConfig, image_batches, video_batches
+from x2video.train.diffusion import noise_scheduler, v_loss
+from x2video.train.loop import LoopConfig, StepLog, train
+from x2video.train.runs import check_same_vae, load_vae, model_dir, write_results
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class ImageStageConfig:
+    """The image stage (field docstrings are CLI help)."""
+
+    preset: str = "tiny"
+    """Model preset of the UNet (tiny: 32/64/128 channels)."""
+    unet_channels: tuple[int, ...] | None = None
+    """UNet block widths overriding the preset's (attention on all but the first level)."""
+    shading_prior: bool = True
+    """Feed the classical shading latent (our addition); the paper's layout is off."""
+    batch: int = 16
+    """Frames per batch."""
+    seed: int = 0
+    augment: AugmentConfig = field(default_factory=AugmentConfig)
+
+
+@dataclass
+class VideoStageConfig:
+    """The video stage (field docstrings are CLI help)."""
+
+    batch: int = 2
+    """Windows per batch (each of `window.frames` frames)."""
+    shading_prior: bool | None = None
+    """None: as the image model was trained."""
+    seed: int = 0
+    augment: AugmentConfig = field(default_factory=AugmentConfig)
+    window: WindowConfig = field(default_factory=WindowConfig)
+
+
+def image_model_config(stage: ImageStageConfig, cache_cfg: ModelConfig) -> ModelConfig:
+    """The preset's UNet with the cache's VAE, latent scales and text encoder; video=False."""
+    cfg = preset(stage.preset)
+    unet = cfg.unet
+    if stage.unet_channels:
+        widths = tuple(stage.unet_channels)
+        k = len(widths)
+        heads = tuple(min(8, w // 8) or 1 for w in widths)
+        unet = UNetConfig(block_out_channels=widths, layers_per_block=unet.layers_per_block,
+                          attention_levels=(False,) + (True,) * (k - 1), attention_heads=heads,
+                          cross_attention_dim=unet.cross_attention_dim, norm_num_groups=min(unet.norm_num_groups, min(widths)),
+                          use_linear_projection=unet.use_linear_projection)
+    return dataclasses.replace(cfg, unet=unet, vae=cache_cfg.vae, text=cache_cfg.text, latent_scales=dict(cache_cfg.latent_scales),
+                               video=False, shading_prior=stage.shading_prior)
+
+
+def _run(unet: UNet2DConditionModel, cfg: ModelConfig, cache: Path, out_dir: Path, loop: LoopConfig, batch_size: int,
+         batches, stage_config: dict, on_step: Callable[[StepLog], None] | None, key: str) -> dict:
+    _, vae = load_vae(cache / "model")
+    sched = noise_scheduler()
+    unet.requires_grad_(True)
+
+    def loss_fn(b, step):
+        return v_loss(unet, sched, b.to(next(unet.parameters()).device))
+
+    def save(module: torch.nn.Module, d: Path) -> None:
+        save_checkpoint(d, cfg, {"unet": module, "vae": vae})
+
+    ck = train(module=unet, loss_fn=loss_fn, batches=batches, save_fn=save, out_dir=out_dir, cfg=loop,
+               stage_config=stage_config, batch_size=batch_size, on_step=on_step)
+    summary = (out_dir / "summary.json").read_text() if (out_dir / "summary.json").is_file() else "{}"
+    import json
+
+    result = {"checkpoint": str(ck), "model": str(ck / "model"), "step": int(ck.name.split("-")[-1]),
+              "shading_prior": cfg.shading_prior, "speed": json.loads(summary)}
+    write_results(out_dir, key, result)
+    return result
+
+
+def run_image_stage(cache: str | Path, out_dir: str | Path, stage: ImageStageConfig, loop: LoopConfig,
+                    on_step: Callable[[StepLog], None] | None = None) -> dict:
+    """Train (or resume) the image UNet on the cache's train split."""
+    cache, out_dir = Path(cache), Path(out_dir)
+    cache_cfg = read_config(cache / "model")
+    cfg = image_model_config(stage, cache_cfg)
+    data = LatentData(cache, "train", cfg.latent_scales, cfg.shading_prior)
+    torch.manual_seed(stage.seed)
+    unet = build_unet(cfg)
+    n = sum(p.numel() for p in unet.parameters())
+    log.info("image UNet: %.2f M parameters, %d training frames", n / 1e6, data.num_rows)
+    sc = {"stage": "image", **dataclasses.asdict(stage), "model": cfg.to_dict(), "cache": str(cache.resolve())}
+    return _run(unet, cfg, cache, out_dir, loop, stage.batch, image_batches(data, stage.batch, stage.augment, stage.seed), sc, on_step, "image")
+
+
+def load_image_unet(init: str | Path) -> tuple[ModelConfig, UNet2DConditionModel]:
+    d = model_dir(init)
+    cfg = read_config(d)
+    if cfg.video:
+        raise ValueError(f"{d} holds a video model; --init wants the image stage's run or model")
+    unet = build_unet(cfg)
+    load_into(unet, d / "unet.safetensors", "unet")
+    return cfg, unet
+
+
+def run_video_stage(init: str | Path, cache: str | Path, out_dir: str | Path, stage: VideoStageConfig, loop: LoopConfig,
+                    on_step: Callable[[StepLog], None] | None = None) -> dict:
+    """Convert the image UNet of `init` to the video UNet and train it on windows of the cache."""
+    cache, out_dir = Path(cache), Path(out_dir)
+    img_cfg, image_unet = load_image_unet(init)
+    check_same_vae(img_cfg, read_config(cache / "model"), f"image model {init}")
+    sp = img_cfg.shading_prior if stage.shading_prior is None else stage.shading_prior
+    cfg = dataclasses.replace(img_cfg, video=True, shading_prior=sp)
+    unet = convert_image_to_video(image_unet, cfg.hybrid, sp)
+    data = LatentData(cache, "train", cfg.latent_scales, sp)
+    log.info("video UNet: %.2f M parameters, %d training frames", sum(p.numel() for p in unet.parameters()) / 1e6, data.num_rows)
+    sc = {"stage": "video", **dataclasses.asdict(stage), "model": cfg.to_dict(), "cache": str(cache.resolve()),
+          "init": str(model_dir(init).resolve())}
+    batches = video_batches(data, stage.batch, stage.augment, stage.window, stage.seed)
+    return _run(unet, cfg, cache, out_dir, loop, stage.batch * stage.window.frames, batches, sc, on_step, "video")
