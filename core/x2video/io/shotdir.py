@@ -160,16 +160,17 @@ class ShotWriter:
             raise ValueError(f"ShotWriter: info needs positive num_frames/height/width, got {info.num_frames}/{info.height}/{info.width}")
         if info.poses is not None and len(info.poses) != info.num_frames:
             raise ValueError(f"ShotWriter: info.poses has {len(info.poses)} poses for {info.num_frames} frames")
-        if (self.out_dir / "shot.json").exists():
-            if not overwrite:
-                raise ValueError(f"{self.out_dir}: already holds a shot (shot.json); pass overwrite=True to replace it")
-            self._clear()
+        if (self.out_dir / "shot.json").exists() and not overwrite:
+            raise ValueError(f"{self.out_dir}: already holds a shot (shot.json); pass overwrite=True to replace it")
+        if overwrite and self.out_dir.is_dir():
+            self._clear()  # also the frames of an unfinished earlier run
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self._written: dict[str, set[int]] = {}
         self._closed = False
 
     def _clear(self) -> None:
-        (self.out_dir / "shot.json").unlink()
+        (self.out_dir / "shot.json").unlink(missing_ok=True)
+        (self.out_dir / "cameras.json").unlink(missing_ok=True)
         for name in FOLDER_CHANNELS:
             d = self.out_dir / name
             if d.is_dir():
