@@ -209,3 +209,52 @@ def test_sink_rejects_incomplete(tmp_path) -> None:
     with pytest.raises(ValueError, match="missing frames \\[1\\]"):
         sink.finish()
     assert list(tmp_path.iterdir()) == []
+
+
+def test_prompt_only_change_reencodes_nothing() -> None:
+    from x2video.edits import Edits, Mask
+
+    shot = make_shot(9)
+    model = FakeModel()
+    renderer = Renderer(model)
+    edits = Edits(global_prompt="a warm evening")
+    a = frames_of(run(renderer, shot, RenderSettings(steps=2), edits=edits))
+    assert model.encoded_frames == 9
+    edits.global_prompt = "cool daylight"
+    mask = Mask()
+    mask.paint(0, np.ones((16, 24), np.float32))
+    mask.hold = True
+    edits.masks["sofa"] = mask
+    edits.local_prompts["sofa"] = "a red leather sofa"
+    b = frames_of(run(renderer, shot, RenderSettings(steps=2), edits=edits))
+    assert model.encoded_frames == 9, "a prompt-only change must not re-encode any frame"
+    assert renderer.cache_stats().misses == 9
+    assert all(not np.array_equal(a[i], b[i]) for i in a), "the prompt reached the model"
+    assert model.encoded_prompts[-2:] == ["cool daylight", "a red leather sofa"]
+    assert model.windows[-1].local_masks.shape == (5, 1, 16, 24)
+    # an edit of the channels does re-encode exactly the frames it changes
+    edits.dropped.add("normal")
+    run(renderer, shot, RenderSettings(steps=1), edits=edits)
+    assert model.encoded_frames == 18
+    # identical content is encoded once (here: no albedo makes all frames of this shot alike)
+    edits.dropped.add("albedo")
+    run(renderer, shot, RenderSettings(steps=1), edits=edits)
+    assert model.encoded_frames == 19
+
+
+def test_reference_frame_conditions_the_keyframe_window() -> None:
+    from x2video.edits import Edits, Reference
+
+    base = make_shot(9)
+    rgb = np.random.default_rng(5).uniform(0, 1, (9, 16, 24, 3)).astype(np.float32)
+    from x2video.shot import ArrayShot
+
+    shot = ArrayShot({**{n: np.stack([base.channel(n, t) for t in range(9)]) for n in base.channels}, "rgb": rgb})
+    model = FakeModel()
+    renderer = Renderer(model)
+    events = run(renderer, shot, RenderSettings(steps=1, window=5), edits=Edits(reference=Reference(frame=4)))
+    starts = [e for e in events if isinstance(e, WindowStarted)]
+    assert starts[0].frames == [4, 5, 6, 7, 8] and starts[1].frames == [4, 3, 2, 1, 0]  # forwards and backwards from the reference
+    first = model.windows[0]
+    assert first.ref_positions == (0,) and torch.equal(first.ref[0], model.encode_image(rgb[4]))
+    assert sorted(frames_of(events)) == list(range(9))

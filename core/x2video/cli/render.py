@@ -32,7 +32,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("shot", nargs="?", type=Path, help="shot folder (or any layout `x2video info` reads)")
     p.add_argument("--demo", action="store_true", help="render the bundled procedural demo shot (generated on first use)")
     p.add_argument("--demo-dir", type=Path, default=DEMO_CACHE, help=f"where the demo shot is cached (default {DEMO_CACHE})")
-    p.add_argument("--project", type=Path, help="project file with edits, masks, prompts and reference frame")
+    p.add_argument("--project", type=Path, help="project file with edits, masks, prompts and reference frame (its shot is used when SHOT is not given)")
     p.add_argument("--out", type=Path, required=True, help="output: OUT.mp4 (H.264, sRGB) or a folder of linear EXR frames")
     p.add_argument("--preset", choices=["fast", "quality"], help="fast = LCM-2 with distilled weights, else DDIM-4; quality = DDIM-20")
     p.add_argument("--sampler", choices=["ddim", "lcm"], default=d.sampler, help="sampler (ignored with --preset)")
@@ -89,33 +89,55 @@ def load_model(weights: Path | None, untrained: bool, device: str | None, fp16: 
     return X2VideoModel.from_pretrained(weights, device=dev, dtype=dtype)
 
 
+def ensure_demo(cache: Path) -> Path:
+    """The demo shot (`x2video dataset demo`'s recipe) under `cache`, generated on first use."""
+    from x2video.cli.dataset import DEMO
+
+    folder = cache / f"seed{DEMO['seed']}-{DEMO['frames']}f-{DEMO['width']}x{DEMO['height']}"
+    if not (folder / "shot.json").is_file():
+        from x2video.procedural.shotgen import write_procedural_shot
+
+        log.info("generating the demo shot in %s (once)", folder)
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        write_procedural_shot(folder, DEMO["seed"], DEMO["frames"], DEMO["width"], DEMO["height"], overwrite=True)
+    return folder
+
+
 def load_inputs(args: argparse.Namespace) -> tuple[Any, Any, Path | None]:
-    """(shot, edits or None, folder that relative paths in the project refer to)."""
+    """(shot, edits or None, folder that relative paths in the project refer to).
+
+    The shot is SHOT, the demo shot (--demo), or the shot the --project file names.
+    """
     from x2video.io.shotdir import load_shot
 
-    if args.demo == (args.shot is not None):
-        raise ValueError("give either a SHOT folder or --demo")
+    project = None
+    if args.project is not None:
+        from x2video.edits import load_project
+
+        project = load_project(args.project)
+    sources = [s for s in (args.shot, args.demo or None, project) if s is not None]
+    if args.shot is not None and args.demo:
+        raise ValueError("give either a SHOT folder or --demo, not both")
+    if not sources:
+        raise ValueError("nothing to render: give a SHOT folder, --demo, or a --project file")
     if args.demo:
-        from x2video.procedural.demo import ensure_demo
-
         folder = ensure_demo(args.demo_dir)
-    else:
+    elif args.shot is not None:
         folder = args.shot
-        if not folder.exists():
-            raise FileNotFoundError(f"shot {folder} does not exist")
+    else:
+        folder = Path(project.shot)
+    if not folder.exists():
+        raise FileNotFoundError(f"shot {folder} does not exist")
     shot = load_shot(folder)
-    if args.project is None:
+    if project is None:
         return shot, None, None
-    from x2video.edits import load_project
-
-    if not args.project.is_file():
-        raise FileNotFoundError(f"project file {args.project} does not exist")
-    return shot, load_project(args.project), args.project.parent
+    return shot, project.edits, args.project.parent
 
 
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from x2video.sampling.planner import plan
     from x2video.sampling.renderer import Renderer, select_steps
     from x2video.sampling.sink import FrameSink
 
@@ -129,9 +151,12 @@ def run(args: argparse.Namespace) -> int:
         preset=args.preset,
     )
     shot, edits, base_dir = load_inputs(args)
+    start, stop = settings.frames or (0, shot.num_frames)
+    if not 0 <= start < stop <= shot.num_frames:
+        raise ValueError(f"--frames: frame range [{start}, {stop}) outside the shot's {shot.num_frames} frames")
+    plan(settings.scheme, stop - start, settings.window)  # bad window sizes fail before the model loads
     model = load_model(args.weights, args.untrained, args.device, args.fp16)
     resolved = select_steps(settings, model)
-    start, stop = settings.frames or (0, shot.num_frames)
     renderer = Renderer(model)
     t0 = time.perf_counter()
     bar = tqdm(unit="step", desc=f"render {resolved.sampler}-{resolved.steps}", dynamic_ncols=True)

@@ -211,12 +211,16 @@ class Renderer:
         key = self.model.content_key()
         keys = [conditioning_key(c, key) for c in conds]
         found = [self.cache.get(k) for k in keys]
-        missing = [i for i, v in enumerate(found) if v is None]
+        missing: dict[str, int] = {}  # key -> first window position with that content
+        for i, v in enumerate(found):
+            if v is None:
+                missing.setdefault(keys[i], i)
         if missing:
-            fresh = self.model.encode_frames([conds[i] for i in missing])  # (m, C_cond, h, w)
-            for j, i in enumerate(missing):
-                found[i] = fresh[j].clone()
-                self.cache.put(keys[i], found[i])
+            fresh = self.model.encode_frames([conds[i] for i in missing.values()])  # (m, C_cond, h, w)
+            encoded = {k: fresh[j].clone() for j, k in enumerate(missing)}
+            for k, v in encoded.items():
+                self.cache.put(k, v)
+            found = [encoded[keys[i]] if v is None else v for i, v in enumerate(found)]
         return torch.stack(found)  # (n, C_cond, h, w)
 
     def _run_window(

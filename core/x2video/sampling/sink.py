@@ -25,18 +25,10 @@ log = logging.getLogger(__name__)
 
 def _write_exr(path: Path, rgb: np.ndarray) -> None:
     """Linear RGB (H, W, 3) as a half-float EXR with channels R, G, B."""
-    import OpenImageIO as oiio
+    from x2video.io.image import write_exr
 
-    h, w, _ = rgb.shape
-    spec = oiio.ImageSpec(w, h, 3, oiio.HALF)
-    spec.channelnames = ("R", "G", "B")
-    out = oiio.ImageOutput.create(str(path))
-    if out is None or not out.open(str(path), spec):
-        raise OSError(f"cannot write {path}: {oiio.geterror()}")
-    ok = out.write_image(np.ascontiguousarray(rgb, dtype=np.float32))
-    out.close()
-    if not ok:
-        raise OSError(f"cannot write {path}: {oiio.geterror()}")
+    rgb = np.asarray(rgb, dtype=np.float32)
+    write_exr(path, {"R": rgb[..., 0], "G": rgb[..., 1], "B": rgb[..., 2]}, "half")
 
 
 def _encode_mp4(path: Path, frames: Iterator[np.ndarray], fps: float, crf: int = 18) -> int:

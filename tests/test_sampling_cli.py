@@ -1,0 +1,60 @@
+"""`x2video render`: a smoke render of a shot folder with untrained tiny weights, and its clear errors."""
+from __future__ import annotations
+
+import av
+import pytest
+from sampling_fake import make_shot
+
+from x2video.cli import main
+from x2video.cli.render import shipped_weights
+from x2video.io.shotdir import write_shot_folder
+
+
+@pytest.fixture(scope="module")
+def shot_dir(tmp_path_factory):
+    return write_shot_folder(make_shot(6, height=32, width=48), tmp_path_factory.mktemp("shot") / "shot")
+
+
+def test_render_untrained_to_mp4_and_exr(shot_dir, tmp_path, capsys) -> None:
+    out = tmp_path / "out.mp4"
+    assert main(["render", str(shot_dir), "--out", str(out), "--untrained", "--steps", "1", "--window", "3", "--device", "cpu"]) == 0
+    with av.open(str(out)) as c:
+        frames = [f for f in c.decode(video=0)]
+    assert len(frames) == 6 and (frames[0].width, frames[0].height) == (48, 32)
+    assert "wrote 6 frames" in capsys.readouterr().out
+    exr = tmp_path / "exr"
+    args = ["render", str(shot_dir), "--out", str(exr), "--untrained", "--preset", "fast", "--frames", "2:5", "--scheme", "sequential"]
+    assert main(args) == 0
+    assert sorted(p.name for p in exr.iterdir()) == ["000002.exr", "000003.exr", "000004.exr"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["exr", "out.mp4"]  # no staging left behind
+
+
+def test_missing_weights_says_how_to_get_them(shot_dir, tmp_path, capsys, monkeypatch) -> None:
+    import x2video.cli.render as cli
+
+    monkeypatch.setattr(cli, "RESOURCES", tmp_path / "resources")
+    assert shipped_weights(tmp_path / "resources") is None
+    assert main(["render", str(shot_dir), "--out", str(tmp_path / "o.mp4")]) == 2
+    err = capsys.readouterr().err
+    assert "no trained weights" in err and "--untrained" in err and "x2video train" in err
+    assert not (tmp_path / "o.mp4").exists()
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--frames", "4:99"], "frame range"),
+        (["--window", "1"], "window size"),
+        (["--sampler", "lcm", "--steps", "2"], "LCM weights"),
+    ],
+)
+def test_bad_settings(shot_dir, tmp_path, capsys, extra, message) -> None:
+    args = ["render", str(shot_dir), "--out", str(tmp_path / "o.mp4"), "--untrained", "--steps", "1", *extra]
+    assert main(args) == 2
+    assert message in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_missing_shot(tmp_path, capsys) -> None:
+    assert main(["render", str(tmp_path / "nope"), "--out", str(tmp_path / "o.mp4"), "--untrained"]) == 2
+    assert "nope" in capsys.readouterr().err
