@@ -102,3 +102,99 @@ def test_image_video_lcm_stages_load_as_models(runs):
         assert res["step"] == 2 and res["speed"]["steps_per_s"] > 0
         log = json.loads((runs["root"] / key / "log.json").read_text())
         assert len(log) == 2 and all(np.isfinite(h["loss"]) for h in log)
+
+
+def _frame_conditioning(shot, t, keep, amr=None):
+    from x2video.conditioning import FrameConditioning
+
+    H, W = shot.size
+    ch = {}
+    for name in ("albedo", "normal", "roughness", "metallic", "irradiance"):
+        x = shot.channel(name, t).copy() if keep[name] else None
+        if x is not None and amr is not None and name in ("albedo", "roughness", "metallic"):
+            x[amr > 0.5] = 0  # what a "Mask A|M|R" edit gives
+        ch[name] = x
+    mask = np.zeros((H, W), np.float32) if amr is None else amr.astype(np.float32)
+    return FrameConditioning(channels=ch, amr_mask=mask, local_masks=np.zeros((0, H, W), np.float32), frame_index=t)
+
+
+@pytest.mark.parametrize("dropped", [(), ("normal",), ("metallic",), ("albedo", "roughness"), ("irradiance",)])
+def test_training_conditioning_equals_inference_encode_frames(runs, dropped):
+    """Dropout on cached latents gives what X2VideoModel.encode_frames gives for the same dropped channels."""
+    from x2video.model.pipeline import X2VideoModel
+    from x2video.train.batches import CHANNELS, LatentData
+
+    model = X2VideoModel.from_pretrained(runs["video"]["model"], text_encoder=FakeTextEncoder())
+    data = LatentData(runs["root"] / "cache", "train", model.config.latent_scales, shading_prior=True)
+    shot, t = runs["ds"]["train"][1], 3
+    keep = {c: c not in dropped for c in CHANNELS}
+    train_cond = data.conditioning(torch.tensor([9 + t]), keep, None)[0]
+    infer_cond = model.encode_frames([_frame_conditioning(shot, t, keep)])[0]
+    assert train_cond.shape == infer_cond.shape == (24, 12, 16)
+    torch.testing.assert_close(train_cond, infer_cond, rtol=2e-3, atol=2e-3)  # cache stores float16
+
+
+def test_amr_mask_zeroes_latents_like_inference(runs):
+    from x2video.model.pipeline import X2VideoModel
+    from x2video.model.vae import area_downsample
+    from x2video.train.batches import CHANNELS, LatentData
+
+    model = X2VideoModel.from_pretrained(runs["video"]["model"], text_encoder=FakeTextEncoder())
+    data = LatentData(runs["root"] / "cache", "train", model.config.latent_scales, shading_prior=True)
+    shot, t = runs["ds"]["train"][0], 2
+    amr = (shot.channel("ids", t)[..., 0] == 1).astype(np.float32)
+    assert 0 < amr.mean() < 0.5
+    keep = {c: True for c in CHANNELS}
+    tr = data.conditioning(torch.tensor([t]), keep, torch.from_numpy(amr)[None, None])[0]
+    inf = model.encode_frames([_frame_conditioning(shot, t, keep, amr)])[0]
+    m = area_downsample(torch.from_numpy(amr)[None, None], (12, 16))[0, 0]
+    torch.testing.assert_close(tr[19], m)
+    torch.testing.assert_close(inf[19], m)
+    inside = m > 0.999
+    assert inside.any()
+    for sl in (slice(0, 4), slice(8, 12), slice(12, 16), slice(20, 24)):  # albedo, roughness, metallic, shading
+        assert tr[sl][:, inside].abs().max() == 0 and inf[sl][:, inside].abs().max() == 0
+    torch.testing.assert_close(tr[4:8], inf[4:8], rtol=2e-3, atol=2e-3)  # normal untouched by the mask
+
+
+def test_batches_windows_masks_and_prompts(runs):
+    from x2video.model.checkpoint import read_config
+    from x2video.train.batches import AugmentConfig, LatentData, WindowConfig
+
+    cfg = read_config(runs["root"] / "cache" / "model")
+    data = LatentData(runs["root"] / "cache", "train", cfg.latent_scales, shading_prior=True)
+    rng = np.random.default_rng(0)
+    wc = WindowConfig(frames=3, levels=3, short_p=0.0)
+    seen_levels = set()
+    for _ in range(30):
+        windows, mode, level, refs = data.random_windows(rng, 2, wc)
+        k = level if mode == "interp" else None
+        for rows in windows:
+            assert len(rows) == 3 and len({int(data.row_room[r]) for r in rows}) == 1
+            steps = {abs(b - a) for a, b in zip(rows, rows[1:])}
+            assert len(steps) == 1
+            if k is not None:
+                assert steps == {2 ** (k - 1)}
+                seen_levels.add(k)
+        assert refs in (((), (0, 2)) if mode == "interp" else ((), (0,)))
+    assert seen_levels == {1, 2, 3}
+
+    aug = AugmentConfig(channel_drop_p=0.0, prompt_drop_p=0.0, mask_p=1.0, max_masks=2, local_prompt_p=1.0)
+    windows, mode, level, refs = data.random_windows(rng, 2, wc)
+    b = data.sample(rng, windows, aug, mode="key", level=3, ref_positions=(0,))
+    assert b.cond.shape == (6, 24, 12, 16) and b.x0.shape == (6, 4, 12, 16)
+    assert b.text_local is not None and b.local_masks.shape[:2] == (6, b.text_local.shape[1])
+    torch.testing.assert_close(b.ref[0], b.x0[0]) and torch.testing.assert_close(b.ref[3], b.x0[3])
+    assert b.ref[1].abs().max() == 0 and b.ref[5].abs().max() == 0
+    for w, rows in enumerate(windows):
+        room = data.room_by_index[int(data.row_room[rows[0]])]
+        torch.testing.assert_close(b.text_global[w], data.text[data.prompt_index[room["caption"]]])
+        for p in range(b.text_local.shape[1]):
+            m = b.local_masks[w * 3, p]
+            if m.sum() == 0:
+                assert b.text_local[w, p].abs().max() == 0  # padding
+                continue
+            obj = int(data.ids[rows[0]][m > 0][0])
+            torch.testing.assert_close(m, (data.ids[rows[0]] == obj).float())
+            torch.testing.assert_close(b.text_local[w, p], data.text[data.prompt_index[room["objects"][str(obj)]]])
+            assert float(b.cond[w * 3, 19][m[::2, ::2] > 0].min()) > 0  # the object is inside the A|M|R union mask

@@ -103,7 +103,11 @@ def run_image_stage(cache: str | Path, out_dir: str | Path, stage: ImageStageCon
     cache, out_dir = Path(cache), Path(out_dir)
     cache_cfg = read_config(cache / "model")
     cfg = image_model_config(stage, cache_cfg)
-    data = LatentData(cache, "train", cfg.latent_scales, cfg.shading_prior)
+    # The XRGB image UNet (23 inputs) has no shading-prior input: the flag is recorded in the
+    # config (the video conversion adds the shading channels zero-initialised when it is on).
+    if cfg.shading_prior:
+        log.info("image UNet: the shading prior is not an input of the 23-channel image layout; it enters at the video stage")
+    data = LatentData(cache, "train", cfg.latent_scales, shading_prior=False)
     torch.manual_seed(stage.seed)
     unet = build_unet(cfg)
     n = sum(p.numel() for p in unet.parameters())
