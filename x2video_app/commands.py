@@ -1,6 +1,7 @@
 """Undo commands (QUndoStack) for painting and every edit; each calls back into the `Document`."""
 from __future__ import annotations
 
+import copy
 from typing import Any, Callable
 
 import numpy as np
@@ -50,6 +51,28 @@ class SnapshotCommand(QUndoCommand):
 
     def undo(self) -> None:
         self.doc.restore(self.before, self.sel_before)
+
+
+class MaskCommand(QUndoCommand):
+    """A change of one whole mask (object-id fill, propagation): stores only that mask before/after."""
+
+    def __init__(self, doc: Document, name: str, text: str, apply: Callable[[], Any]) -> None:
+        super().__init__(text)
+        self.doc, self.name, self.apply = doc, name, apply
+        self.before = copy.deepcopy(doc.edits.masks[name])
+        self.after: Any = None
+
+    def redo(self) -> None:
+        if self.after is None:
+            self.apply()
+            self.after = copy.deepcopy(self.doc.edits.masks[self.name])
+        else:
+            self.doc.edits.masks[self.name] = copy.deepcopy(self.after)
+        self.doc.changed("mask")
+
+    def undo(self) -> None:
+        self.doc.edits.masks[self.name] = copy.deepcopy(self.before)
+        self.doc.changed("mask")
 
 
 class SetValueCommand(QUndoCommand):

@@ -38,8 +38,9 @@ class Document:
         self.edit_global = True
         self.version = 0
         self.render = RenderState()
-        #: per-mask display state that is not part of the Edits (visibility in the overlay)
-        self.hidden: set[int] = set()
+        #: per-mask display state that is not part of the Edits, keyed by mask name
+        self.hidden: set[str] = set()
+        self.colours: dict[str, tuple[int, int, int]] = {}
         self._cond_cache: dict[int, tuple[int, FrameConditioning]] = {}
         self._stroke: tuple[int, int, np.ndarray, np.ndarray] | None = None  # (mask, t, before, working)
         self._last_pt: tuple[float, float] | None = None
@@ -59,7 +60,7 @@ class Document:
         self.selected_mask = 0 if edit_ops.num_masks(self.edits) else -1
         self.edit_global = self.selected_mask < 0
         self.hidden.clear()
-        self.render = RenderState() if self.render is None else self.render
+        self.colours.clear()
         self.render.frames.clear()
         self.render.levels.clear()
         self.render.keyframes.clear()
@@ -107,6 +108,8 @@ class Document:
 
     def restore(self, edits: Any, selected: int | None = None) -> None:
         self.edits = copy.deepcopy(edits)
+        if self._stroke is not None:  # an undo in the middle of a stroke ends the stroke
+            self._stroke = None
         if selected is not None:
             self.selected_mask = selected
         self.selected_mask = min(self.selected_mask, edit_ops.num_masks(self.edits) - 1)
@@ -130,14 +133,26 @@ class Document:
         return None if self.edit_global or self.selected_mask < 0 else self.selected_mask
 
     def mask_colour(self, i: int) -> tuple[int, int, int]:
-        return edit_ops.mask_colour(self.edits, i) or MASK_COLOURS[i % len(MASK_COLOURS)]
+        return self.colours.get(edit_ops.mask_name(self.edits, i)) or MASK_COLOURS[i % len(MASK_COLOURS)]
+
+    def set_mask_colour(self, i: int, colour: tuple[int, int, int]) -> None:
+        self.colours[edit_ops.mask_name(self.edits, i)] = tuple(colour)  # type: ignore[assignment]
+
+    def set_mask_visible(self, i: int, on: bool) -> None:
+        name = edit_ops.mask_name(self.edits, i)
+        (self.hidden.discard if on else self.hidden.add)(name)
+        self.edits_changed.emit("display")
+
+    @property
+    def base_dir(self) -> Path | None:
+        return None if self.project_path is None else self.project_path.parent
 
     def masks_summary(self) -> list[dict]:
         return [
             {
                 "name": edit_ops.mask_name(self.edits, i),
                 "colour": self.mask_colour(i),
-                "visible": i not in self.hidden,
+                "visible": edit_ops.mask_name(self.edits, i) not in self.hidden,
                 "prompt": edit_ops.mask_prompt(self.edits, i),
                 "mask_out": edit_ops.mask_out(self.edits, i),
             }
@@ -179,20 +194,16 @@ class Document:
         i, t, before, after = s
         return None if np.array_equal(before, after) else (i, t, before, after.copy())
 
-    def fill_from_id(self, x: float, y: float) -> tuple[int, int, np.ndarray, np.ndarray] | None:
-        """Add the object under (x, y) on the current frame to the selected mask (needs the ids channel)."""
-        if self.selected_mask < 0 or self.shot is None or not self.shot.has("ids"):
+    def object_at(self, x: float, y: float) -> int | None:
+        """The object id under image point (x, y) on the current frame (None: no ids channel, outside, background)."""
+        if self.shot is None or not self.shot.has("ids"):
             return None
         h, w = self.size
         xi, yi = int(x), int(y)
         if not (0 <= xi < w and 0 <= yi < h):
             return None
-        ids = self.shot.channel("ids", self.frame)[..., 0]
-        before = edit_ops.get_mask(self.edits, self.selected_mask, self.frame, self.size)
-        after = np.maximum(before, edit_ops.mask_from_ids(ids, int(ids[yi, xi])))
-        if np.array_equal(before, after):
-            return None
-        return self.selected_mask, self.frame, before, after
+        oid = int(self.shot.channel("ids", self.frame)[yi, xi, 0])
+        return oid if oid > 0 else None
 
     def set_mask_frame(self, i: int, t: int, m: np.ndarray) -> None:
         edit_ops.set_mask(self.edits, i, t, m)
@@ -212,9 +223,9 @@ class Document:
     def mask_layers(self, t: int) -> list[tuple[np.ndarray, tuple[int, int, int]]]:
         out = []
         for i in range(edit_ops.num_masks(self.edits)):
-            if i in self.hidden:
+            if edit_ops.mask_name(self.edits, i) in self.hidden:
                 continue
-            out.append((edit_ops.get_mask(self.edits, i, t, self.size), self.mask_colour(i)))
+            out.append((edit_ops.mask_at(self.shot, self.edits, i, t), self.mask_colour(i)))
         return out
 
     def rendered_u8(self, t: int) -> np.ndarray:
@@ -235,7 +246,7 @@ class Document:
             base = channel_to_u8("albedo", cond.channels.get("albedo"), self.size)
             return overlay_masks(base, self.mask_layers(t))
         elif v == "reference":
-            ref = edit_ops.reference_image(self.shot, self.edits)
+            ref = edit_ops.reference_image(self.shot, self.edits, self.base_dir)
             base = checker(self.size) if ref is None else channel_to_u8("rgb", ref, self.size)
         elif v == "rendered":
             base = self.rendered_u8(t)

@@ -1,14 +1,18 @@
 """Turns what the person does in the panels and the viewer into undoable commands on the Document."""
 from __future__ import annotations
 
+import os
+import time
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from PySide6.QtCore import QObject
 from PySide6.QtWidgets import QFileDialog
 
+from x2video.io.image import write_exr
 from x2video_app import edit_ops
-from x2video_app.commands import PaintCommand, SetValueCommand, SnapshotCommand
+from x2video_app.commands import MaskCommand, PaintCommand, SetValueCommand, SnapshotCommand
 from x2video_app.display import MASK_COLOURS
 
 if TYPE_CHECKING:
@@ -40,7 +44,7 @@ class EditActions(QObject):
         mp.sigRemove.connect(self.remove_mask)
         mp.sigSelect.connect(self.doc.select_mask)
         mp.sigVisible.connect(self.set_visible)
-        mp.sigColour.connect(lambda i, c: self._set(("colour", i), f"Mask colour", lambda val: edit_ops.set_mask_colour(self.e, i, val), self.doc.mask_colour(i), c, "masks"))
+        mp.sigColour.connect(lambda i, c: self._set(("colour", i), "Mask colour", lambda val: self.doc.set_mask_colour(i, val), self.doc.mask_colour(i), c, "masks"))
         mp.sigRename.connect(lambda i, n: None if n == edit_ops.mask_name(self.e, i) else self._set(("name", i), "Rename mask", lambda val: edit_ops.set_mask_name(self.e, i, val), edit_ops.mask_name(self.e, i), n, "masks"))
         mp.sigPrompt.connect(self.set_local_prompt)
         mp.sigMaskOut.connect(lambda i, on: self._set(("maskout", i), "Mask out A|M|R", lambda val: edit_ops.set_mask_out(self.e, i, val), edit_ops.mask_out(self.e, i), on, "masks"))
@@ -86,15 +90,21 @@ class EditActions(QObject):
             self.undo.push(PaintCommand(self.doc, i, t, before, after, "Erase" if self.win.viewer.tool == "eraser" else "Paint stroke"))
 
     def pick(self, x: float, y: float) -> None:
+        """Fill: add the object under the click (its id, on every frame) to the selected mask."""
+        if self.doc.shot is not None and not self.doc.shot.has("ids"):
+            self.win.statusBar().showMessage("This shot has no object ids: fill needs the ids channel.", 5000)
+            return
+        oid = self.doc.object_at(x, y)
+        if oid is None:
+            return
         if self.doc.selected_mask < 0:
             self.add_mask()
-        res = self.doc.fill_from_id(x, y)
-        if res is None:
-            if self.doc.shot is not None and not self.doc.shot.has("ids"):
-                self.win.statusBar().showMessage("This shot has no object ids: fill needs the ids channel.", 5000)
+        i = self.doc.selected_mask
+        if oid in edit_ops.mask_ids(self.e, i):
             return
-        i, t, before, after = res
-        self.undo.push(PaintCommand(self.doc, i, t, before, after, "Fill object"))
+        name = edit_ops.mask_name(self.e, i)
+        cap = self.doc.shot.info.object_captions.get(oid, "")
+        self.undo.push(MaskCommand(self.doc, name, f"Fill object {oid}" + (f" ({cap})" if cap else ""), lambda: edit_ops.add_mask_id(self.e, i, oid)))
 
     def clear_frame(self, i: int) -> None:
         t = self.doc.frame
@@ -108,7 +118,9 @@ class EditActions(QObject):
             self.win.statusBar().showMessage(f"Mask '{edit_ops.mask_name(self.e, i)}' is empty on frame {t}: paint it first.", 5000)
             return
         self.win.statusBar().showMessage("Propagating the mask along the shot (optical flow)…")
-        self.undo.push(SnapshotCommand(self.doc, f"Propagate mask from frame {t}", lambda: edit_ops.propagate(self.doc.shot, self.e, i, t), select_after=i))
+        self.win.repaint()
+        name = edit_ops.mask_name(self.e, i)
+        self.undo.push(MaskCommand(self.doc, name, f"Propagate {name} from frame {t}", lambda: edit_ops.propagate(self.doc.shot, self.e, i, t)))
         self.win.statusBar().showMessage(f"Mask propagated from frame {t} to {self.doc.num_frames} frames.", 5000)
 
     # -- masks -----------------------------------------------------------------
@@ -124,8 +136,7 @@ class EditActions(QObject):
         self.undo.push(SnapshotCommand(self.doc, f"Remove {name}", lambda: edit_ops.remove_mask(self.e, i), select_after=max(-1, i - 1)))
 
     def set_visible(self, i: int, on: bool) -> None:
-        (self.doc.hidden.discard if on else self.doc.hidden.add)(i)
-        self.win.refresh_view()
+        self.doc.set_mask_visible(i, on)
 
     def set_local_prompt(self, i: int, text: str) -> None:
         self._set(("prompt", i), "Local prompt", lambda val: edit_ops.set_mask_prompt(self.e, i, val), edit_ops.mask_prompt(self.e, i), text, "prompts")
@@ -150,21 +161,40 @@ class EditActions(QObject):
         if path:
             self.load_reference(path)
 
-    def load_reference(self, path: str) -> None:
+    def load_reference(self, path: str) -> bool:
         try:
-            img = edit_ops.read_image(path)
+            edit_ops.read_image(path)
         except Exception as e:  # a bad file: say which and keep the project
             self.win.show_error("Cannot read reference image", f"{path}:\n{e}")
-            return
-        self.undo.push(SnapshotCommand(self.doc, "Load reference", lambda: edit_ops.set_reference_image(self.e, path, img, self.doc.frame), select_after=self.doc.selected_mask))
+            return False
+        old = self.e.reference
+        self._set(("reference",), "Load reference image", lambda val: setattr(self.e, "reference", val), old, edit_ops.Reference(path=str(Path(path).resolve())), "reference")
+        return True
 
-    def use_rendered_reference(self) -> None:
+    def use_rendered_reference(self) -> bool:
+        """Write the rendered current frame to an EXR (beside the project, else in the cache) and use it."""
         t = self.doc.frame
         img = self.doc.render.frames.get(t)
         if img is None:
             self.win.statusBar().showMessage(f"Frame {t} is not rendered yet: render it first or load an image.", 5000)
-            return
-        self.undo.push(SnapshotCommand(self.doc, f"Use rendered frame {t} as reference", lambda: edit_ops.set_reference_image(self.e, None, img.astype(np.float32), t), select_after=self.doc.selected_mask))
+            return False
+        folder = reference_folder(self.doc.project_path)
+        path = folder / f"rendered_frame_{t:06d}_{int(time.time())}.exr"
+        try:
+            a = img.astype(np.float32)
+            write_exr(path, {"R": a[..., 0], "G": a[..., 1], "B": a[..., 2]}, "half")
+        except Exception as e:
+            self.win.show_error("Cannot write the reference frame", f"{path}:\n{e}")
+            return False
+        self._set(("reference",), f"Use rendered frame {t} as reference", lambda val: setattr(self.e, "reference", val), self.e.reference, edit_ops.Reference(path=str(path)), "reference")
+        return True
 
     def clear_reference(self) -> None:
-        self.undo.push(SnapshotCommand(self.doc, "Clear reference", lambda: edit_ops.clear_reference(self.e), select_after=self.doc.selected_mask))
+        self._set(("reference",), "Clear reference", lambda val: setattr(self.e, "reference", val), self.e.reference, None, "reference")
+
+
+def reference_folder(project: Path | None) -> Path:
+    """Where rendered frames used as references are written (they must outlive the session)."""
+    if project is not None:
+        return project.parent / (project.name.removesuffix(".json") + ".refs")
+    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "x2video" / "references"

@@ -90,7 +90,7 @@ class MainWindow(QMainWindow):
         self.charts = Charts(bench_dir if bench_dir is not None else BENCH_RESULTS)
         self.docks = {}
         for name, w, area in (
-            ("Masks & prompts", self.mask_panel, Qt.DockWidgetArea.RightDockWidgetArea),
+            ("Masks", self.mask_panel, Qt.DockWidgetArea.RightDockWidgetArea),
             ("Parametric edits", self.edit_panel, Qt.DockWidgetArea.RightDockWidgetArea),
             ("Scene", self.scene_panel, Qt.DockWidgetArea.RightDockWidgetArea),
             ("Render", self.render_panel, Qt.DockWidgetArea.LeftDockWidgetArea),
@@ -102,10 +102,10 @@ class MainWindow(QMainWindow):
             d.setFeatures(QDockWidget.DockWidgetFeature.DockWidgetMovable | QDockWidget.DockWidgetFeature.DockWidgetFloatable)
             self.addDockWidget(area, d)
             self.docks[name] = d
-        self.tabifyDockWidget(self.docks["Masks & prompts"], self.docks["Scene"])
-        self.docks["Masks & prompts"].raise_()
-        self.resizeDocks([self.docks["Render"], self.docks["Masks & prompts"]], [300, 380], Qt.Orientation.Horizontal)
-        self.resizeDocks([self.docks["Render"], self.docks["Charts"]], [420, 300], Qt.Orientation.Vertical)
+        self.tabifyDockWidget(self.docks["Masks"], self.docks["Scene"])
+        self.docks["Masks"].raise_()
+        self.resizeDocks([self.docks["Render"], self.docks["Masks"]], [300, 380], Qt.Orientation.Horizontal)
+        self.resizeDocks([self.docks["Render"], self.docks["Charts"]], [330, 400], Qt.Orientation.Vertical)
         self.model_status = QLabel()
         self.statusBar().addPermanentWidget(self.model_status)
 
@@ -174,7 +174,6 @@ class MainWindow(QMainWindow):
         self.render_ctl.sigEvent.connect(self._render_event)
         self.render_ctl.sigRunning.connect(self._running)
         self.render_ctl.sigError.connect(self._render_error)
-        self.undo.cleanChanged.connect(lambda clean: self.setWindowModified(not clean))
         self._eta_timer = QTimer(self)
         self._eta_timer.timeout.connect(lambda: self.render_panel.show_state(self.doc.render))
 

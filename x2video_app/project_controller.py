@@ -42,9 +42,12 @@ class ProjectController(QObject):
         self.export_worker = None
         #: recovered autosave: unsaved under the project's name although the undo stack is clean
         self.force_dirty = False
-        win.undo.cleanChanged.connect(lambda _c: self.update_title())
+        win.undo.cleanChanged.connect(self._clean_changed)
 
     # -- title / dirty ---------------------------------------------------------
+    def _clean_changed(self, _clean: bool) -> None:
+        self.update_title()
+
     @property
     def dirty(self) -> bool:
         return self.force_dirty or not self.win.undo.isClean()

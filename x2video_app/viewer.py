@@ -70,12 +70,20 @@ class Viewer(QGraphicsView):
         """Zoom so the whole image is visible."""
         self.fitInView(self.scene().sceneRect(), Qt.AspectRatioMode.KeepAspectRatio)
         self._fitted = True
+        self._update_smoothing()
 
     def zoom(self, factor: float) -> None:
         cur = self.transform().m11()
         factor = max(0.05 / cur, min(factor, 64.0 / cur))
         self.scale(factor, factor)
         self._fitted = False
+        self._update_smoothing()
+
+    def _update_smoothing(self) -> None:
+        # smooth when the image is shown near its size; sharp pixels when zoomed in to paint
+        self._pix.setTransformationMode(
+            Qt.TransformationMode.SmoothTransformation if self.zoom_level < 3.0 else Qt.TransformationMode.FastTransformation
+        )
 
     @property
     def zoom_level(self) -> float:
