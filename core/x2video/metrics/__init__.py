@@ -1,5 +1,5 @@
 """The paper's evaluation metrics: PSNR, SSIM, FID, TC, seconds per frame (LPIPS/FVD reported unavailable)."""
-from x2video.metrics.fid import fid, fid_from_features, frechet_distance, inception_features
+from x2video.metrics.fid import fid_from_features, fid_from_images, frechet_distance, inception_features
 from x2video.metrics.image import psnr, ssim, to_display
 from x2video.metrics.motion_io import read_motion
 from x2video.metrics.suite import MetricSuite, SuiteConfig, evaluate_video
@@ -14,8 +14,8 @@ __all__ = [
     "TCResult",
     "UNAVAILABLE",
     "evaluate_video",
-    "fid",
     "fid_from_features",
+    "fid_from_images",
     "frechet_distance",
     "inception_features",
     "psnr",

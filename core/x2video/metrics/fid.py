@@ -26,6 +26,7 @@ import hashlib
 import importlib.util
 import math
 import threading
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
@@ -67,7 +68,9 @@ def load_inception(path: Path | None = None, *, verify: bool = True) -> torch.ji
                 digest = hashlib.sha1(path.read_bytes()).hexdigest()
                 if digest != INCEPTION_SHA1:
                     raise ValueError(f"FID: {path} has SHA-1 {digest}, expected {INCEPTION_SHA1} (corrupt or other weights)")
-            model = torch.jit.load(str(path), map_location="cpu")
+            with warnings.catch_warnings():  # torch 2.13 deprecates jit.load; the weights ship as TorchScript
+                warnings.simplefilter("ignore", DeprecationWarning)
+                model = torch.jit.load(str(path), map_location="cpu")
             model.eval()
             _model_cache[key] = model
         return _model_cache[key]
@@ -180,7 +183,7 @@ def fid_from_features(feats_a: np.ndarray, feats_b: np.ndarray) -> float:
     return max(d, 0.0)
 
 
-def fid(images_a: np.ndarray | Sequence[np.ndarray], images_b: np.ndarray | Sequence[np.ndarray], *, batch_size: int = 16) -> float:
+def fid_from_images(images_a: np.ndarray | Sequence[np.ndarray], images_b: np.ndarray | Sequence[np.ndarray], *, batch_size: int = 16) -> float:
     """FID between two sets of display-referred (H, W, 3) images in [0, 1] (frames of all shots)."""
     return fid_from_features(inception_features(images_a, batch_size=batch_size), inception_features(images_b, batch_size=batch_size))
 
