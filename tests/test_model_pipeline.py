@@ -72,6 +72,9 @@ def test_encode_frames_layout_dropped_channels_and_masks(model):
     assert torch.all(cond[:3, 16:19] >= -1) and torch.all(cond[:3, 16:19] <= 1)  # irradiance mapped to [-1, 1]
     assert torch.equal(cond[3, 19, :, : W // 16], torch.ones(H // 8, W // 16))  # union mask, area-downsampled
     assert cond[3, 20:24, :, : W // 16].abs().max() == 0  # shading zero where masked out
+    for slot in (0, 8, 12):  # albedo, roughness, metallic latents zero where masked out; normal kept
+        assert cond[3, slot : slot + 4, :, : W // 16].abs().max() == 0 and cond[3, slot : slot + 4, :, W // 16 :].abs().max() > 0
+    assert cond[3, 4:8, :, : W // 16].abs().max() > 0
     assert cond[3, 20:24, :, W // 16 :].abs().max() > 0
     # pure in its input: same frames, same latents
     assert torch.allclose(model.encode_frames([_frame(0)])[0], cond[0], atol=1e-5)  # batch-size independent

@@ -34,6 +34,8 @@ log = logging.getLogger(__name__)
 
 #: VAE-encoded intrinsic channels and their slots in the conditioning latents
 _VAE_SLOTS = {"albedo": 0, "normal": 4, "roughness": 8, "metallic": 12}
+#: channels an "A|M|R masked out" edit removes inside its mask
+_AMR = ("albedo", "roughness", "metallic")
 _IRR_SLOT = 16
 _MASK_SLOT = INTRINSIC_CHANNELS  # 19
 _SHADING_SLOT = INTRINSIC_CHANNELS + 1  # 20
@@ -172,18 +174,24 @@ class X2VideoModel:
         h, w = H // f, W // f
         scales = self.config.latent_scales
         out = torch.zeros(len(frames), self.cond_channels, h, w, device=self.device, dtype=self.dtype)  # (N, C_cond, h, w)
+        for fr in frames:
+            if np.shape(fr.amr_mask) != (H, W):
+                raise ValueError(f"frame {fr.frame_index}: amr_mask is {np.shape(fr.amr_mask)}, expected {(H, W)}")
+        masks = torch.from_numpy(np.stack([np.asarray(fr.amr_mask, np.float32) for fr in frames]))[:, None]  # (N, 1, H, W)
+        masks_lat = area_downsample(masks.to(self.device, self.dtype), (h, w))  # (N, 1, h, w)
+        out[:, _MASK_SLOT : _MASK_SLOT + 1] = masks_lat
         for name, slot in _VAE_SLOTS.items():
             idx = [i for i, fr in enumerate(frames) if fr.channels.get(name) is not None]
             if idx:
                 imgs = [to_vae_range(name, self._checked(frames[i], name, H, W)) for i in idx]
-                out[idx, slot : slot + 4] = self._encode(imgs) * scales[name]
+                z = self._encode(imgs) * scales[name]  # (n, 4, h, w)
+                if name in _AMR:  # masked-out regions are zero latents, like a dropped channel
+                    z = z * (1 - masks_lat[idx])
+                out[idx, slot : slot + 4] = z
         idx = [i for i, fr in enumerate(frames) if fr.channels.get("irradiance") is not None]
         if idx:
             irr = images_to_tensor([irradiance_to_unit(self._checked(frames[i], "irradiance", H, W)) for i in idx], self.device, self.dtype)
             out[idx, _IRR_SLOT : _IRR_SLOT + 3] = area_downsample(irr, (h, w))  # (n, 3, h, w) in [-1, 1]
-        masks = torch.from_numpy(np.stack([np.asarray(fr.amr_mask, np.float32) for fr in frames]))[:, None]  # (N, 1, H, W)
-        masks_lat = area_downsample(masks.to(self.device, self.dtype), (h, w))  # (N, 1, h, w)
-        out[:, _MASK_SLOT : _MASK_SLOT + 1] = masks_lat
         if self.config.shading_prior:
             idx = [i for i, fr in enumerate(frames) if shading_available(fr.channels)]
             if idx:
