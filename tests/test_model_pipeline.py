@@ -176,3 +176,15 @@ def test_presets_build_configs():
     assert preset("sd21").unet.cross_attention_dim == 1024 and preset("sd21").vae.downsample == 8
     with pytest.raises(ValueError, match="unknown model preset"):
         preset("huge")
+
+
+def test_sd21_preset_converts_on_the_meta_device():
+    from x2video.model.unet import build_unet, hybrid_processors
+
+    with torch.device("meta"):  # shapes only: no 3.8 GB of weights on a CI machine
+        unet = build_unet(preset("sd21"))
+    assert unet.config.in_channels == 32 and unet.config.cross_attention_dim == 1024
+    procs = hybrid_processors(unet)
+    assert len(procs) == 16  # SD 2.1: 16 transformer blocks
+    first = procs["down_blocks.0.attentions.0.transformer_blocks.0.attn1.processor"]
+    assert first.ref.to_q.weight.shape == (320, 320) and set(first.temp.branches) == {"key", "interp1", "interp2", "interp3", "interp4"}

@@ -6,6 +6,7 @@ positions zeroed, and cache results by prompt string (prompts repeat across wind
 from __future__ import annotations
 
 import os
+import threading
 from abc import ABC, abstractmethod
 from collections import OrderedDict
 from typing import Protocol, Sequence, runtime_checkable
@@ -37,14 +38,17 @@ class _HFTokenEncoder(ABC):
         self._cache_size = cache_size
         self._tokenizer = None
         self._model: torch.nn.Module | None = None
+        self._lock = threading.Lock()  # the editor may encode from a worker thread while the UI thread does
 
     @abstractmethod
     def _load(self) -> None:
         """Set `self._tokenizer` and `self._model` (called on first use)."""
 
-    @torch.no_grad()
     def encode(self, prompts: Sequence[str]) -> torch.Tensor:
-        prompts = [str(p) for p in prompts]
+        with self._lock, torch.no_grad():
+            return self._encode_locked([str(p) for p in prompts])
+
+    def _encode_locked(self, prompts: list[str]) -> torch.Tensor:
         todo = [p for p in dict.fromkeys(prompts) if p not in self._cache]
         if todo:
             if self._model is None:
