@@ -10,6 +10,17 @@ from x2video.cli.render import shipped_weights
 from x2video.io.shotdir import write_shot_folder
 
 
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Tiny convolutions on a shared 2-core machine run several times faster on one thread."""
+    import torch
+
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
 @pytest.fixture(scope="module")
 def shot_dir(tmp_path_factory):
     return write_shot_folder(make_shot(6, height=32, width=48), tmp_path_factory.mktemp("shot") / "shot")
@@ -22,11 +33,17 @@ def test_render_untrained_to_mp4_and_exr(shot_dir, tmp_path, capsys) -> None:
         frames = [f for f in c.decode(video=0)]
     assert len(frames) == 6 and (frames[0].width, frames[0].height) == (48, 32)
     assert "wrote 6 frames" in capsys.readouterr().out
+    # a project file (its shot path, its edits) instead of SHOT; EXR folder output
+    from x2video.edits import Edits, Project, save_project
+
+    proj = tmp_path / "p" / "scene.json"
+    proj.parent.mkdir()
+    save_project(proj, Project(shot=str(shot_dir), edits=Edits(global_prompt="warm evening", dropped={"normal"})))
     exr = tmp_path / "exr"
-    args = ["render", str(shot_dir), "--out", str(exr), "--untrained", "--preset", "fast", "--frames", "2:5", "--scheme", "sequential"]
+    args = ["render", "--project", str(proj), "--out", str(exr), "--untrained", "--preset", "fast", "--frames", "2:5", "--scheme", "sequential"]
     assert main(args) == 0
     assert sorted(p.name for p in exr.iterdir()) == ["000002.exr", "000003.exr", "000004.exr"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["exr", "out.mp4"]  # no staging left behind
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["exr", "out.mp4", "p"]  # no staging left behind
 
 
 def test_missing_weights_says_how_to_get_them(shot_dir, tmp_path, capsys, monkeypatch) -> None:
