@@ -1,0 +1,63 @@
+"""`EvalConfig`: what `x2video eval` measures (which tables, shots, frames, size, sampler steps); field docstrings are CLI help."""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+TABLES = ("a", "b", "c", "d")
+
+
+@dataclass
+class EvalConfig:
+    """Settings of one evaluation run (paper Sec. Experimental Results, DESIGN.md "Measuring it")."""
+
+    tables: tuple[str, ...] = TABLES
+    """which tables: a = image vs video model, b = controls, c = recursive vs sequential, d = DDIM vs LCM"""
+    split: str = "test"
+    """data set split of held-out rooms (never trained on)"""
+    rooms: int | None = None
+    """first K rooms of the split (None: all)"""
+    frames: int | None = 17
+    """first T frames of each shot for tables a, b, d (None: whole shots)"""
+    long_frames: int = 65
+    """frames of each long shot for table c (the paper's 65-frame shots)"""
+    size: tuple[int, int] | None = None
+    """(W, H) to evaluate at; None: the model's training size when recorded, else the data's"""
+    steps: int = 20
+    """DDIM steps of tables a-c and the DDIM row of d (paper: DDIM-20)"""
+    lcm_steps: int = 2
+    """LCM steps of table d (paper: 2)"""
+    seed: int = 0
+    """seed of the initial noise and of the random object masks"""
+    window: int = 5
+    """frames per window N (the paper's N = 5)"""
+    image_window: int = 32
+    """the image model renders frames independently; it runs this many per UNet call"""
+    masks: int = 3
+    """objects masked in "Mask A|M|R" (paper: 3)"""
+    fid: bool = True
+    """compute FID (Inception-v3 features of every frame; ~0.3 s per frame on a CPU)"""
+    tc: bool = True
+    """compute temporal consistency"""
+    extra: dict = field(default_factory=dict)
+    """free-form notes recorded in results.json"""
+
+    def __post_init__(self) -> None:
+        bad = [t for t in self.tables if t not in TABLES]
+        if bad or not self.tables:
+            raise ValueError(f"tables: {','.join(self.tables)!r}; choose from {','.join(TABLES)}")
+        if self.frames is not None and self.frames < 2:
+            raise ValueError(f"frames must be at least 2 (temporal consistency needs pairs), got {self.frames}")
+        if self.long_frames < 2:
+            raise ValueError(f"long_frames must be at least 2, got {self.long_frames}")
+        if self.steps < 1 or self.lcm_steps < 1:
+            raise ValueError(f"steps must be at least 1 (got DDIM {self.steps}, LCM {self.lcm_steps})")
+        if self.masks < 1:
+            raise ValueError(f"masks must be at least 1, got {self.masks}")
+        if self.window < 2 or self.image_window < 1:
+            raise ValueError(f"window must be at least 2 and image_window at least 1 (got {self.window}, {self.image_window})")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["tables"] = list(self.tables)
+        d["size"] = None if self.size is None else list(self.size)
+        return d

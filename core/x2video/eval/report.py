@@ -1,0 +1,111 @@
+"""Markdown for `x2video eval` results: one table per experiment, model beside the classical baseline and the paper's figures."""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from x2video.eval.machine import machine_label
+
+_LETTERS = {"a": "(a)", "b": "(b)", "c": "(c)", "d": "(d)"}
+
+
+def fmt(v: Any, digits: int = 2) -> str:
+    """A number for a table cell: fixed digits, '–' when missing or not finite."""
+    if v is None or isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        return "–"
+    return f"{v:.{digits}f}"
+
+
+def _spf(v: Any) -> str:
+    if not isinstance(v, (int, float)) or not math.isfinite(v):
+        return "–"
+    return f"{v:.3f}" if v >= 0.01 else f"{v:.2g}"
+
+
+def _paper(p: dict | None) -> str:
+    if not p:
+        return ""
+    parts = [f"PSNR {p['psnr']:.2f}"] if "psnr" in p else []
+    if "tc" in p:
+        parts.append(f"TC {p['tc']:.4f}")
+    if "seconds_per_frame" in p:
+        parts.append(f"{p['seconds_per_frame']:.2f} s")
+    return ", ".join(parts)
+
+
+HEADER = (
+    "| | FID↓ | FVD↓ | PSNR↑ | SSIM↑ | LPIPS↓ | TC↓ | s/frame↓ | classical PSNR↑ | classical SSIM↑ | classical FID↓ | classical TC↓ | paper (context) |\n"
+    "|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+)
+
+
+def row_line(row: dict[str, Any]) -> str:
+    """One Markdown table line for a results row."""
+    label = row["label"]
+    if not row.get("available", False):
+        return f"| {label} | n/a: {row.get('reason', 'not run')} |" + " – |" * 11 + f" {_paper(row.get('paper'))} |"
+    m, b = row["model"], row["baseline"]
+    same = f" (= {row['same_render_as']})" if row.get("same_render_as") else ""
+    cells = [
+        f"{label}{same}", fmt(m.get("fid")), "n/a¹", fmt(m.get("psnr")), fmt(m.get("ssim"), 4), "n/a¹", fmt(m.get("tc"), 4),
+        _spf(m.get("seconds_per_frame")), fmt(b.get("psnr")), fmt(b.get("ssim"), 4), fmt(b.get("fid")), fmt(b.get("tc"), 4),
+        _paper(row.get("paper")),
+    ]
+    return "| " + " | ".join(cells) + " |"
+
+
+def table_markdown(key: str, table: dict[str, Any]) -> str:
+    lines = [f"### {_LETTERS.get(key, key)} {table['title']}", "", HEADER]
+    lines += [row_line(r) for r in table["rows"]]
+    for n in table.get("notes", []):
+        lines.append(f"\n- {n}")
+    return "\n".join(lines)
+
+
+def results_markdown(results: dict[str, Any], *, heading: str | None = "X2Video evaluation") -> str:
+    """The whole results.md: tables, then what every column means and where the numbers came from."""
+    out = [f"## {heading}", ""] if heading else []
+    models = results.get("models", {})
+    if models:
+        out.append("Models: " + "; ".join(f"**{role}** {_model_text(d)}" for role, d in models.items()))
+        out.append("")
+    data = results.get("data", {})
+    for key, d in data.items():
+        out.append(f"Data ({key}): {d.get('description', '')}")
+    if data:
+        out.append("")
+    for key, table in results["tables"].items():
+        out.append(table_markdown(key, table))
+        out.append("")
+    out.append("Columns: FID/PSNR/SSIM/TC/s per frame of the model against the ground truth; *classical* = "
+               f"{results.get('baseline', 'classical shading')}, scored the same way.")
+    out.append(f"Ground truth: {results.get('ground_truth', '')}.")
+    unav = results.get("unavailable", {})
+    if unav:
+        out.append("¹ " + " ".join(f"{k.upper()} not computed: {v['reason']}." for k, v in unav.items()))
+    defs = results.get("definitions", {})
+    for k in ("psnr", "ssim", "fid", "tc", "seconds_per_frame"):
+        if k in defs:
+            out.append(f"- {k}: {defs[k]}")
+    if results.get("paper_note"):
+        out.append(f"- paper column: {results['paper_note']}")
+    mach = results.get("machine")
+    if mach:
+        out.append(f"\nMachine: {machine_label(mach)}; torch {mach.get('torch')}; commit {mach.get('git_commit')}. "
+                   f"Wall time {results.get('wall_seconds', 0):.0f} s (metrics {results.get('metric_seconds', 0):.0f} s).")
+    if results.get("command"):
+        out.append(f"\nReproduce: `{results['command']}`")
+    return "\n".join(out) + "\n"
+
+
+def _model_text(d: dict) -> str:
+    if "missing" in d:
+        return f"(missing: {d['missing']})"
+    bits = [str(d.get("path", "?"))]
+    if d.get("untrained"):
+        bits.append("UNTRAINED random weights")
+    if d.get("config"):
+        bits.append(f"preset {d['config']}")
+    if d.get("step") is not None:
+        bits.append(f"step {d['step']}")
+    return "(" + ", ".join(bits) + ")"
