@@ -7,6 +7,10 @@ an h x w latent at C channels we time one attention layer (projections + attenti
 output projection) in each variant, and the temporal branch alone against the
 self-attention branch alone (projections + SDPA, no output projection).
 
+Time: the fastest of --repeats interleaved calls. On CPU the clock is the process's CPU
+time with one intra-op thread by default, because wall time on a machine shared with other
+jobs measures them as much as us; on CUDA it is wall time around synchronised calls.
+
 Memory: peak bytes allocated by PyTorch during one call. On CUDA:
 `torch.cuda.max_memory_allocated` after `reset_peak_memory_stats`. On CPU: the PyTorch
 profiler with `profile_memory=True` records every allocation and free of the CPU
@@ -48,7 +52,7 @@ def full_spatiotemporal(attn: Attention, x: torch.Tensor, n: int) -> torch.Tenso
     return out.reshape(bn, length, c)
 
 
-def time_all(variants: dict[str, Callable[[], torch.Tensor]], repeats: int, device: torch.device) -> dict[str, float]:
+def time_all(variants: dict[str, Callable[[], torch.Tensor]], repeats: int, device: torch.device, clock: Callable[[], float]) -> dict[str, float]:
     """Fastest of `repeats` timed calls per variant after one warm-up each. Rounds interleave
     the variants so that load from other processes on a shared machine hits them alike;
     the minimum is the figure least disturbed by that load."""
@@ -59,11 +63,11 @@ def time_all(variants: dict[str, Callable[[], torch.Tensor]], repeats: int, devi
         for name, fn in variants.items():
             if device.type == "cuda":
                 torch.cuda.synchronize()
-            t0 = time.perf_counter()
+            t0 = clock()
             fn()
             if device.type == "cuda":
                 torch.cuda.synchronize()
-            best[name] = min(best[name], time.perf_counter() - t0)
+            best[name] = min(best[name], clock() - t0)
     return best
 
 
@@ -102,10 +106,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     ap.add_argument("--dtype", default="float32", choices=["float32", "float16", "bfloat16"])
+    ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads on CPU")
+    ap.add_argument("--clock", choices=["cpu", "wall"], default=None,
+                    help="cpu: process CPU time (default on CPU; other jobs on a shared machine barely move it); "
+                         "wall: elapsed time (default on CUDA)")
     ap.add_argument("--json", type=Path, help="also write the results here")
     args = ap.parse_args(argv)
 
     device, dtype = torch.device(args.device), getattr(torch, args.dtype)
+    if device.type == "cpu":
+        torch.set_num_threads(args.threads)
+    clock_name = args.clock or ("cpu" if device.type == "cpu" else "wall")
+    clock = time.process_time if clock_name == "cpu" else time.perf_counter
     w, h = (int(v) for v in args.size.lower().split("x"))
     length, c = w * h, args.channels
     torch.manual_seed(0)
@@ -116,7 +128,8 @@ def main(argv: list[str] | None = None) -> int:
         hybrid.alpha_t.fill_(0.2)  # non-zero: every branch is computed
     plain = AttnProcessor2_0()
     info = {"device": str(device), "dtype": args.dtype, "threads": torch.get_num_threads(), "channels": c,
-            "heads": args.heads, "latent": f"{w}x{h}", "tokens_per_frame": length, "torch": torch.__version__}
+            "heads": args.heads, "latent": f"{w}x{h}", "tokens_per_frame": length, "torch": torch.__version__,
+            "clock": clock_name}
     print(f"# {info}")
     header = f"{'N':>3} {'variant':<28} {'ms/call':>9} {'ms/frame':>9} {'peak MiB':>9} {'x self':>7}"
     print(header)
@@ -135,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
                 "branch: MHF temporal": lambda: hybrid.temporal(attn, x, key),
                 "branch: reference (interp)": lambda: hybrid.reference(attn, x, interp),
             }
-            secs = time_all(variants, args.repeats, device)
+            secs = time_all(variants, args.repeats, device, clock)
             res = {name: (secs[name], peak_bytes(fn, device)) for name, fn in variants.items()}
             base_layer, base_branch = res["self-attention layer"][0], res["branch: self (qkv+sdpa)"][0]
             for name, (sec, mem) in res.items():

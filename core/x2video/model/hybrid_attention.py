@@ -47,19 +47,18 @@ def heads_merge(x: torch.Tensor) -> torch.Tensor:
 def mhf_gather(kv: torch.Tensor, num_frames: int, heads: int) -> torch.Tensor:
     """Route head h of frame i to frame (i + h) mod N: projected keys or values (B*N, L, H*d) -> (B*N, H, L, d).
 
-    One strided copy per head straight into the attention layout, so the routing costs the
-    same copy SDPA makes of self-attention's transposed keys anyway; the attention that
-    follows costs exactly one self-attention (each query still sees L keys)."""
+    Frames are tiled to N+H-1 (so frame i+h needs no modulo), a sliding window of N frames is
+    taken per start frame, and the (window, head) diagonal picks window h for head h: all
+    views, then one copy into the attention layout. The attention that follows costs exactly
+    one self-attention (each query still sees L keys)."""
     bn, length, c = kv.shape
     b, n, d = bn // num_frames, num_frames, c // heads
     src = kv.view(b, n, length, heads, d)  # (B, N, L, H, d)
-    out = kv.new_empty(b, n, heads, length, d)  # (B, N, H, L, d)
-    for h in range(heads):
-        s = h % n  # frame i reads frame i + s (mod N) through head h
-        out[:, : n - s, h] = src[:, s:, :, h]
-        if s:
-            out[:, n - s :, h] = src[:, :s, :, h]
-    return out.view(bn, heads, length, d)
+    reps = -(-(n + heads - 1) // n)
+    tiled = src.repeat(1, reps, 1, 1, 1)[:, : n + heads - 1]  # (B, N+H-1, L, H, d): frame j holds j mod N
+    windows = tiled.unfold(1, n, 1)  # (B, H, L, H, d, N): [b, w, l, h, e, i] = frame w + i
+    diag = torch.diagonal(windows, dim1=1, dim2=3)  # (B, L, d, N, H): [b, l, e, i, h] = frame i + h, head h
+    return diag.permute(0, 3, 4, 1, 2).reshape(bn, heads, length, d)  # (B*N, H, L, d)
 
 
 class HybridSelfAttnProcessor(nn.Module):
