@@ -99,6 +99,7 @@ def feats():
     return f[0:2], f[2:4], f[4:6], f[6:8]
 
 
+@pytest.mark.slow
 def test_fid_is_zero_on_identical_sets_and_grows_with_noise(feats):
     clean, low, high, clean_again = feats
     assert clean.shape == (2, fidmod.FEATURE_DIM) and np.isfinite(clean).all()

@@ -115,6 +115,14 @@ def test_fid_through_the_suite(monkeypatch):
     want = fidmod.fid_from_features(fake_features(np.stack(pred)), fake_features(np.stack(gt)))
     assert res["fid_frames"] == 2 and res["fid"] == pytest.approx(want) and res["fid"] > 0
     assert "rank-deficient" in res["fid_note"]
+    # a shared cache extracts the ground truth's features once across suites (rows of a table)
+    cache: dict = {}
+    calls.clear()
+    for _ in range(2):
+        suite = MetricSuite(SuiteConfig(space="display"), gt_feature_cache=cache)
+        suite.add_shot("s", pred, gt)
+        assert suite.results()["fid"] == pytest.approx(want)
+    assert calls == [2, 2, 2] and len(cache) == 1
 
 
 def test_frame_timer():

@@ -18,7 +18,9 @@ resample_mode='nv_bilinear_float')` with `update_*_stat(..., quant=True)`):
 Fréchet distance between Gaussians N(mu1, C1), N(mu2, C2):
 ``|mu1 - mu2|^2 + tr(C1) + tr(C2) - 2 tr((C1 C2)^{1/2})``, with the trace of the matrix square
 root computed through eigenvalues (``tr((C1 C2)^{1/2}) = sum sqrt(eig(S1 C2 S1))``, S1 the
-symmetric square root of C1): a few seconds for 2048x2048, where `scipy.linalg.sqrtm` takes ~40 s.
+symmetric square root of C1), never `scipy.linalg.sqrtm`. When a set has at most 2048 frames
+(our held-out sets), the covariances are rank-deficient and `fid_from_features` computes the
+same quantity exactly from the (n1, n2) cross-Gram matrix of the centred features instead.
 """
 from __future__ import annotations
 
@@ -136,7 +138,9 @@ def trace_sqrt_product(cov1: np.ndarray, cov2: np.ndarray) -> float:
 
 
 def frechet_distance(mu1: np.ndarray, cov1: np.ndarray, mu2: np.ndarray, cov2: np.ndarray) -> float:
-    """Fréchet (2-Wasserstein) distance between N(mu1, cov1) and N(mu2, cov2) (Heusel et al. 2017, "GANs trained by a two time-scale update rule...")."""
+    """Fréchet (2-Wasserstein) distance between N(mu1, cov1) and N(mu2, cov2), as FID defines it
+    (Heusel et al. 2017, "GANs trained by a two time-scale update rule converge to a local Nash
+    equilibrium")."""
     mu1, mu2 = np.asarray(mu1, np.float64), np.asarray(mu2, np.float64)
     cov1, cov2 = np.asarray(cov1, np.float64), np.asarray(cov2, np.float64)
     if mu1.shape != mu2.shape or cov1.shape != cov2.shape or cov1.shape != (mu1.size, mu1.size):

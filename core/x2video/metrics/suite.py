@@ -8,6 +8,7 @@ TC is the ratio of the mean warping errors over all frame pairs of all shots.
 """
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import time
@@ -89,13 +90,16 @@ class MetricSuite:
     """
 
     config: SuiteConfig = field(default_factory=SuiteConfig)
-    _shots: list[_ShotRecord] = field(default_factory=list)
-    _pred_feats: FeatureAccumulator = field(default_factory=FeatureAccumulator)
-    _gt_feats: FeatureAccumulator = field(default_factory=FeatureAccumulator)
-    _pair_errors: list[tuple[float, float]] = field(default_factory=list)  # (pred, gt) per frame pair
-    _seconds: dict[str, float] = field(default_factory=lambda: {"psnr": 0.0, "ssim": 0.0, "fid": 0.0, "tc": 0.0})
-    _render_seconds: float = 0.0
-    _render_frames: int = 0
+    gt_feature_cache: dict[str, np.ndarray] | None = None
+    """ground-truth content hash -> (T, 2048) Inception features; pass one dict to every suite that
+    scores the same ground truth (the rows of a table) to extract its features only once"""
+    _shots: list[_ShotRecord] = field(default_factory=list, init=False, repr=False)
+    _pred_feats: FeatureAccumulator = field(default_factory=FeatureAccumulator, init=False, repr=False)
+    _gt_feats: FeatureAccumulator = field(default_factory=FeatureAccumulator, init=False, repr=False)
+    _pair_errors: list[tuple[float, float]] = field(default_factory=list, init=False, repr=False)  # (pred, gt) per frame pair
+    _seconds: dict[str, float] = field(default_factory=lambda: {"psnr": 0.0, "ssim": 0.0, "fid": 0.0, "tc": 0.0}, init=False, repr=False)
+    _render_seconds: float = field(default=0.0, init=False, repr=False)
+    _render_frames: int = field(default=0, init=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.config.space not in SPACES:
@@ -120,6 +124,8 @@ class MetricSuite:
             raise ValueError(f"shot {name!r}: no frames")
         if any(r.name == name for r in self._shots):
             raise ValueError(f"shot {name!r} was already added")
+        if render_seconds is not None and render_seconds < 0:
+            raise ValueError(f"shot {name!r}: render_seconds must be >= 0, got {render_seconds}")
         pred = _stack(pred_frames, self.config.space, "prediction", name)
         gt = _stack(gt_frames, self.config.space, "ground-truth", name)
         for i, (p, g) in enumerate(zip(pred, gt)):
@@ -151,12 +157,18 @@ class MetricSuite:
         if self.config.fid:
             t0 = time.perf_counter()
             self._pred_feats.add(np.stack(pred))
-            self._gt_feats.add(np.stack(gt))
+            gt_stack = np.stack(gt)  # (T, H, W, 3)
+            key = hashlib.sha1(gt_stack.tobytes()).hexdigest() + f"-{gt_stack.shape}"
+            cache = self.gt_feature_cache
+            if cache is not None and key in cache:
+                self._gt_feats.chunks.append(cache[key])
+            else:
+                self._gt_feats.add(gt_stack)
+                if cache is not None:
+                    cache[key] = self._gt_feats.chunks[-1]
             self._seconds["fid"] += time.perf_counter() - t0
 
         if render_seconds is not None:
-            if render_seconds < 0:
-                raise ValueError(f"shot {name!r}: render_seconds must be >= 0, got {render_seconds}")
             rec.seconds_per_frame = render_seconds / len(gt)
             self._render_seconds += render_seconds
             self._render_frames += len(gt)
@@ -184,7 +196,7 @@ class MetricSuite:
             "ssim": float(np.mean(all_ssim)) if all_ssim else None,
         }
         # FID over the frame sets of all shots
-        out["fid"], out["fid_frames"], out["fid_note"] = None, len(self._gt_feats), None
+        out["fid"], out["fid_frames"], out["fid_note"], out["fid_distance_seconds"] = None, len(self._gt_feats), None, None
         if not self.config.fid:
             out["fid_note"] = "disabled in SuiteConfig"
         elif len(self._gt_feats) < 2:
@@ -192,7 +204,7 @@ class MetricSuite:
         else:
             t0 = time.perf_counter()
             out["fid"] = _json_float(fid_from_features(self._pred_feats.features, self._gt_feats.features))
-            self._seconds["fid"] += time.perf_counter() - t0
+            out["fid_distance_seconds"] = time.perf_counter() - t0
             if len(self._gt_feats) <= 2048:
                 out["fid_note"] = f"{len(self._gt_feats)} frames < 2049: covariance is rank-deficient; compare FIDs only at equal frame counts"
         # TC as the ratio of mean warping errors over all pairs of all shots
