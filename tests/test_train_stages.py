@@ -198,3 +198,16 @@ def test_batches_windows_masks_and_prompts(runs):
             torch.testing.assert_close(m, (data.ids[rows[0]] == obj).float())
             torch.testing.assert_close(b.text_local[w, p], data.text[data.prompt_index[room["objects"][str(obj)]]])
             assert float(b.cond[w * 3, 19][m[::2, ::2] > 0].min()) > 0  # the object is inside the A|M|R union mask
+
+
+def test_cli_image_stage_runs_and_resumes(runs, tmp_path, capsys):
+    from x2video.cli import main
+
+    args = ["train", "image", "--cache", str(runs["root"] / "cache"), "--out", str(tmp_path / "img"), "--unet-channels", "16,32",
+            "--batch", "2", "--warmup", "1", "--threads", "1", "--no-shading-prior"]
+    assert main(args + ["--steps", "1"]) == 0
+    assert main(args + ["--steps", "2"]) == 0
+    res = json.loads((tmp_path / "img" / "results.json").read_text())["image"]
+    assert res["step"] == 2 and res["shading_prior"] is False and res["speed"]["first_step"] == 1
+    assert main(["train", "image", "--cache", str(tmp_path / "nope"), "--out", str(tmp_path / "x")]) == 2
+    assert "nope" in capsys.readouterr().err

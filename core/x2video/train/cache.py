@@ -94,9 +94,22 @@ def encode_room(vae: AutoencoderKL, shot: Shot, size: tuple[int, int] | None, ba
         imgs = {k: [to_vae_range(k, fr[k]) for fr in frames] for k in VAE_KEYS}
         shade = [_shading_images(fr) for fr in frames]
         imgs.update({k: [s[k] for s in shade] for k in SHADING_KEYS})
-        for k, v in imgs.items():
-            z = encode_mode(vae, images_to_tensor(v, dev, dtype), batch)  # (n, 4, h, w)
-            parts.setdefault(k, []).append(z.to("cpu", torch.float16))
+        # Encode each distinct image once: a frame without metal has identical metallic on/off
+        # shading variants (identical images give identical posterior modes).
+        flat = [(k, i) for k in imgs for i in range(len(frames))]
+        unique: list[np.ndarray] = []
+        slot: dict[tuple[str, int], int] = {}
+        for k, i in flat:
+            img = imgs[k][i]
+            same = next((slot[(k2, i)] for k2 in SHADING_KEYS if k in SHADING_KEYS and (k2, i) in slot
+                         and np.array_equal(unique[slot[(k2, i)]], img)), None)
+            if same is None:
+                unique.append(img)
+                same = len(unique) - 1
+            slot[(k, i)] = same
+        z_all = encode_mode(vae, images_to_tensor(unique, dev, dtype), batch).to("cpu", torch.float16)  # (U, 4, h, w)
+        for k in imgs:
+            parts.setdefault(k, []).append(z_all[[slot[(k, i)] for i in range(len(frames))]])
         irr = images_to_tensor([irradiance_to_unit(fr["irradiance"]) for fr in frames], torch.device("cpu"), torch.float32)
         parts.setdefault("irradiance", []).append(area_downsample(irr, (H // f, W // f)).to(torch.float16))  # (n, 3, h, w)
         ids = np.stack([fr["ids"][..., 0] for fr in frames])  # (n, H, W)
