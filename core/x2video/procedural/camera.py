@@ -108,8 +108,8 @@ def camera_path(scene: Scene, num_frames: int, aspect: float, seed: int, cfg: Pa
         yaw = float(np.arctan2(to_c[1], to_c[0]))
         heading = yaw
         pitch = float(np.radians(rng.uniform(*cfg.pitch)))
-        way, yaws, length = [start], [yaw], 0.0
-        while length < need + cfg.step:
+        way, yaws, length, dead = [start], [yaw], 0.0, 0
+        while length < need + cfg.step and dead < 3 and len(way) < 200:
             cur = way[-1]
             ang = heading + rng.uniform(-np.radians(80), np.radians(80), cfg.candidates)
             rad = cfg.step * rng.uniform(0.7, 1.3, cfg.candidates)
@@ -118,9 +118,11 @@ def camera_path(scene: Scene, num_frames: int, aspect: float, seed: int, cfg: Pa
             ok = np.ones(cfg.candidates, bool)
             for s in np.linspace(0.25, 1.0, 4):  # the straight segment to the candidate must be free too
                 ok &= free(scene, cur + (cand - cur) * s, cfg.clearance)
-            if not ok.any():  # dead end: turn around
+            if not ok.any():  # dead end: turn around (give up this start after a few)
                 heading += np.pi
+                dead += 1
                 continue
+            dead = 0
             pos3 = np.concatenate([cand[:, :1], np.full((len(cand), 1), cfg.eye_height), cand[:, 1:]], 1)
             n = visible_counts(scene, pos3[ok], cyaw[ok], pitch, cfg.fov_y_deg, aspect, points)
             wgt = n.astype(np.float64) ** 2  # paper: w_i = N_i^2
@@ -131,8 +133,8 @@ def camera_path(scene: Scene, num_frames: int, aspect: float, seed: int, cfg: Pa
             length += float(np.linalg.norm(nxt - cur))
             way.append(nxt)
             yaws.append(float(cyaw[ok][k]))
-            if len(way) > 200:
-                break
+        if len(way) < 2:
+            continue
         dense = _catmull_rom(np.column_stack([np.array(way), np.array(yaws)]), 64)  # (S, 3): x, z, yaw
         seg = np.linalg.norm(np.diff(dense[:, :2], axis=0), axis=1)
         arc = np.concatenate([[0.0], np.cumsum(seg)])

@@ -184,7 +184,7 @@ def tv(rng: np.random.Generator) -> Design:
 def painting(rng: np.random.Generator) -> Design:
     w, h = rng.uniform(0.5, 1.2), rng.uniform(0.4, 0.9)
     p = [_b(-w / 2, 0, -0.02, w / 2, h, 0.0, "accent"), _b(-w / 2 + 0.04, 0.04, -0.02, w / 2 - 0.04, h - 0.04, 0.01)]
-    return Design("painting", p, w, 0.03, h, ("painted",), ("wood", "metal"), blocks_camera=False)
+    return Design("painting", p, w, 0.03, h, ("canvas",), ("wood", "metal"), blocks_camera=False)
 
 
 #: every category the room builder can place

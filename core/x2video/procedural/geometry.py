@@ -105,19 +105,12 @@ def _cylinder(lo: np.ndarray, hi: np.ndarray, seg: int = 20) -> tuple[np.ndarray
 
 def _sphere(lo: np.ndarray, hi: np.ndarray, seg: int = 16, rings: int = 10) -> tuple[np.ndarray, np.ndarray]:
     c, r = (lo + hi) / 2, (hi - lo) / 2
-    th = np.linspace(0, np.pi, rings + 1)
-    ph = np.linspace(0, 2 * np.pi, seg + 1)
-    unit = lambda t, p: np.array([np.sin(t) * np.cos(p), np.cos(t), -np.sin(t) * np.sin(p)])  # noqa: E731
-    pos, nrm = [], []
-    for i in range(rings):
-        for j in range(seg):
-            q = [unit(th[i], ph[j]), unit(th[i + 1], ph[j]), unit(th[i + 1], ph[j + 1]), unit(th[i], ph[j + 1])]
-            for k in (0, 1, 2, 0, 2, 3):
-                u = q[k]
-                pos.append(c + r * u)
-                n = u / np.maximum(r, 1e-6)
-                nrm.append(n / np.linalg.norm(n))
-    return np.array(pos), np.array(nrm)
+    th, ph = np.meshgrid(np.linspace(0, np.pi, rings + 1), np.linspace(0, 2 * np.pi, seg + 1), indexing="ij")
+    unit = np.stack([np.sin(th) * np.cos(ph), np.cos(th), -np.sin(th) * np.sin(ph)], -1)  # (rings+1, seg+1, 3)
+    q = [unit[:-1, :-1], unit[1:, :-1], unit[1:, 1:], unit[:-1, 1:]]  # quad corners, each (rings, seg, 3)
+    u = np.stack([q[k] for k in (0, 1, 2, 0, 2, 3)], 2).reshape(-1, 3)  # (rings*seg*6, 3)
+    n = u / np.maximum(r, 1e-6)
+    return c + r * u, n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
 def part_mesh(part: Part) -> tuple[np.ndarray, np.ndarray]:

@@ -45,6 +45,8 @@ FAMILIES: dict[str, Family] = {f.name: f for f in (
            ("silver", "brass", "copper", "black"), ("flat", "noise")),
     Family("stone", ("marble", "granite", "polished stone"), (0.04, 0.2), (0.0, 0.0),
            ("white", "light grey", "grey", "black", "beige"), ("veins", "noise")),
+    Family("canvas", ("canvas",), (0.75, 0.95), (0.0, 0.0),
+           ("red", "orange", "yellow", "teal", "blue", "dark blue", "green", "pink", "purple", "light blue", "cream"), ("flat", "noise", "stripes")),
     Family("foliage", ("leafy",), (0.55, 0.85), (0.0, 0.0), ("green", "dark green", "olive"), ("noise",)),
     Family("concrete", ("concrete",), (0.7, 0.95), (0.0, 0.0), ("grey", "light grey", "dark grey"), ("noise",)),
 )}

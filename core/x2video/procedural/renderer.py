@@ -116,8 +116,12 @@ class ProceduralRenderer:
             self._fbos[key] = self.ctx.framebuffer(atts, self.ctx.depth_renderbuffer((w, h)))
         return self._fbos[key]
 
-    def set_scene(self, scene: Scene) -> None:
-        """Upload geometry and materials, render shadow maps, build the probe and set the exposure (once per shot)."""
+    def set_scene(self, scene: Scene, exposure_poses: list[CameraPose] | None = None) -> None:
+        """Upload geometry and materials, render shadow maps, build the probe and set the exposure (once per shot).
+
+        The exposure scales every light so the 98th percentile of max(R, G, B) of the lit image (emission and
+        sky excluded) meets the mood's target: measured on a few of `exposure_poses` (the shot's own path), or on
+        the reflection probe when none are given."""
         import moderngl
 
         self.scene = scene
@@ -147,17 +151,24 @@ class ProceduralRenderer:
         self._has_env = False
         probe = np.array([scene.width / 2, min(1.5, scene.height - 0.5), scene.depth / 2])
         self._probe = probe
-        # indirect light: each probe render sees the previous estimate, so k renders give k bounces
-        for _ in range(self.cfg.bounces):
-            faces = self._render_probe(probe, emission=0.0)
-            self._sh = sh9_irradiance([f[0] for f in faces])
+        # indirect light: each probe render sees the previous estimate, so k renders give k bounces (lights only)
         faces = self._render_probe(probe, emission=0.0)
-        lum = np.concatenate([(f[0] @ LUMA)[f[1] > 0] for f in faces])
-        p90 = float(np.percentile(lum, 90)) if lum.size else 0.0
-        self._scale = scene.lighting.target / p90 if p90 > 1e-6 else 1.0
+        for _ in range(self.cfg.bounces):
+            self._sh = sh9_irradiance([f[0] for f in faces])
+            faces = self._render_probe(probe, emission=0.0)
+        if exposure_poses:
+            views = [self._render_view(exposure_poses[i], 96) for i in sorted({0, len(exposure_poses) // 2, len(exposure_poses) - 1})]
+        else:
+            views = faces
+        peak = np.concatenate([f[0].max(-1)[f[1] > 0] for f in views])
+        p98 = float(np.percentile(peak, 98)) if peak.size else 0.0
+        self._scale = scene.lighting.target / p98 if p98 > 1e-6 else 1.0
         scene.lighting.exposure = self._scale
         self._sh = self._sh * self._scale
-        faces = self._render_probe(probe, emission=1.0)  # the reflection probe, with glowing lamps and the sky
+        # the reflection probe, now with glowing lamps and the sky, which also add to the ambient term
+        faces = self._render_probe(probe, emission=1.0)
+        if self.cfg.bounces > 0:
+            self._sh = sh9_irradiance([f[0] for f in faces])
         for i, (rgb, _) in enumerate(faces):
             self.env.write(i, np.ascontiguousarray(rgb, np.float32).tobytes())
         self.env.build_mipmaps()
@@ -268,8 +279,17 @@ class ProceduralRenderer:
         for face in range(6):
             view = face_view(origin, face)
             rgb, _, _, irr = self._draw(fbo, proj @ view, view, origin, emission, cull=False)
-            out.append((rgb[..., :3].copy(), irr[..., 3].copy()))
+            out.append((np.nan_to_num(rgb[..., :3], nan=0.0, posinf=0.0), irr[..., 3].copy()))
         return out
+
+    def _render_view(self, pose: CameraPose, width: int) -> tuple[np.ndarray, np.ndarray]:
+        """A small render of a camera view without emission: (radiance (h, w, 3), ids (h, w))."""
+        h = max(8, int(round(width * self.height / self.width)))
+        c2w = np.asarray(pose.cam_to_world, np.float64)
+        view = np.linalg.inv(c2w)
+        proj = perspective(pose.fov_y_deg or 60.0, self.width / self.height, self.cfg.near, self.cfg.far)
+        rgb, _, _, irr = self._draw(self._fbo(width, h), proj @ view, view, c2w[:3, 3], 0.0, cull=True)
+        return np.nan_to_num(rgb[..., :3], nan=0.0, posinf=0.0), irr[..., 3]
 
     # ------------------------------------------------------------------ per frame
     def render(self, pose: CameraPose) -> dict[str, np.ndarray]:

@@ -8,7 +8,7 @@ import numpy as np
 from x2video.procedural import furniture as F
 from x2video.procedural.colors import linear_rgb
 from x2video.procedural.geometry import Part, SceneObject, rotate_y
-from x2video.procedural.lighting import MOODS, Lighting, light_points_for, sun_for
+from x2video.procedural.lighting import MOODS, Lighting, ceiling_on, light_points_for, sun_for, white_balance
 from x2video.procedural.materials import Material, emissive, sample_material, sky
 from x2video.procedural.room import WALL_T, Opening, door_parts, sky_part, wall_frame, wall_parts, window_centre, window_frame_parts
 
@@ -268,9 +268,10 @@ def generate_scene(seed: int) -> Scene:
                     for side in (-1, 1):
                         for i in range(k):
                             off = (i - (k - 1) / 2) * span / k
-                            c = origin + (np.array([off, 0, side * ((r[3] - r[1]) / 2 + 0.2)]) if long_x else np.array([side * ((r[2] - r[0]) / 2 + 0.2), 0, off]))
-                            t = (2 if side > 0 else 0) if long_x else (3 if side > 0 else 1)
                             ch = F.chair(rng)
+                            gap = ch.depth / 2 + 0.01  # chair pulled out just clear of the table edge
+                            c = origin + (np.array([off, 0, side * ((r[3] - r[1]) / 2 + gap)]) if long_x else np.array([side * ((r[2] - r[0]) / 2 + gap), 0, off]))
+                            t = (2 if side > 0 else 0) if long_x else (3 if side > 0 else 1)
                             put(ch, t, c, _rect(ch, t, c), chair_main)
                 if "rug" in where or ("chairs" in where and rng.random() < 0.6):
                     put_rug(origin[0], origin[2], r[2] - r[0] + rng.uniform(1.0, 1.6), r[3] - r[1] + rng.uniform(1.0, 1.6))
@@ -296,7 +297,7 @@ def generate_scene(seed: int) -> Scene:
                             put_on(F.table_lamp(rng), turns, c, ns.height)
             if "chair" in where:
                 ch = F.chair(rng)
-                c = origin + fwd_v * (des.depth / 2 + 0.1)
+                c = origin + fwd_v * (des.depth / 2 + ch.depth / 2 + 0.02)
                 rr = _rect(ch, (turns + 2) % 4, c)
                 if not blocked(rr, ch.height, 0.0):
                     put(ch, (turns + 2) % 4, c, rr)
@@ -309,15 +310,16 @@ def generate_scene(seed: int) -> Scene:
     for i in range(n_ceil):
         c = np.array([w / 2, h, d / 2]) if n_ceil == 1 else (np.array([w * (1 + 2 * i) / 4, h, d / 2]) if w >= d else np.array([w / 2, h, d * (1 + 2 * i) / 4]))
         r = rng.uniform(0.18, 0.3)
-        lit = mood.ceiling
+        lit = ceiling_on(mood, len(lamp_bulbs))
         mat = emissive(np.ones(3), 3.0 if lit else 0.0, word="round", name="white")
-        b.add("ceiling light", f"a round white ceiling light", [Part("cylinder", c - np.array([r, 0.06, r]), c + np.array([r, 0, r]), b.material(mat), False)], False)
+        b.add("ceiling light", _caption(mat, "ceiling light"), [Part("cylinder", c - np.array([r, 0.06, r]), c + np.array([r, 0, r]), b.material(mat), False)], False)
         spots.append(c - np.array([0, 0.2, 0]))
     points = light_points_for(mood, rng, ceiling_spots=spots, lamp_bulbs=lamp_bulbs, windows=windows)
     if mood.lamps:
         for (obj, m), p in zip(lamp_objs, [q for q in points if q.kind == "lamp"]):
             m.emission = (p.colour * 0.8).astype(np.float32)  # the shade glows in its bulb's colour
     lighting = Lighting(mood.name, points, sun_for(mood, rng, windows), np.array(mood.sky, np.float32), mood.target)
+    white_balance(lighting)
 
     starts = [np.array([x, 1.7, z]) for x, z in [(c[0], c[2]) for c in cands]]
     obstacles = list(occupied)

@@ -97,7 +97,7 @@ float pattern(int kind, vec2 uv, float s, float c) {
     if (kind == 5) return 1.0 + 2.0 * c * (fbm(vec2(uv.x / (s * 12.0), uv.y / s)) - 0.5) + 0.6 * c * sin(uv.y / s * 6.0 + 3.0 * fbm(uv / (s * 5.0)));  // grain
     if (kind == 6) {            // marble veins
         float v = abs(sin((uv.x + uv.y) / s * 2.0 + 6.0 * fbm(uv / s)));
-        return 1.0 + c * 0.4 - c * 1.5 * pow(1.0 - v, 6.0);
+        return 1.0 + c * 0.4 - c * 1.5 * pow(clamp(1.0 - v, 0.0, 1.0), 6.0);
     }
     return 1.0;
 }
@@ -159,7 +159,7 @@ vec3 ggx(vec3 N, vec3 V, vec3 L, float rough, vec3 F0) {
     float D = a2 / (PI * dd * dd);
     float k = (rough + 1.0) * (rough + 1.0) / 8.0;
     float G = nv / (nv * (1.0 - k) + k) * nl / (nl * (1.0 - k) + k);
-    vec3 F = F0 + (1.0 - F0) * pow(1.0 - max(dot(H, V), 0.0), 5.0);
+    vec3 F = F0 + (1.0 - F0) * pow(clamp(1.0 - dot(H, V), 0.0, 1.0), 5.0);
     return D * G * F / (4.0 * nv * nl);
 }
 
@@ -181,7 +181,7 @@ void main() {
     float depth = -(u_view * vec4(P, 1.0)).z;
     vec3 ncam = normalize(u_viewrot * N);
     if (m2.a > 0.5) {  // sky through a window: only emitted light, no albedo/irradiance, id 0 (background)
-        o_rgb = vec4(m2.rgb, depth); o_albedo = vec4(0.0, 0.0, 0.0, 1.0); o_normal = vec4(ncam, 0.0); o_irr = vec4(0.0);
+        o_rgb = vec4(m2.rgb * u_emission_scale, depth); o_albedo = vec4(0.0, 0.0, 0.0, 1.0); o_normal = vec4(ncam, 0.0); o_irr = vec4(0.0);
         return;
     }
     vec3 an = abs(N);

@@ -59,7 +59,7 @@ def write_procedural_shot(out_dir: str | Path, seed: int, num_frames: int, width
     try:
         scene = generate_scene(seed)
         poses = camera_path(scene, num_frames, width / height, seed, path_cfg)
-        renderer.set_scene(scene)  # sets the exposure recorded in shot.json
+        renderer.set_scene(scene, exposure_poses=poses)  # sets the exposure recorded in shot.json
         info = shot_info(scene, poses, width, height, fps)
         with ShotWriter(out_dir, info, irradiance_normalized=True, overwrite=overwrite) as w:
             for t, ch in render_frames(scene, poses, renderer):
