@@ -108,8 +108,9 @@ def _step(path: Path) -> int | None:
     return int(m.group(1)) if m else None
 
 
-def load_models(a: argparse.Namespace) -> Any:
-    """EvalModels from the weights arguments; missing or broken weights fail with a clear message."""
+def load_models(a: argparse.Namespace, *, with_image: bool = True) -> Any:
+    """(EvalModels, video model folder or None) from the weights arguments; missing or broken weights fail
+    with a clear message. `with_image=False` skips the image model (--untrained builds one otherwise)."""
     import torch
 
     from x2video.cli.render import shipped_weights
@@ -123,7 +124,7 @@ def load_models(a: argparse.Namespace) -> Any:
         if a.weights or a.image_weights or a.lcm_weights:
             raise ValueError("--untrained excludes --weights, --image-weights and --lcm-weights")
         video = X2VideoModel.untrained("tiny", device=dev, dtype=dtype)
-        image = X2VideoModel.untrained("tiny", seed=1, device=dev, dtype=dtype, video=False)
+        image = X2VideoModel.untrained("tiny", seed=1, device=dev, dtype=dtype, video=False) if with_image else None
         info = {r: {"path": "untrained", "untrained": True, "config": "tiny", "video": r == "video"} for r in ("video", "image")}
         return EvalModels(video, image, None, info), None
 
@@ -154,7 +155,7 @@ def load_models(a: argparse.Namespace) -> Any:
     video, vinfo, vdir = load(weights, "weights", True)
     info = {"video": vinfo}
     image = lcm = None
-    if a.image_weights is not None:
+    if a.image_weights is not None and with_image:
         image, info["image"], _ = load(a.image_weights, "image-weights", False)
     if a.lcm_weights is not None:
         lcm, info["lcm"], _ = load(a.lcm_weights, "lcm-weights", True, want_lcm=True)
@@ -207,7 +208,7 @@ def run(a: argparse.Namespace) -> int:
     for flag, path in (("--data", a.data), ("--long-data", a.long_data)):
         if path is not None and not path.is_dir():
             raise FileNotFoundError(f"{flag}: data set folder {path} does not exist")
-    models, weights_dir = load_models(a)
+    models, weights_dir = load_models(a, with_image='a' in config.tables)
     size, size_note = resolve_size(a, weights_dir, models.video.downsample)
     config.size = size
     data = {"main": load_eval_shots(a.data, a.split, a.rooms, frames, size)}

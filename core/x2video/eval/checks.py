@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from x2video.eval.report import cell
+
 
 def _row(results: dict[str, Any], table: str, label: str) -> dict[str, Any] | None:
     for r in results.get("tables", {}).get(table, {}).get("rows", []):
@@ -64,5 +66,5 @@ def orderings(results: dict[str, Any]) -> list[dict[str, Any]]:
 def orderings_markdown(checks: list[dict[str, Any]]) -> str:
     mark = {True: "yes", False: "**NO**", None: "not measured"}
     lines = ["| ordering | holds | measured |", "|---|---|---|"]
-    lines += [f"| {c['claim']} | {mark[c['holds']]} | {c['values']} |" for c in checks]
+    lines += [f"| {cell(c['claim'])} | {mark[c['holds']]} | {c['values']} |" for c in checks]
     return "\n".join(lines)

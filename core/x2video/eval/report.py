@@ -16,6 +16,11 @@ def fmt(v: Any, digits: int = 2) -> str:
     return f"{v:.{digits}f}"
 
 
+def cell(text: str) -> str:
+    """Text safe inside a Markdown table cell ("Mask A|M|R" keeps its bars)."""
+    return str(text).replace("|", "\\|")
+
+
 def _spf(v: Any) -> str:
     if not isinstance(v, (int, float)) or not math.isfinite(v):
         return "–"
@@ -41,11 +46,11 @@ HEADER = (
 
 def row_line(row: dict[str, Any]) -> str:
     """One Markdown table line for a results row."""
-    label = row["label"]
+    label = cell(row["label"])
     if not row.get("available", False):
-        return f"| {label} | n/a: {row.get('reason', 'not run')} |" + " – |" * 11 + f" {_paper(row.get('paper'))} |"
+        return f"| {label} | n/a: {cell(row.get('reason', 'not run'))} |" + " – |" * 11 + f" {_paper(row.get('paper'))} |"
     m, b = row["model"], row["baseline"]
-    same = f" (= {row['same_render_as']})" if row.get("same_render_as") else ""
+    same = f" (= {cell(row['same_render_as'])})" if row.get("same_render_as") else ""
     cells = [
         f"{label}{same}", fmt(m.get("fid")), "n/a¹", fmt(m.get("psnr")), fmt(m.get("ssim"), 4), "n/a¹", fmt(m.get("tc"), 4),
         _spf(m.get("seconds_per_frame")), fmt(b.get("psnr")), fmt(b.get("ssim"), 4), fmt(b.get("fid")), fmt(b.get("tc"), 4),
@@ -57,8 +62,9 @@ def row_line(row: dict[str, Any]) -> str:
 def table_markdown(key: str, table: dict[str, Any]) -> str:
     lines = [f"### {_LETTERS.get(key, key)} {table['title']}", "", HEADER]
     lines += [row_line(r) for r in table["rows"]]
-    for n in table.get("notes", []):
-        lines.append(f"\n- {n}")
+    if table.get("notes"):
+        lines.append("")
+    lines += [f"- {n}" for n in table.get("notes", [])]
     return "\n".join(lines)
 
 
@@ -67,11 +73,11 @@ def results_markdown(results: dict[str, Any], *, heading: str | None = "X2Video 
     out = [f"## {heading}", ""] if heading else []
     models = results.get("models", {})
     if models:
-        out.append("Models: " + "; ".join(f"**{role}** {_model_text(d)}" for role, d in models.items()))
+        out += [f"- Model ({role}): {_model_text(d)}" for role, d in models.items()]
         out.append("")
     data = results.get("data", {})
     for key, d in data.items():
-        out.append(f"Data ({key}): {d.get('description', '')}")
+        out.append(f"- Data ({key}): {d.get('description', '')}")
     if data:
         out.append("")
     for key, table in results["tables"].items():

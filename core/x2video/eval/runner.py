@@ -71,7 +71,7 @@ class EvalProgress:
     what: str
 
 
-def _render(renderer: Renderer, shot: EvalShot, edits: Any, settings: RenderSettings, cancel: CancelToken | None) -> tuple[list[np.ndarray], float]:
+def render_shot(renderer: Renderer, shot: EvalShot, edits: Any, settings: RenderSettings, cancel: CancelToken | None = None) -> tuple[list[np.ndarray], float]:
     """(T linear frames, wall seconds) of one full render, conditioning cache emptied first."""
     frames: dict[int, np.ndarray] = {}
     cancelled: list[bool] = []
@@ -158,7 +158,7 @@ def evaluate(
                 preds, secs = {}, {}
                 for s in shots:
                     emit(EvalProgress(done, total, table, spec.label, s.name, "render"))
-                    preds[s.name], secs[s.name] = _render(renderers[mid], s, edits[s.name][0], _settings(spec, config, s.num_frames), cancel)
+                    preds[s.name], secs[s.name] = render_shot(renderers[mid], s, edits[s.name][0], _settings(spec, config, s.num_frames), cancel)
                     if on_frames is not None:
                         on_frames(spec, s, preds[s.name])
                     done += 1
@@ -228,4 +228,4 @@ def with_models_info(results: dict[str, Any], models: EvalModels) -> dict[str, A
     return out
 
 
-__all__ = ["EvalModels", "EvalProgress", "evaluate", "with_models_info"]
+__all__ = ["EvalModels", "EvalProgress", "evaluate", "render_shot", "with_models_info"]

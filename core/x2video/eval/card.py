@@ -1,0 +1,143 @@
+"""Composes resources/MODEL_CARD.md from `x2video eval` results folders and training run folders (issue 5, "Done means").
+
+    python -m x2video.eval.card RESULTS_DIR [RESULTS_DIR ...] [--run RUN_DIR ...] [--renders DIR] [--out resources/MODEL_CARD.md]
+
+Every number in the card is read from a results.json (with the exact command that produced
+it) or from a training run's state.json / summary.json / log.json / results.json; nothing is
+typed in by hand. Without --out the card goes to stdout.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import shlex
+import sys
+from pathlib import Path
+from typing import Any
+
+from x2video.eval.checks import orderings, orderings_markdown
+from x2video.eval.report import results_markdown
+
+
+def _read(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{path}: cannot read JSON ({e})") from None
+
+
+def load_results(path: str | Path) -> dict[str, Any]:
+    """results.json of an `x2video eval` folder (or the file itself); checks its format."""
+    p = Path(path)
+    f = p / "results.json" if p.is_dir() else p
+    if not f.is_file():
+        raise FileNotFoundError(f"{p}: no results.json (run `x2video eval ... --out {p}` first)")
+    doc = _read(f)
+    if not isinstance(doc, dict) or doc.get("format") != "x2video-eval":
+        raise ValueError(f"{f}: not an `x2video eval` results file (format {doc.get('format') if isinstance(doc, dict) else None!r})")
+    return doc
+
+
+def run_facts(run: str | Path) -> dict[str, Any]:
+    """Training facts of one run folder: stage, steps, speed, machine, estimated hours, stage results."""
+    from x2video.train.loop import latest_checkpoint
+
+    run = Path(run)
+    if not run.is_dir():
+        raise FileNotFoundError(f"training run {run} does not exist")
+    ck = latest_checkpoint(run)
+    if ck is None:
+        raise FileNotFoundError(f"{run}: no step-*/state.json checkpoint; is it a training run folder?")
+    state = _read(ck / "state.json")
+    sc = state.get("stage_config", {})
+    facts: dict[str, Any] = {"run": str(run), "stage": sc.get("stage", "?"), "step": state.get("step"), "checkpoint": ck.name,
+                             "batch": sc.get("batch"), "loop": state.get("loop", {})}
+    if (run / "summary.json").is_file():
+        facts["last_session"] = _read(run / "summary.json")
+    if (run / "log.json").is_file():
+        log = _read(run / "log.json")
+        rates = [e["steps_per_s"] for e in log if isinstance(e, dict) and e.get("steps_per_s")]
+        if rates:
+            facts["estimated_hours"] = sum(1.0 / r for r in rates) / 3600.0
+            facts["final_loss"] = log[-1].get("loss")
+            facts["logged_steps"] = len(log)
+    if (run / "results.json").is_file():
+        facts["results"] = _read(run / "results.json")
+    return facts
+
+
+def _fmt(v: Any, digits: int = 3) -> str:
+    return f"{v:.{digits}g}" if isinstance(v, (int, float)) and not isinstance(v, bool) else "–"
+
+
+def training_markdown(runs: list[dict[str, Any]]) -> str:
+    lines = [
+        "| stage | run | steps | est. hours¹ | last session: steps/s | samples/s | seconds | device | final loss | stage results |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for f in runs:
+        s = f.get("last_session", {})
+        res = f.get("results", {}).get(f["stage"], {}) if isinstance(f.get("results"), dict) else {}
+        extra = ""
+        if isinstance(res, dict) and res.get("heldout_psnr_db"):
+            extra = "held-out VAE PSNR " + ", ".join(f"{k} {v:.2f} dB" for k, v in res["heldout_psnr_db"].items())
+        lines.append(
+            f"| {f['stage']} | `{f['run']}` | {f['step']} | {_fmt(f.get('estimated_hours'))} | {_fmt(s.get('steps_per_s'))} | "
+            f"{_fmt(s.get('samples_per_s'))} | {_fmt(s.get('seconds'), 5)} | {s.get('device', '–')} | {_fmt(f.get('final_loss'))} | {extra} |"
+        )
+    lines.append("\n¹ estimated from the loss log: the sum of 1/(steps/s) over logged steps (covers every resumed session).")
+    return "\n".join(lines)
+
+
+def card_markdown(results: list[dict[str, Any]], runs: list[dict[str, Any]], renders: Path | None = None,
+                  command: str | None = None) -> str:
+    """The whole model card."""
+    out = ["# X2Video model card", ""]
+    out.append(f"Generated {_dt.date.today().isoformat()}" + (f" by `{command}`" if command else "") + ". Every figure below "
+               "comes from the results files and training runs named with it; rerun the command shown to reproduce it.")
+    out.append("")
+    if any(d.get("untrained") for r in results for d in r.get("models", {}).values() if isinstance(d, dict)):
+        out += ["> **These results were measured with UNTRAINED (random) weights: they test the pipeline, not the model.**", ""]
+    if runs:
+        out += ["## Training", "", training_markdown(runs), ""]
+    for i, r in enumerate(results):
+        out.append(results_markdown(r, heading=f"Evaluation {i + 1}" if len(results) > 1 else "Evaluation"))
+        out += ["### Orderings the paper reports, on these numbers", "", orderings_markdown(orderings(r)), ""]
+    if renders is not None:
+        pngs = sorted(Path(renders).glob("*.png"))
+        if pngs:
+            out += ["## Renders of held-out shots (ground truth | image model | video model)", ""]
+            for p in pngs:
+                mp4 = p.with_suffix(".mp4")
+                out.append(f"![{p.stem}]({p.as_posix()})" + (f" ([MP4]({mp4.as_posix()}))" if mp4.is_file() else ""))
+            out.append("")
+    return "\n".join(out) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m x2video.eval.card", description=__doc__.split("\n\n")[0])
+    p.add_argument("results", nargs="+", type=Path, help="`x2video eval` results folders (or results.json files)")
+    p.add_argument("--run", action="append", type=Path, default=[], help="training run folder (repeat: vae, image, video, lcm)")
+    p.add_argument("--renders", type=Path, help="folder of contact sheets / MP4s (x2video eval --renders N --renders-out DIR)")
+    p.add_argument("--out", type=Path, help="write the card here (atomically) instead of stdout")
+    a = p.parse_args(argv)
+    try:
+        results = [load_results(r) for r in a.results]
+        runs = [run_facts(r) for r in a.run]
+    except (ValueError, FileNotFoundError) as e:
+        print(f"model card: error: {e}", file=sys.stderr)
+        return 2
+    argv_ = sys.argv[1:] if argv is None else argv
+    text = card_markdown(results, runs, a.renders, shlex.join(["python", "-m", "x2video.eval.card", *map(str, argv_)]))
+    if a.out is None:
+        sys.stdout.write(text)
+    else:
+        from x2video.io.atomic import write_text_atomic
+
+        write_text_atomic(a.out, text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
