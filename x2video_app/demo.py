@@ -1,4 +1,4 @@
-"""The demo shot a new user sees: generated once with `x2video dataset demo OUT` and cached."""
+"""The demo shot a new user sees: the render CLI's cached procedural demo (generated once, in a subprocess)."""
 from __future__ import annotations
 
 import os
@@ -8,26 +8,28 @@ import time
 from pathlib import Path
 from typing import Callable
 
+# In a child process so the GUI never blocks on the procedural renderer's GL context and a crash
+# there cannot take the editor down. It uses the same cache as `x2video render --demo`.
+_SCRIPT = (
+    "import sys; from pathlib import Path; from x2video.cli.render import DEMO_CACHE, ensure_demo; "
+    "out = sys.argv[1] if len(sys.argv) > 1 else None; "
+    "print('DEMO=' + str(ensure_demo(Path(out) if out else DEMO_CACHE)))"
+)
 
-def demo_dir() -> Path:
-    """X2VIDEO_DEMO_DIR, else ~/.cache/x2video/demo_shot (XDG_CACHE_HOME respected)."""
+
+def demo_cache_override() -> Path | None:
+    """X2VIDEO_DEMO_DIR: a cache folder to use instead of ~/.cache/x2video/demo (tests)."""
     env = os.environ.get("X2VIDEO_DEMO_DIR")
-    if env:
-        return Path(env)
-    return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "x2video" / "demo_shot"
+    return Path(env) if env else None
 
 
-def ensure_demo(out: Path, poll: Callable[[], None] | None = None, timeout_s: float = 900.0) -> Path:
-    """Generate the demo shot into `out` unless it is there; `poll` runs while waiting (GUI event pump).
-
-    Runs the project CLI in a subprocess so the GUI process never blocks on the renderer's GL
-    context and a crash there cannot take the editor down.
-    """
-    if (out / "shot.json").exists():
-        return out
-    out.parent.mkdir(parents=True, exist_ok=True)
-    cmd = [sys.executable, "-m", "x2video", "dataset", "demo", str(out)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+def ensure_demo(poll: Callable[[], None] | None = None, timeout_s: float = 900.0) -> Path:
+    """The demo shot folder, generated first if it is not cached; `poll` runs while waiting (GUI event pump)."""
+    cmd = [sys.executable, "-c", _SCRIPT]
+    override = demo_cache_override()
+    if override is not None:
+        cmd.append(str(override))
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     t0 = time.monotonic()
     while proc.poll() is None:
         if poll is not None:
@@ -35,8 +37,10 @@ def ensure_demo(out: Path, poll: Callable[[], None] | None = None, timeout_s: fl
         time.sleep(0.05)
         if time.monotonic() - t0 > timeout_s:
             proc.kill()
-            raise TimeoutError(f"`{' '.join(cmd)}` took longer than {timeout_s:.0f} s")
-    output = proc.stdout.read() if proc.stdout else ""
-    if proc.returncode != 0 or not (out / "shot.json").exists():
-        raise RuntimeError(f"`{' '.join(cmd)}` failed (exit {proc.returncode}):\n{output[-2000:]}")
-    return out
+            proc.wait()
+            raise TimeoutError(f"making the demo shot took longer than {timeout_s:.0f} s")
+    out, err = proc.communicate()
+    lines = [ln[5:] for ln in out.splitlines() if ln.startswith("DEMO=")]
+    if proc.returncode != 0 or not lines or not (Path(lines[-1]) / "shot.json").is_file():
+        raise RuntimeError(f"making the demo shot failed (exit {proc.returncode}):\n{err[-2000:]}")
+    return Path(lines[-1])

@@ -10,10 +10,11 @@ from typing import TYPE_CHECKING
 
 from PySide6.QtCore import QObject, Qt, QTimer
 from PySide6.QtWidgets import QApplication, QCheckBox, QFileDialog, QMessageBox, QProgressDialog
+from shiboken6 import isValid
 from superqt.utils import create_worker
 
 from x2video_app import edit_ops, exporter
-from x2video_app.demo import demo_dir, ensure_demo
+from x2video_app.demo import ensure_demo
 
 if TYPE_CHECKING:
     from x2video_app.main_window import MainWindow
@@ -46,7 +47,8 @@ class ProjectController(QObject):
 
     # -- title / dirty ---------------------------------------------------------
     def _clean_changed(self, _clean: bool) -> None:
-        self.update_title()
+        if isValid(self.win):  # the undo stack also emits while the window is being destroyed
+            self.update_title()
 
     @property
     def dirty(self) -> bool:
@@ -120,20 +122,18 @@ class ProjectController(QObject):
         return True
 
     def open_demo(self) -> bool:
-        """Open the demo shot, generating it first (with a progress dialog) if it is not cached."""
-        d = demo_dir()
-        if not edit_ops.looks_like_shot(d):
-            dlg = QProgressDialog("Generating the demo shot (procedural room)…", None, 0, 0, self.win)
-            dlg.setWindowTitle("X2Video Studio")
-            dlg.setWindowModality(Qt.WindowModality.WindowModal)
-            dlg.show()
-            QApplication.processEvents()
-            try:
-                ensure_demo(d, poll=QApplication.processEvents)
-            except Exception as e:
-                dlg.close()
-                self.win.show_error("Cannot make the demo shot", f"{e}\n\nOpen a shot folder with File → Open shot.")
-                return False
+        """Open the demo shot, generating it first (with a busy dialog) if it is not cached."""
+        dlg = QProgressDialog("Preparing the demo shot (a procedural room; generated once)…", None, 0, 0, self.win)
+        dlg.setWindowTitle("X2Video Studio")
+        dlg.setWindowModality(Qt.WindowModality.WindowModal)
+        dlg.setMinimumDuration(500)
+        try:
+            d = ensure_demo(poll=QApplication.processEvents)
+        except Exception as e:
+            self.win.show_error("Cannot make the demo shot", f"{e}\n\nOpen a shot folder with File → Open shot.")
+            return False
+        finally:
+            dlg.reset()
             dlg.close()
         return self.open_path(d)
 

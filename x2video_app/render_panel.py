@@ -47,9 +47,9 @@ class RenderPanel(QWidget):
         form.addRow("Window N", self.window)
         form.addRow("Scheme", self.scheme)
         for w in (self.preset, self.scheme):
-            w.currentIndexChanged.connect(self.sigSettingsChanged.emit)
+            w.currentIndexChanged.connect(lambda _i: self.sigSettingsChanged.emit())
         for w in (self.seed, self.window):
-            w.valueChanged.connect(self.sigSettingsChanged.emit)
+            w.valueChanged.connect(lambda _v: self.sigSettingsChanged.emit())
 
         self.render_button = QPushButton("Render")
         self.render_button.setToolTip("Render the shot with the current edits (Ctrl+R)")
