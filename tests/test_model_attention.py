@@ -228,3 +228,15 @@ def test_context_grid_follows_ceil_halving():
     assert ctx.grid(4) == (2, 2)
     with pytest.raises(ValueError):
         ctx.grid(10)
+
+
+@pytest.mark.parametrize("frames,heads", [(5, 5), (3, 8), (9, 5), (1, 4), (17, 20)])
+def test_mhf_gather_matches_its_definition(frames, heads):
+    from x2video.model.hybrid_attention import mhf_gather
+
+    x = torch.randn(2 * frames, 7, heads * 3)  # two windows
+    out = mhf_gather(x, frames, heads).view(2, frames, heads, 7, 3)
+    src = x.view(2, frames, 7, heads, 3)
+    for i in range(frames):
+        for h in range(heads):
+            assert torch.equal(out[:, i, h], src[:, (i + h) % frames, :, h]), (i, h)

@@ -54,8 +54,9 @@ def mhf_gather(kv: torch.Tensor, num_frames: int, heads: int) -> torch.Tensor:
     bn, length, c = kv.shape
     b, n, d = bn // num_frames, num_frames, c // heads
     src = kv.view(b, n, length, heads, d)  # (B, N, L, H, d)
-    reps = -(-(n + heads - 1) // n)
-    tiled = src.repeat(1, reps, 1, 1, 1)[:, : n + heads - 1]  # (B, N+H-1, L, H, d): frame j holds j mod N
+    total = n + heads - 1
+    parts = [src] * (total // n) + ([src[:, : total % n]] if total % n else [])
+    tiled = torch.cat(parts, dim=1) if len(parts) > 1 else src  # (B, N+H-1, L, H, d): frame j holds j mod N
     windows = tiled.unfold(1, n, 1)  # (B, H, L, H, d, N): [b, w, l, h, e, i] = frame w + i
     diag = torch.diagonal(windows, dim1=1, dim2=3)  # (B, L, d, N, H): [b, l, e, i, h] = frame i + h, head h
     return diag.permute(0, 3, 4, 1, 2).reshape(bn, heads, length, d)  # (B*N, H, L, d)
