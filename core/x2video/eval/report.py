@@ -48,7 +48,7 @@ def row_line(row: dict[str, Any]) -> str:
     """One Markdown table line for a results row."""
     label = cell(row["label"])
     if not row.get("available", False):
-        return f"| {label} | n/a: {cell(row.get('reason', 'not run'))} |" + " – |" * 11 + f" {_paper(row.get('paper'))} |"
+        return f"| {label} | n/a: {cell(row.get('reason', 'not run'))} |" + " – |" * 10 + f" {_paper(row.get('paper'))} |"
     m, b = row["model"], row["baseline"]
     same = f" (= {cell(row['same_render_as'])})" if row.get("same_render_as") else ""
     cells = [

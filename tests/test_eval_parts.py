@@ -1,0 +1,172 @@
+"""Parts of `x2video.eval`: resizing for the model's size, control conditions, training size lookup, orderings,
+Markdown, the model card from results + run folders, contact sheets, and the speed/accuracy chart."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from train_fixtures import tiny_room
+from x2video.eval.checks import orderings
+from x2video.eval.conditions import Condition, build_edits, pick_objects
+from x2video.eval.data import EvalView, resize_motion, training_size
+from x2video.eval.report import results_markdown, row_line
+
+
+def test_resize_motion_scales_vectors_and_keeps_occlusion():
+    m = np.zeros((1, 8, 8, 2), np.float32)
+    m[..., 0], m[..., 1] = 4.0, -2.0
+    m[0, 0, 0] = np.nan  # occluded pixel in the top-left 2x2 block
+    r = resize_motion(m, (4, 4))
+    assert r.shape == (1, 4, 4, 2)
+    assert np.isnan(r[0, 0, 0]).all()
+    np.testing.assert_allclose(r[0, 1:, 1:], np.broadcast_to([2.0, -1.0], (3, 3, 2)), atol=1e-6)
+
+
+def test_eval_view_cuts_frames_and_area_downsamples():
+    shot = tiny_room(0, frames=6, size=(32, 24))
+    v = EvalView(shot, frames=4, size=(16, 12))
+    assert v.num_frames == 4 and v.size == (12, 16)
+    rgb = v.channel("rgb", 1)
+    np.testing.assert_allclose(rgb, shot.channel("rgb", 1).reshape(12, 2, 16, 2, 3).mean(axis=(1, 3)), atol=1e-5)
+    ids = v.channel("ids", 1)
+    assert ids.dtype == np.int32 and set(np.unique(ids)) <= set(np.unique(shot.channel("ids", 1)))
+    assert v.info.object_captions == shot.info.object_captions
+
+
+def test_training_size_from_run_state_and_training_json(tmp_path):
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    (cache / "meta.json").write_text(json.dumps({"size": [160, 112]}))
+    model = tmp_path / "run" / "step-000000010" / "model"
+    model.mkdir(parents=True)
+    (model.parent / "state.json").write_text(json.dumps({"step": 10, "stage_config": {"cache": str(cache)}}))
+    assert training_size(model) == (160, 112)
+    (model / "training.json").write_text(json.dumps({"size": [96, 64]}))
+    assert training_size(model) == (96, 64)
+    assert training_size(tmp_path) is None
+
+
+def test_conditions_mask_text_drop_reference():
+    from x2video.edits import apply_edits
+
+    shot = tiny_room(3, frames=4, size=(32, 24))
+    edits, desc = build_edits(shot, "r3", Condition("mask_amr", text=True, masks=2), seed=5)
+    objs = [int(k) for k in desc["objects"]]
+    assert len(objs) == 2 and objs == pick_objects(shot, "r3", 2, 5)
+    assert desc["local_prompts"] == [shot.info.object_captions[i] for i in objs]
+    assert desc["global_prompt"] == shot.info.caption
+    cond = apply_edits(shot, edits, 2)
+    inside = np.isin(shot.channel("ids", 2)[..., 0], objs)
+    assert inside.any() and (cond.channels["albedo"][inside] == 0).all() and (cond.channels["roughness"][inside] == 0).all()
+    np.testing.assert_array_equal(cond.amr_mask > 0.5, inside)
+    np.testing.assert_array_equal(cond.channels["irradiance"], shot.channel("irradiance", 2))
+    assert cond.local_masks.shape == (2, 24, 32)
+    drop, _ = build_edits(shot, "r3", Condition("drop_irradiance", reference=True), seed=5)
+    c2 = apply_edits(shot, drop, 0)
+    assert c2.channels["irradiance"] is None and drop.reference.frame == 0 and drop.global_prompt == ""
+    assert build_edits(shot, "r3", Condition("full"), seed=5)[0] is None
+    with pytest.raises(ValueError, match="unknown condition"):
+        Condition("mask_everything")
+
+
+def _row(label, psnr, tc=1.1, spf=1.0, b_psnr=20.0, kind="full", ref=False, sampler="ddim", available=True):
+    return {"label": label, "available": available, "condition": {"kind": kind, "text": False, "reference": ref},
+            "settings": {"sampler": sampler},
+            "model": {"psnr": psnr, "tc": tc, "seconds_per_frame": spf, "ssim": 0.9, "fid": 10.0},
+            "baseline": {"psnr": b_psnr, "tc": 1.0, "ssim": 0.8, "fid": 20.0}}
+
+
+def _results():
+    return {"format": "x2video-eval", "tables": {
+        "a": {"title": "A", "rows": [_row("Image model (per frame)", 20.0, tc=2.0), _row("Video model", 22.0, tc=1.05)]},
+        "b": {"title": "B", "rows": [_row("Full channels", 22.0), _row("Mask A|M|R", 19.0, kind="mask_amr", b_psnr=15.0),
+                                     _row("Mask A|M|R + Text", 19.5, kind="mask_amr", b_psnr=15.0),
+                                     _row("Mask A|M|R + Ref.", 18.0, kind="mask_amr", b_psnr=15.0)]},
+        "d": {"title": "D", "rows": [_row("DDIM-20", 22.0, spf=1.0), _row("LCM-2", 21.0, spf=0.15, sampler="lcm")]},
+    }, "models": {"video": {"path": "runs/video/step-000000100/model", "config": "tiny", "step": 100}}}
+
+
+def test_orderings_report_what_holds():
+    checks = {c["claim"]: c["holds"] for c in orderings(_results())}
+    assert checks["(a) video model TC < image model per frame TC"] is True
+    assert checks["(b) Mask A|M|R lowers PSNR below full channels"] is True
+    assert checks["(b) Mask A|M|R + Text recovers PSNR"] is True
+    assert checks["(b) Mask A|M|R + Ref. recovers PSNR"] is False
+    assert checks["(b) Drop irradiance lowers PSNR below full channels"] is None  # rows absent: not measured
+    assert checks["(d) LCM is >= 5x faster per frame than DDIM (LCM s/frame x 5 <= DDIM s/frame)"] is True
+    assert checks["(a) Video model: model PSNR >= classical baseline PSNR"] is True
+    assert checks["(b) Mask A|M|R + Ref.: model PSNR > classical baseline PSNR"] is True
+
+
+def test_markdown_rows_escape_bars_and_show_missing_models():
+    line = row_line(_row("Mask A|M|R", 19.0))
+    assert line.startswith("| Mask A\\|M\\|R |")
+    cells = [c for c in line.replace("\\|", "/").split("|")][1:-1]
+    assert len(cells) == 13 and cells[2].strip() == "n/a¹" and cells[3].strip() == "19.00"
+    missing = row_line({"label": "LCM-2", "available": False, "reason": "no LCM weights"})
+    assert "n/a: no LCM weights" in missing and len(missing.split("|")) - 2 == 13
+    md = results_markdown(_results())
+    assert "### (a) A" in md and "### (d) D" in md
+
+
+def test_model_card_from_results_and_runs(tmp_path, capsys):
+    from x2video.eval import card
+
+    res = tmp_path / "eval"
+    res.mkdir()
+    (res / "results.json").write_text(json.dumps(dict(_results(), command="x2video eval --weights W --data D --out eval")))
+    run = tmp_path / "vae_run"
+    ck = run / "step-000000200"
+    ck.mkdir(parents=True)
+    (ck / "state.json").write_text(json.dumps({"step": 200, "loop": {"lr": 2e-4}, "stage_config": {"stage": "vae", "batch": 16}}))
+    (run / "summary.json").write_text(json.dumps({"steps_run": 100, "seconds": 50.0, "steps_per_s": 2.0, "samples_per_s": 32.0,
+                                                  "device": "cpu"}))
+    (run / "log.json").write_text(json.dumps([{"step": i + 1, "loss": 0.1, "steps_per_s": 2.0} for i in range(200)]))
+    (run / "results.json").write_text(json.dumps({"vae": {"heldout_psnr_db": {"rgb": 31.5, "albedo": 35.25}}}))
+    out = tmp_path / "MODEL_CARD.md"
+    assert card.main([str(res), "--run", str(run), "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "| vae | `" in text and "| 200 |" in text and "rgb 31.50 dB" in text
+    hours = 200 * 0.5 / 3600
+    assert f"{hours:.3g}" in text
+    assert "x2video eval --weights W --data D --out eval" in text and "| ordering | holds | measured |" in text
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "results.json").write_text(json.dumps({"vae": {}}))
+    assert card.main([str(bad)]) == 2 and "not an `x2video eval` results file" in capsys.readouterr().err
+
+
+def test_contact_sheet_and_mp4(tmp_path):
+    from x2video.eval.contact import contact_sheet, pick_frames, write_comparison
+
+    rng = np.random.default_rng(0)
+    seq = [rng.uniform(0, 1, (12, 16, 3)).astype(np.float32) for _ in range(7)]
+    assert pick_frames(7, 5) == [0, 2, 3, 4, 6] and pick_frames(3, 5) == [0, 1, 2]
+    sheet = contact_sheet([("gt", seq), ("video", seq)], [0, 3, 6])
+    assert sheet.dtype == np.uint8 and sheet.shape == (2 * (14 + 12), 3 * 16 + 2 * 2, 3)
+    png, mp4 = write_comparison(tmp_path, "shot", [("gt", seq), ("video", seq)], fps=5)
+    assert png.stat().st_size > 0 and mp4.stat().st_size > 0
+    with pytest.raises(ValueError, match="frame 9 asked"):
+        contact_sheet([("gt", seq)], [9])
+
+
+def test_speed_accuracy_chart_and_editor_shape(tmp_path):
+    spec = importlib.util.spec_from_file_location("speed_accuracy", Path(__file__).resolve().parents[1] / "bench" / "speed_accuracy.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    result = {"machine": {"cpu": "test cpu", "cpu_cores": 2, "torch_threads": 1, "device": "cpu"},
+              "rows": [{"name": "DDIM-20", "seconds_per_frame": 2.0, "psnr": 24.0}, {"name": "DDIM-4", "seconds_per_frame": 0.5, "psnr": 23.0},
+                       {"name": "classical shading", "seconds_per_frame": 0.03, "psnr": 20.0}],
+              "unavailable": [{"preset": "LCM-2", "reason": "none"}]}
+    png = mod.draw_chart(result, tmp_path / "speed_accuracy.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    (tmp_path / "speed_accuracy.json").write_text(json.dumps(result))
+    from x2video_app.charts import load_bench_points
+
+    pts = load_bench_points(tmp_path)
+    assert [p[0] for p in pts] == ["DDIM-20", "DDIM-4", "classical shading"] and all(math.isfinite(p[2]) for p in pts)
