@@ -44,14 +44,30 @@ def linear_rgb(name: str) -> np.ndarray:
     return srgb_to_linear(np.array(NAMED_SRGB[name], np.float32) / 255.0)
 
 
-def nearest_names(albedo_linear: np.ndarray, k: int = 1) -> list[str]:
-    """The k colour names nearest (in sRGB) to a linear albedo (3,)."""
+def nearest_index(albedo_linear: np.ndarray, k: int = 1) -> np.ndarray:
+    """Indices into `list(NAMED_SRGB)` of the k names nearest (in sRGB) to linear albedos (..., 3): (..., k)."""
     from x2video.channels import linear_to_srgb
 
-    s = linear_to_srgb(np.asarray(albedo_linear, np.float32)) * 255.0
+    s = linear_to_srgb(np.asarray(albedo_linear, np.float32)) * 255.0  # (..., 3)
+    pal = np.array(list(NAMED_SRGB.values()), np.float32)  # (N, 3)
+    d = ((s[..., None, :] - pal) ** 2).sum(-1)  # (..., N)
+    return np.argsort(d, axis=-1)[..., :k]
+
+
+def nearest_names(albedo_linear: np.ndarray, k: int = 1) -> list[str]:
+    """The k colour names nearest (in sRGB) to one linear albedo (3,)."""
     names = list(NAMED_SRGB)
-    d = [float(np.sum((np.array(NAMED_SRGB[n], np.float32) - s) ** 2)) for n in names]
-    return [names[i] for i in np.argsort(d)[:k]]
+    return [names[i] for i in nearest_index(np.asarray(albedo_linear).reshape(3), k)]
+
+
+def names_in(text: str) -> list[str]:
+    """Colour names mentioned in a caption, in order, longest match first ('dark blue' is not also 'blue')."""
+    found, words = [], f" {text} "
+    for name in sorted(NAMED_SRGB, key=len, reverse=True):
+        while f" {name} " in words:
+            found.append((words.index(f" {name} "), name))
+            words = words.replace(f" {name} ", " " + "#" * len(name) + " ", 1)
+    return [n for _, n in sorted(found)]
 
 
 def kelvin_rgb(kelvin: float) -> np.ndarray:

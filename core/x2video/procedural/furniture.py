@@ -25,6 +25,9 @@ class Design:
     bulb: tuple[float, float, float] | None = None
     blocks_camera: bool = True
     extra: dict = field(default_factory=dict)
+    #: caption template for objects whose accent material shows as much as the main one: {main}/{accent} are
+    #: "a/an <material>", {main_}/{accent_} the bare material words; None = "a <main material> <category>"
+    caption: str | None = None
 
 
 def _b(x0, y0, z0, x1, y1, z1, slot="main", shadow=True, kind="box") -> LocalPart:
@@ -67,7 +70,7 @@ def bed(rng: np.random.Generator) -> Design:
     for i in range(n):
         x0 = -w / 2 + 0.1 + i * pw
         p.append(_b(x0 + 0.03, 0.55, -d / 2 + 0.12, x0 + pw - 0.03, 0.68, -d / 2 + 0.5, "main", kind="sphere"))
-    return Design("bed", p, w, d, 1.2, ("fabric",), ("wood", "painted", "leather"))
+    return Design("bed", p, w, d, 1.2, ("fabric",), ("wood", "painted", "leather"), caption="a bed with {main_} bedding on {accent} frame")
 
 
 def dining_table(rng: np.random.Generator) -> Design:
@@ -147,13 +150,14 @@ def floor_lamp(rng: np.random.Generator) -> Design:
     h, r = rng.uniform(1.4, 1.7), rng.uniform(0.18, 0.25)
     p = [_b(-0.15, 0, -0.15, 0.15, 0.03, 0.15, "accent", kind="cylinder"), _b(-0.015, 0.03, -0.015, 0.015, h - 0.3, 0.015, "accent", kind="cylinder"),
          _b(-r, h - 0.35, -r, r, h, r, "main", False, kind="cylinder")]
-    return Design("floor lamp", p, 2 * r, 2 * r, h, ("fabric",), ("metal",), bulb=(0.0, h - 0.2, 0.0))
+    return Design("floor lamp", p, 2 * r, 2 * r, h, ("fabric",), ("metal",), bulb=(0.0, h - 0.2, 0.0), caption="a floor lamp with {main} shade on {accent} stand")
 
 
 def table_lamp(rng: np.random.Generator) -> Design:
     r = rng.uniform(0.1, 0.14)
     p = [_b(-0.05, 0, -0.05, 0.05, 0.2, 0.05, "accent", kind="cylinder"), _b(-r, 0.2, -r, r, 0.42, r, "main", False, kind="cylinder")]
-    return Design("table lamp", p, 2 * r, 2 * r, 0.42, ("fabric",), ("ceramic", "metal"), bulb=(0.0, 0.3, 0.0), blocks_camera=False)
+    return Design("table lamp", p, 2 * r, 2 * r, 0.42, ("fabric",), ("ceramic", "metal"), bulb=(0.0, 0.3, 0.0), blocks_camera=False,
+                  caption="a table lamp with {main} shade on {accent} base")
 
 
 def plant(rng: np.random.Generator) -> Design:
@@ -166,7 +170,8 @@ def plant(rng: np.random.Generator) -> Design:
         cx, cz = 0.35 * fr * np.cos(a), 0.35 * fr * np.sin(a)
         y0 = ph + (i / 4) * fh * 0.4
         p.append(_b(cx - fr * 0.7, y0, cz - fr * 0.7, cx + fr * 0.7, y0 + fh * 0.6, cz + fr * 0.7, kind="sphere"))
-    return Design("potted plant", p, 2 * fr * 1.05, 2 * fr * 1.05, ph + fh, ("foliage",), ("ceramic", "plastic", "concrete"))
+    return Design("potted plant", p, 2 * fr * 1.05, 2 * fr * 1.05, ph + fh, ("foliage",), ("ceramic", "plastic", "concrete"),
+                  caption="a potted plant with {main_} foliage in {accent} pot")
 
 
 def rug(rng: np.random.Generator) -> Design:
@@ -184,7 +189,8 @@ def tv(rng: np.random.Generator) -> Design:
 def painting(rng: np.random.Generator) -> Design:
     w, h = rng.uniform(0.5, 1.2), rng.uniform(0.4, 0.9)
     p = [_b(-w / 2, 0, -0.02, w / 2, h, 0.0, "accent"), _b(-w / 2 + 0.04, 0.04, -0.02, w / 2 - 0.04, h - 0.04, 0.01)]
-    return Design("painting", p, w, 0.03, h, ("canvas",), ("wood", "metal"), blocks_camera=False)
+    return Design("painting", p, w, 0.03, h, ("canvas",), ("wood", "metal"), blocks_camera=False,
+                  caption="{main} painting in {accent} frame")
 
 
 #: every category the room builder can place

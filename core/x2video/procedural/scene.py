@@ -102,7 +102,12 @@ class _Builder:
         for kind, lo, hi, slot, shadow in d.parts:
             wlo, whi = rotate_y(np.array(lo), np.array(hi), turns, origin)
             parts.append(Part(kind, wlo, whi, mi if slot == "main" else ai, shadow))
-        return self.add(d.category, _caption(main, d.category), parts, d.blocks_camera), main
+        if d.caption:
+            words = {"main": main.describe(), "accent": accent.describe()}
+            text = d.caption.format(main_=words["main"], accent_=words["accent"], **{k: f"{_article(v)} {v}" for k, v in words.items()})
+        else:
+            text = _caption(main, d.category)
+        return self.add(d.category, text, parts, d.blocks_camera), main
 
 
 def _turn(v: np.ndarray, turns: int) -> np.ndarray:

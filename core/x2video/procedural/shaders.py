@@ -190,7 +190,8 @@ void main() {
     float rough = clamp(m1.r, 0.0, 1.0), metal = clamp(m1.g, 0.0, 1.0);
     // dielectric specular fades out towards roughness 1 (roughness 1 + metallic 0 = purely Lambertian)
     float spec_w = 1.0 - smoothstep(0.7, 1.0, rough);
-    vec3 F0 = mix(vec3(0.04 * spec_w), albedo, metal);
+    vec3 F0 = mix(vec3(0.04), albedo, metal);
+    float sw = mix(spec_w, 1.0, metal);  // weight of all specular terms
     vec3 irr = vec3(0.0), spec = vec3(0.0);
     for (int i = 0; i < MAXL; i++) {
         if (i >= u_nl) break;
@@ -201,14 +202,14 @@ void main() {
         if (lobe <= 0.0) continue;
         vec3 E = u_lcol[i] * (nl * lobe / (d2 + u_lrad2[i])) * point_shadow(i, P, N, L);
         irr += E;
-        spec += ggx(N, V, L, rough, F0) * PI * E;
+        spec += ggx(N, V, L, rough, F0) * (PI * sw) * E;
     }
     if (u_has_sun == 1) {
         float nl = dot(N, u_sun_dir);
         if (nl > 0.0) {
             vec3 E = u_sun_col * nl * sun_shadow(P, N);
             irr += E;
-            spec += ggx(N, V, u_sun_dir, rough, F0) * PI * E;
+            spec += ggx(N, V, u_sun_dir, rough, F0) * (PI * sw) * E;
         }
     }
     irr += sh_irradiance(N);
@@ -220,7 +221,7 @@ void main() {
         float t = min(min(tf.x, tf.y), tf.z);
         vec3 dir = P + R * max(t, 0.0) - u_probe;
         vec3 env = textureLod(u_env, dir, rough * u_env_mips).rgb;
-        refl = env * env_brdf(F0, rough, max(dot(N, V), 1e-3)) * mix(spec_w, 1.0, metal);
+        refl = env * env_brdf(F0, rough, max(dot(N, V), 1e-3)) * sw;
     }
     vec3 rgb = albedo * (1.0 - metal) * irr + spec + refl + m2.rgb * u_emission_scale;
     o_rgb = vec4(rgb, depth);
