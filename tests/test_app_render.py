@@ -52,9 +52,8 @@ def win(qtbot, shot_dir, tmp_path, monkeypatch, tiny_model):
     assert w.project.open_path(shot_dir), w.errors_shown
     w.render_panel.window.setValue(3)  # 5 frames, N=3: one keyframe window (0, 2, 4), then two interpolation windows
     yield w
-    if w.render_ctl.running:
-        w.render_ctl.cancel()
-        w.render_ctl.wait(RENDER_TIMEOUT_MS)
+    w.render_ctl.cancel()
+    w.render_ctl.wait(RENDER_TIMEOUT_MS)  # the render and the background model build
 
 
 def wait_idle(qtbot, w):
@@ -170,11 +169,24 @@ def test_out_of_memory_and_missing_weights_dialogs_keep_the_project(win, qtbot):
     win.answers = [QMessageBox.StandardButton.Cancel]  # weights missing: do not use the untrained model
     assert not win.start_render() and not win.render_ctl.running
     win.edits.set_global_prompt("still here")
-    win.act_untrained.setChecked(True)
     win.render_ctl.renderer_factory = lambda choice: _OOMRenderer()
+    win.act_untrained.setChecked(True)  # also starts building the model in the background
     assert win.start_render()
     wait_idle(qtbot, win)
     assert win.errors_shown and win.errors_shown[-1][0] == "Out of memory"
     assert "smaller window" in win.errors_shown[-1][1]
     assert win.doc.render.status == "failed" and win.doc.edits.global_prompt == "still here"
     assert win.render_panel.render_button.isEnabled()
+    assert win.render_ctl.wait(10_000)
+
+
+def test_model_preloads_when_chosen(win, qtbot):
+    assert win.render_ctl.renderer is None
+    with qtbot.waitSignal(win.render_ctl.sigPreload, timeout=10_000):
+        win.act_untrained.setChecked(True)
+    qtbot.waitUntil(lambda: win.render_ctl.preload_worker is None, timeout=60_000)
+    r = win.render_ctl.renderer
+    assert r is not None
+    assert win.start_render()
+    wait_idle(qtbot, win)
+    assert win.render_ctl.renderer is r and win.doc.render.status == "finished"

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import pyqtgraph as pg
+from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QLabel, QTabWidget, QVBoxLayout, QWidget
 
 from x2video_app.timeline import level_colour
@@ -65,9 +66,10 @@ class Charts(QWidget):
         self.window_plot.setLabel("bottom", "window (plan order)")
         self.window_plot.setLabel("left", "seconds")
         self.window_plot.setMinimumHeight(140)
-        self.window_plot.addLegend(offset=(-4, 4))
-        self._bars: list[pg.BarGraphItem] = []
+        self.legend = QLabel()  # level colours, below the plot (an in-plot legend hides bars)
+        self.legend.setTextFormat(Qt.TextFormat.RichText)
         self._legend_levels: set[int] = set()
+        self.num_windows = 0
         self.bench_plot = pg.PlotWidget(background=(30, 30, 34))
         self.bench_plot.setLabel("bottom", "seconds per frame")
         self.bench_plot.setLabel("left", "PSNR (dB)")
@@ -78,7 +80,12 @@ class Charts(QWidget):
         bl.setContentsMargins(0, 0, 0, 0)
         bl.addWidget(self.bench_plot, 1)
         bl.addWidget(self.bench_note)
-        self.tabs.addTab(self.window_plot, "This render")
+        this = QWidget()
+        tl = QVBoxLayout(this)
+        tl.setContentsMargins(0, 0, 0, 0)
+        tl.addWidget(self.window_plot, 1)
+        tl.addWidget(self.legend)
+        self.tabs.addTab(this, "This render")
         self.tabs.addTab(bench, "Speed vs accuracy")
         lay = QVBoxLayout(self)
         lay.setContentsMargins(0, 0, 0, 0)
@@ -89,23 +96,30 @@ class Charts(QWidget):
             self.load_bench(results_dir)
 
     # -- this render -----------------------------------------------------------
-    def reset(self, top_level: int) -> None:
+    def reset(self, top_level: int, num_windows: int = 0) -> None:
         self.windows.clear()
         self.top_level = top_level
+        self.num_windows = num_windows
         self.window_plot.clear()
-        if self.window_plot.plotItem.legend is not None:
-            self.window_plot.plotItem.legend.clear()
         self._legend_levels.clear()
+        self.legend.setText("")
+        if num_windows:
+            self.window_plot.setXRange(-0.6, num_windows - 0.4, padding=0)
 
     def add_window(self, index: int, level: int, seconds: float) -> None:
         self.windows.append((index, level, seconds))
         c = level_colour(level, self.top_level)
-        name = None if level in self._legend_levels else ("keyframes" if level == self.top_level else f"level {level}")
-        self._legend_levels.add(level)
-        bar = pg.BarGraphItem(x=[index], height=[seconds], width=0.8, brush=c, pen=c.darker(150), name=name)
+        bar = pg.BarGraphItem(x=[index], height=[seconds], width=0.8, brush=c, pen=c.darker(150))
         self.window_plot.addItem(bar)
-        if name is not None and self.window_plot.plotItem.legend is not None:
-            self.window_plot.plotItem.legend.addItem(bar, name)
+        if self.num_windows:
+            self.window_plot.setXRange(-0.6, max(self.num_windows, index + 1) - 0.4, padding=0)
+        if level not in self._legend_levels:
+            self._legend_levels.add(level)
+            parts = []
+            for lv in sorted(self._legend_levels, reverse=True):
+                col = level_colour(lv, self.top_level).name()
+                parts.append(f"<span style='color:{col}'>&#9632;</span> {'keyframes' if lv == self.top_level else f'level {lv}'}")
+            self.legend.setText("&nbsp;&nbsp;".join(parts))
 
     # -- bench -----------------------------------------------------------------
     def load_bench(self, results_dir: Path) -> int:

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import logging
 import sys
+import time
 from pathlib import Path
 
 from PySide6.QtCore import QSettings, Qt, QTimer
@@ -52,6 +53,8 @@ class MainWindow(QMainWindow):
         self.resize(1440, 900)
         self.ask = self._ask  # replaceable in tests: (title, text, buttons, default) -> button
         self.errors_shown: list[tuple[str, str]] = []  # (title, text) of every error dialog, for tests
+        #: seconds from pressing Render to the first keyframe painted in the viewer (last render)
+        self.first_keyframe_shown_s: float | None = None
 
         # central: view bar + viewer + timeline
         self.viewer = Viewer()
@@ -105,7 +108,7 @@ class MainWindow(QMainWindow):
         self.tabifyDockWidget(self.docks["Masks"], self.docks["Scene"])
         self.docks["Masks"].raise_()
         self.resizeDocks([self.docks["Render"], self.docks["Masks"]], [300, 380], Qt.Orientation.Horizontal)
-        self.resizeDocks([self.docks["Render"], self.docks["Charts"]], [330, 400], Qt.Orientation.Vertical)
+        self.resizeDocks([self.docks["Render"], self.docks["Charts"]], [420, 380], Qt.Orientation.Vertical)
         self.model_status = QLabel()
         self.statusBar().addPermanentWidget(self.model_status)
 
@@ -117,6 +120,7 @@ class MainWindow(QMainWindow):
         self._connect()
         self.choose_default_model()
         self.refresh_all()
+        QTimer.singleShot(0, self.render_ctl.preload)
 
     # -- construction ----------------------------------------------------------
     def _build_menus(self) -> None:
@@ -140,6 +144,12 @@ class MainWindow(QMainWindow):
         self.act_redo.setShortcut(QKeySequence.StandardKey.Redo)
         e.addAction(self.act_undo)
         e.addAction(self.act_redo)
+        e.addSeparator()
+        for key, tool in (("B", "brush"), ("E", "eraser"), ("F", "fill"), ("P", "pan")):
+            e.addAction(f"{tool.capitalize()} tool", lambda t=tool: self.edits.set_tool(t), QKeySequence(key))
+        e.addAction("Smaller brush", lambda: self.mask_panel.size.setValue(max(1, self.mask_panel.size.value() - 2)), QKeySequence("["))
+        e.addAction("Larger brush", lambda: self.mask_panel.size.setValue(self.mask_panel.size.value() + 2), QKeySequence("]"))
+        e.addAction("Play / pause", self.timeline.play_button.toggle, QKeySequence("Space"))
         v = mb.addMenu("&View")
         for i, mode in enumerate(VIEW_MODES):
             a = v.addAction(mode, lambda m=mode: self.doc.set_view(m))
@@ -174,6 +184,7 @@ class MainWindow(QMainWindow):
         self.render_ctl.sigEvent.connect(self._render_event)
         self.render_ctl.sigRunning.connect(self._running)
         self.render_ctl.sigError.connect(self._render_error)
+        self.render_ctl.sigPreload.connect(self._preloading)
         self._eta_timer = QTimer(self)
         self._eta_timer.timeout.connect(lambda: self.render_panel.show_state(self.doc.render))
 
@@ -184,7 +195,7 @@ class MainWindow(QMainWindow):
             self.render_ctl.set_model(ModelChoice("pretrained", d))
             self.model_status.setText(f"Model: {d}")
         else:
-            self.render_ctl.choice = None
+            self.render_ctl.set_model(None)
             self.model_status.setText("No model weights in resources/ — Render menu: use the untrained tiny model")
             self.statusBar().showMessage(f"Model weights not found in {d}; renders need them (or the untrained tiny model for a smoke test).", 15000)
         self._update_model_label()
@@ -195,6 +206,10 @@ class MainWindow(QMainWindow):
         else:
             self.choose_default_model()
         self._update_model_label()
+        self.render_ctl.preload()
+
+    def _preloading(self, busy: bool) -> None:
+        self.statusBar().showMessage("Loading the model in the background…" if busy else "Model loaded.", 0 if busy else 4000)
 
     def _update_model_label(self) -> None:
         c = self.render_ctl.choice
@@ -220,6 +235,7 @@ class MainWindow(QMainWindow):
         settings = self.render_ctl.settings(**self.render_panel.values())
         if self.follow_box.isChecked() and self.doc.view not in ("rendered", "side-by-side"):
             self.doc.set_view("rendered")
+        self.first_keyframe_shown_s = None
         ok = self.render_ctl.start(settings)
         if ok:
             self.charts.reset(1)
@@ -240,13 +256,17 @@ class MainWindow(QMainWindow):
     def _render_event(self, ev) -> None:
         st = self.doc.render
         if isinstance(ev, RenderStarted):
-            self.charts.reset(max(ev.levels) if ev.levels else 1)
+            self.charts.reset(max(ev.levels) if ev.levels else 1, ev.num_windows)
         elif isinstance(ev, FramesReady):
             self.charts.add_window(ev.window, ev.level, ev.seconds)
             if self.follow_box.isChecked():
                 self.doc.set_frame(min(ev.frames))
             if self.doc.frame in ev.frames:
                 self.refresh_view()
+            if ev.mode == "key" and self.first_keyframe_shown_s is None and self.render_ctl.pressed_at is not None:
+                self.viewer.viewport().repaint()
+                self.first_keyframe_shown_s = time.perf_counter() - self.render_ctl.pressed_at
+                log.info("first keyframe on screen %.2f s after Render was pressed", self.first_keyframe_shown_s)
         elif isinstance(ev, WindowStarted):
             pass
         self.render_panel.show_state(st)
@@ -316,7 +336,8 @@ class MainWindow(QMainWindow):
         if s is not None:
             rendered = "rendered" if self.doc.frame in self.doc.render.frames else "not rendered"
             lvl = self.doc.render.levels.get(self.doc.frame)
-            self.info_label.setText(f"{s.size[1]}×{s.size[0]}  frame {self.doc.frame}/{s.num_frames - 1}  ({rendered}{'' if lvl is None else f', level {lvl}'})")
+            self.info_label.setText(f"frame {self.doc.frame}/{s.num_frames - 1}: {rendered}{'' if lvl is None else f' (level {lvl})'}")
+            self.info_label.setToolTip(f"{s.size[1]}×{s.size[0]} pixels, {s.num_frames} frames at {s.info.fps:g} fps; {s.info.source}")
 
     def refresh_timeline(self) -> None:
         st = self.doc.render
@@ -361,9 +382,9 @@ class MainWindow(QMainWindow):
         if not self.project.confirm_discard("quit"):
             ev.ignore()
             return
-        if self.render_ctl.running:
+        if self.render_ctl.running or self.render_ctl.preload_worker is not None:
             self.render_ctl.cancel()
-            self.render_ctl.wait(60000)
+            self.render_ctl.wait(120000)
         self.project.shutdown()
         QSettings("x2video", "studio").setValue("geometry", self.saveGeometry())
         ev.accept()

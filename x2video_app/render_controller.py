@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import copy
 import logging
+import threading
 import time
 from typing import Any, Callable
 
 from PySide6.QtCore import QObject, Signal
+from superqt.utils import create_worker
 
 from x2video.sampling.events import FramesReady, RenderEvent, RenderSettings
 from x2video_app.document import Document
@@ -28,6 +30,7 @@ class RenderController(QObject):
     sigEvent = Signal(object)
     sigRunning = Signal(bool)
     sigError = Signal(str, str)  # kind: "oom" | "weights" | "render"
+    sigPreload = Signal(bool)  # the model is being built in the background
 
     def __init__(self, doc: Document, parent: QObject | None = None) -> None:
         super().__init__(parent)
@@ -38,17 +41,51 @@ class RenderController(QObject):
         #: replaceable for tests: builds a Renderer from a ModelChoice (runs in the worker thread)
         self.renderer_factory: Callable[[ModelChoice], Any] = self._default_factory
         self.pressed_at: float | None = None
+        self.preload_worker: Any = None
+        self._lock = threading.Lock()
+        self._renderer_for: ModelChoice | None = None
 
     @staticmethod
     def _default_factory(choice: ModelChoice) -> Any:
+        import os
+
         from x2video.sampling.renderer import Renderer
 
+        threads = os.environ.get("X2VIDEO_TORCH_THREADS")
+        if threads:  # e.g. 1 on a machine whose cores are busy: oversubscribed OpenMP threads crawl
+            import torch
+
+            torch.set_num_threads(int(threads))
         return Renderer(load_model(choice))
 
-    def set_model(self, choice: ModelChoice) -> None:
+    def set_model(self, choice: ModelChoice | None) -> None:
         if choice != self.choice:
             self.choice = choice
             self.renderer = None  # a new model means a new Renderer (and cache)
+
+    def _get_renderer(self) -> Any:
+        """The Renderer for the current model choice, built on first use (worker threads only)."""
+        with self._lock:
+            choice = self.choice
+            if self.renderer is None or self._renderer_for != choice:
+                self.renderer = self.renderer_factory(choice)
+                self._renderer_for = choice
+            return self.renderer
+
+    def preload(self) -> None:
+        """Build the model in the background now, so the first Render does not wait for it."""
+        if self.choice is None or self.preload_worker is not None or (self.renderer is not None and self._renderer_for == self.choice):
+            return
+        w = create_worker(self._get_renderer)
+        w.errored.connect(lambda e: log.warning("model preload failed (the render will say why): %s", e))
+        w.finished.connect(self._preload_done)
+        self.preload_worker = w
+        self.sigPreload.emit(True)
+        w.start()
+
+    def _preload_done(self) -> None:
+        self.preload_worker = None
+        self.sigPreload.emit(False)
 
     @property
     def running(self) -> bool:
@@ -76,11 +113,10 @@ class RenderController(QObject):
         base_dir = self.doc.project_path.parent if self.doc.project_path is not None else None
 
         def run(shot, edits, settings, on_event, cancel):
-            if self.renderer is None:
-                self.renderer = self.renderer_factory(self.choice)
+            renderer = self._get_renderer()
             if cancel.cancelled:
                 return None
-            return self.renderer.render(shot, edits, settings, on_event, cancel, base_dir=base_dir)
+            return renderer.render(shot, edits, settings, on_event, cancel, base_dir=base_dir)
 
         w = RenderWorker(run, shot, edits, settings)
         w.signals.event.connect(self._on_event)
@@ -96,14 +132,14 @@ class RenderController(QObject):
             self.worker.quit()
 
     def wait(self, timeout_ms: int = 30000) -> bool:
-        """Block (processing events) until the worker ends; for closing the window and tests."""
+        """Block (processing events) until the render and preload workers end; for closing the window and tests."""
         from PySide6.QtCore import QCoreApplication, QDeadlineTimer
 
         deadline = QDeadlineTimer(timeout_ms)
-        while self.worker is not None and not deadline.hasExpired():
+        while (self.worker is not None or self.preload_worker is not None) and not deadline.hasExpired():
             QCoreApplication.processEvents()
             time.sleep(0.005)
-        return self.worker is None
+        return self.worker is None and self.preload_worker is None
 
     # -- slots (GUI thread) ----------------------------------------------------
     def _on_event(self, ev: RenderEvent) -> None:

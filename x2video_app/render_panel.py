@@ -67,6 +67,7 @@ class RenderPanel(QWidget):
         self.model_label.setWordWrap(True)
         self.status_label = QLabel("Ready")
         self.status_label.setWordWrap(True)
+        self.status_label.setMinimumHeight(2 * self.status_label.fontMetrics().lineSpacing() + 4)
         self.bars_box = QGroupBox("Progress per level")
         self.bars_layout = QVBoxLayout(self.bars_box)
         self.bars_layout.setContentsMargins(6, 4, 6, 4)

@@ -107,6 +107,7 @@ class Timeline(QWidget):
         self.frame_box.setToolTip("Current frame")
         self.frame_box.setMinimumWidth(64)
         self.count_label = QLabel("/ 0")
+        self.count_label.setMinimumWidth(self.count_label.fontMetrics().horizontalAdvance("/ 00000"))
         self.bar = TimelineBar()
         lay = QHBoxLayout(self)
         lay.setContentsMargins(4, 2, 4, 2)

@@ -1,0 +1,140 @@
+"""Drives the real editor on the demo shot and saves a screenshot at each stage of a render (docs/screenshots).
+
+    xvfb-run -s "-screen 0 1600x1000x24" python -m x2video_app.screenshots docs/screenshots [--untrained]
+
+Also prints the seconds from pressing Render to the first keyframe on screen.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _wait(app, cond, timeout: float) -> None:
+    t0 = time.monotonic()
+    while not cond():
+        app.processEvents()
+        time.sleep(0.02)
+        if time.monotonic() - t0 > timeout:
+            raise TimeoutError("the editor did not reach the expected state in time")
+
+
+def _save(win, path: Path, max_kb: int = 290) -> None:
+    from PySide6.QtCore import Qt
+
+    img = win.grab().toImage()
+    img.save(str(path), "PNG", 0)
+    while path.stat().st_size > max_kb * 1024:
+        img = img.scaledToWidth(int(img.width() * 0.9), Qt.TransformationMode.SmoothTransformation)
+        img.save(str(path), "PNG", 0)
+    print(f"{path} {img.width()}x{img.height()} {path.stat().st_size // 1024} KB")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out", type=Path)
+    ap.add_argument("--untrained", action="store_true", help="render with the untrained tiny model even when weights exist")
+    ap.add_argument("--timeout", type=float, default=1800.0)
+    args = ap.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+
+    from PySide6.QtWidgets import QApplication
+
+    from x2video.sampling.events import FramesReady
+    from x2video_app import edit_ops
+    from x2video_app.main_window import MainWindow
+    from x2video_app.style import apply_style
+
+    app = QApplication.instance() or QApplication(sys.argv[:1])
+    apply_style(app)
+    win = MainWindow()
+    win.resize(1440, 900)
+    win.show()
+    assert win.project.open_demo(), win.errors_shown
+    _wait(app, lambda: True, 1)
+    _save(win, args.out / "01_demo_opened.png")
+
+    doc, ed = win.doc, win.edits
+    ids = doc.shot.channel("ids", 0)[..., 0]
+    objects = doc.shot.info.object_captions
+    # the largest furniture object in view (not floor/walls/ceiling): fill it by id, give it a local prompt and a colour
+    counts = {int(i): int((ids == i).sum()) for i in np.unique(ids) if i > 0}
+    furniture = [i for i in counts if not any(w in objects.get(i, "") for w in ("floor", "wall", "ceiling", "window", "door", "light"))]
+    target = max(furniture or counts, key=counts.get)
+    ys, xs = np.nonzero(ids == target)
+    ed.add_mask()
+    ed.pick(float(np.median(xs)), float(np.median(ys)))
+    ed.set_local_prompt(0, f"{objects.get(target, 'an object')}, glossy dark red lacquer")
+    doc.set_edit_global(False)
+    ed.set_param("albedo_colour", (0.55, 0.08, 0.06), True)
+    ed.set_param("roughness_mode", "set", True)
+    ed.set_param("roughness", 0.15, True)
+    # a painted mask on the left wall: mask out A|M|R there, the model fills the material in
+    ed.add_mask()
+    h, w = doc.size
+    doc.begin_stroke(w * 0.08, h * 0.35, 14, False)
+    for k in range(12):
+        doc.stroke_to(w * (0.08 + 0.012 * k), h * (0.35 + 0.01 * k), 14, False)
+    res = doc.end_stroke()
+    if res is not None:
+        from x2video_app.commands import PaintCommand
+
+        win.undo.push(PaintCommand(doc, *res))
+    ed.set_local_prompt(1, "a wall of rough grey concrete")
+    win.mask_panel.mask_out.setChecked(True)
+    ed.propagate(1)  # carry the painted wall patch along the shot with optical flow
+    doc.set_edit_global(True)
+    ed.set_param("exposure", 0.5, True)
+    ed.set_global_prompt(doc.shot.info.caption or "a cosy room")
+    doc.select_mask(0)
+    doc.set_edit_global(False)
+    doc.set_view("masks")
+    doc.set_frame(8)
+    _wait(app, lambda: True, 1)
+    _save(win, args.out / "02_masks_and_prompts.png")
+    doc.set_view("albedo")
+    win.docks["Parametric edits"].raise_()
+    _save(win, args.out / "03_live_albedo_edit.png")
+
+    if args.untrained or win.render_ctl.choice is None:
+        win.act_untrained.setChecked(True)
+    shots: dict[str, bool] = {}
+    top = {"level": None}
+
+    def on_event(ev) -> None:
+        if isinstance(ev, FramesReady):
+            st = doc.render
+            top["level"] = st.top_level
+            if ev.mode == "key" and "key" not in shots:
+                shots["key"] = True
+                _save(win, args.out / "04_render_keyframes.png")
+            prog = dict((lv, (d, p)) for lv, d, p in st.level_progress())
+            lv2 = st.top_level - 1
+            if lv2 >= 1 and lv2 != 1 and lv2 in prog and prog[lv2][0] == prog[lv2][1] and "mid" not in shots:
+                shots["mid"] = True
+                _save(win, args.out / "05_render_level_done.png")
+            elif lv2 == 1 and prog.get(1, (0, 1))[0] == 1 and "mid" not in shots:
+                shots["mid"] = True
+                _save(win, args.out / "05_render_level_done.png")
+
+    win.render_ctl.sigEvent.connect(on_event)
+    assert win.start_render()
+    _wait(app, lambda: not win.render_ctl.running, args.timeout)
+    print(f"render {doc.render.status}; first keyframe on screen {win.first_keyframe_shown_s:.2f} s after pressing Render")
+    doc.set_view("side-by-side")
+    doc.set_frame(doc.num_frames // 2)
+    win.charts.tabs.setCurrentIndex(0)
+    _wait(app, lambda: True, 1)
+    _save(win, args.out / "06_render_finished_side_by_side.png")
+    win.project.force_dirty = False
+    win.undo.setClean()
+    win.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
