@@ -170,3 +170,23 @@ def test_speed_accuracy_chart_and_editor_shape(tmp_path):
 
     pts = load_bench_points(tmp_path)
     assert [p[0] for p in pts] == ["DDIM-20", "DDIM-4", "classical shading"] and all(math.isfinite(p[2]) for p in pts)
+
+
+def test_resolve_size_prefers_a_smaller_training_size(tmp_path):
+    import argparse
+
+    from eval_fixtures import make_dataset
+    from x2video.cli.eval import resolve_size
+
+    data = make_dataset(tmp_path / "d", frames=2, size=(64, 48))
+    model = tmp_path / "m"
+    model.mkdir()
+    a = argparse.Namespace(data=data, split="test", size=None)
+    assert resolve_size(a, model, 8) == ((64, 48), "the data's size (the weights do not record a training size)")
+    (model / "training.json").write_text(json.dumps({"size": [32, 24]}))
+    size, why = resolve_size(a, model, 8)
+    assert size == (32, 24) and "trained at 32x24" in why and "area-downsampled from 64x48" in why
+    (model / "training.json").write_text(json.dumps({"size": [128, 96]}))
+    assert resolve_size(a, model, 8)[0] == (64, 48)
+    with pytest.raises(ValueError, match="not a multiple of the model's VAE factor 8"):
+        resolve_size(argparse.Namespace(data=data, split="test", size=(60, 48)), model, 8)

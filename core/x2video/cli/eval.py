@@ -183,6 +183,9 @@ def resolve_size(a: argparse.Namespace, weights_dir: Path | None, downsample: in
         raise ValueError(f"evaluation size {size[0]}x{size[1]} ({why}) is not a multiple of the model's VAE factor {downsample}; pass --size")
     if tuple(size) != tuple(native):
         why += f"; ground truth, channels and motion area-downsampled from {native[0]}x{native[1]}"
+        if abs(size[0] / size[1] - native[0] / native[1]) > 0.02:
+            why += f" (aspect ratio {native[0] / native[1]:.3f} -> {size[0] / size[1]:.3f}: images are stretched)"
+            log.warning("evaluation size %dx%d stretches the data's %dx%d frames", size[0], size[1], native[0], native[1])
     return tuple(size), why  # type: ignore[return-value]
 
 

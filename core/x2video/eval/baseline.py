@@ -19,7 +19,7 @@ from x2video.shot import Shot
 DESCRIPTION = (
     "classical shading of the same (edited) channels: albedo x (1 - metallic) x irradiance + irradiance x "
     "split-sum GGX (Karis 2014) from roughness/metallic/normal (x2video.model.shading); black where albedo or "
-    "irradiance is missing or masked out; ignores text and reference"
+    "irradiance is missing or masked out (an all-black video scores TC 0); ignores text and reference"
 )
 
 

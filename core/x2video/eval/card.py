@@ -52,7 +52,7 @@ def run_facts(run: str | Path) -> dict[str, Any]:
     state = _read(ck / "state.json")
     sc = state.get("stage_config", {})
     facts: dict[str, Any] = {"run": str(run), "stage": sc.get("stage", "?"), "step": state.get("step"), "checkpoint": ck.name,
-                             "batch": sc.get("batch"), "loop": state.get("loop", {})}
+                             "batch": sc.get("batch"), "loop": state.get("loop", {}), "stage_config": sc}
     if (run / "summary.json").is_file():
         facts["last_session"] = _read(run / "summary.json")
     if (run / "log.json").is_file():
@@ -87,6 +87,11 @@ def training_markdown(runs: list[dict[str, Any]]) -> str:
             f"{_fmt(s.get('samples_per_s'))} | {_fmt(s.get('seconds'), 5)} | {s.get('device', '–')} | {_fmt(f.get('final_loss'))} | {extra} |"
         )
     lines.append("\n¹ estimated from the loss log: the sum of 1/(steps/s) over logged steps (covers every resumed session).")
+    lines.append("\nStage settings (from each run's newest state.json; `x2video train STAGE` with these values resumes or repeats it):\n")
+    for f in runs:
+        settings = {k: v for k, v in f.get("stage_config", {}).items() if k != "model"}
+        loop = {k: f["loop"][k] for k in ("steps", "lr", "ema_decay", "seed", "mixed_precision") if k in f.get("loop", {})}
+        lines.append(f"- {f['stage']} (`{f['run']}`): `{json.dumps(settings, sort_keys=True)}`, loop `{json.dumps(loop, sort_keys=True)}`")
     return "\n".join(lines)
 
 

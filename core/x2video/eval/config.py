@@ -1,7 +1,7 @@
 """`EvalConfig`: what `x2video eval` measures (which tables, shots, frames, size, sampler steps); field docstrings are CLI help."""
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 TABLES = ("a", "b", "c", "d")
 
@@ -38,8 +38,6 @@ class EvalConfig:
     """compute FID (Inception-v3 features of every frame; ~0.3 s per frame on a CPU)"""
     tc: bool = True
     """compute temporal consistency"""
-    extra: dict = field(default_factory=dict)
-    """free-form notes recorded in results.json"""
 
     def __post_init__(self) -> None:
         bad = [t for t in self.tables if t not in TABLES]

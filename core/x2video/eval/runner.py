@@ -3,7 +3,8 @@
 Each distinct render (model, condition, sampler, steps, scheme, data) runs once; rows that
 repeat it (e.g. table a's video model = table b's full channels = table d's DDIM row) point to
 it with `same_render_as`. Every render starts with an empty conditioning cache, so its seconds
-per frame include encoding the channels, like a fresh render in the editor.
+per frame include encoding the channels, like a fresh render in the editor; each model and
+sampler gets one untimed warm-up render first.
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from x2video.eval.baseline import DESCRIPTION as BASELINE_DESCRIPTION
 from x2video.eval.baseline import classical_frames
 from x2video.eval.conditions import build_edits
 from x2video.eval.config import EvalConfig
-from x2video.eval.data import GROUND_TRUTH, EvalShot
+from x2video.eval.data import GROUND_TRUTH, EvalShot, EvalView
 from x2video.eval.machine import machine_info
 from x2video.eval.scoring import Scorer
 from x2video.eval.tables import PAPER, PAPER_NOTE, TITLES, RowSpec, table_rows
@@ -94,6 +95,13 @@ def render_shot(renderer: Renderer, shot: EvalShot, edits: Any, settings: Render
     return [frames[t] for t in range(shot.num_frames)], seconds
 
 
+def warm_up(renderer: Renderer, shot: EvalShot, sampler: str) -> None:
+    """One untimed 2-frame, 1-step render, so one-off costs (first calls, allocator growth, text encoder
+    start-up) do not land in the first timed row."""
+    view = EvalShot(shot.name, shot.path, EvalView(shot.shot, frames=2), None, shot.gt[:2])
+    render_shot(renderer, view, None, RenderSettings(sampler=sampler, steps=1, window=2))  # type: ignore[arg-type]
+
+
 def _settings(spec: RowSpec, config: EvalConfig, num_frames: int) -> RenderSettings:
     window = max(2, min(num_frames, config.image_window)) if spec.model == "image" else config.window
     return RenderSettings(sampler=spec.sampler, steps=spec.steps, seed=config.seed, window=window, scheme=spec.scheme)  # type: ignore[arg-type]
@@ -120,6 +128,7 @@ def evaluate(
     specs = table_rows(config)
     scorers = {k: Scorer(v, fid=config.fid, tc=config.tc) for k, v in data.items()}
     renderers: dict[int, Renderer] = {}
+    warmed: set[tuple[int, str]] = set()
 
     planned, total = set(), 0
     for rows in specs.values():
@@ -155,6 +164,9 @@ def evaluate(
                 mid = id(model)
                 if mid not in renderers:
                     renderers[mid] = Renderer(model)
+                if (mid, spec.sampler) not in warmed:
+                    warm_up(renderers[mid], shots[0], spec.sampler)
+                    warmed.add((mid, spec.sampler))
                 preds, secs = {}, {}
                 for s in shots:
                     emit(EvalProgress(done, total, table, spec.label, s.name, "render"))
