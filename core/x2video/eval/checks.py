@@ -23,7 +23,7 @@ def _check(claim: str, a: float | None, b: float | None, op: str, unit: str = ""
     if a is None or b is None:
         return {"claim": claim, "holds": None, "values": "not measured"}
     holds = a < factor * b if op == "<" else a > factor * b if op == ">" else a >= factor * b
-    return {"claim": claim, "holds": bool(holds), "values": f"{a:.4g}{unit} vs {b:.4g}{unit}"}
+    return {"claim": claim, "holds": bool(holds), "values": f"{a:.5g}{unit} vs {b:.5g}{unit}"}
 
 
 def orderings(results: dict[str, Any]) -> list[dict[str, Any]]:
