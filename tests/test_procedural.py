@@ -147,14 +147,14 @@ def test_motion_reprojects_next_frame_onto_this_one():
     r = ProceduralRenderer(w, h)
     try:
         sc = generate_scene(8)
-        poses = camera_path(sc, 6, w / h, 8)
+        poses = camera_path(sc, 11, w / h, 8)
         r.set_scene(sc)
-        f0, f1 = r.render(poses[0]), r.render(poses[5])  # five frames apart: a few pixels of motion
+        f0, f1 = r.render(poses[0]), r.render(poses[10])  # ten frames apart: several pixels of motion
     finally:
         r.release()
     import cv2
 
-    flow = motion_field(f0["depth"], poses[0], f1["depth"], poses[5])
+    flow = motion_field(f0["depth"], poses[0], f1["depth"], poses[10])
     valid = np.isfinite(flow).all(-1)
     assert valid.mean() > 0.7
     assert np.nanmean(np.linalg.norm(flow, axis=-1)) > 1.0

@@ -22,7 +22,9 @@ class PathConfig:
     #: distance between consecutive waypoints, metres
     step: float = 0.5
     #: largest change of heading between waypoints, degrees
-    max_turn: float = 8.0
+    max_turn: float = 3.0
+    #: largest change of walking direction between waypoints, degrees
+    max_bend: float = 60.0
     #: camera pitch range, degrees (negative = looking down)
     pitch: tuple[float, float] = (-16.0, -6.0)
     fov_y_deg: float = 60.0
@@ -111,7 +113,7 @@ def camera_path(scene: Scene, num_frames: int, aspect: float, seed: int, cfg: Pa
         way, yaws, length, dead = [start], [yaw], 0.0, 0
         while length < need + cfg.step and dead < 3 and len(way) < 200:
             cur = way[-1]
-            ang = heading + rng.uniform(-np.radians(80), np.radians(80), cfg.candidates)
+            ang = heading + rng.uniform(-np.radians(cfg.max_bend), np.radians(cfg.max_bend), cfg.candidates)
             rad = cfg.step * rng.uniform(0.7, 1.3, cfg.candidates)
             cand = cur + np.stack([np.cos(ang), np.sin(ang)], 1) * rad[:, None]
             cyaw = yaws[-1] + np.radians(rng.uniform(-cfg.max_turn, cfg.max_turn, cfg.candidates))

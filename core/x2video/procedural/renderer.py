@@ -26,15 +26,17 @@ LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
 class RenderConfig:
     """Quality knobs of the procedural renderer."""
 
-    shadow_size: int = 256  #: texels per cube-shadow face
+    shadow_size: int = 512  #: texels per cube-shadow face
     sun_shadow_size: int = 1024
     probe_size: int = 96  #: texels per reflection-probe face
     #: bounces of indirect light estimated through the probe (0 = no ambient term)
     bounces: int = 2
     near: float = 0.05
     far: float = 40.0
-    #: supersampling factor per axis for the shaded channels (ids and depth/motion use the centre sample)
+    #: supersampling factor per axis for the shaded channels (ids and depth/motion use one sample per pixel)
     ssaa: int = 1
+    #: planar mirror reflection of the room in the floor (an extra pass per frame); off = probe reflections only
+    planar: bool = True
 
 
 def perspective(fov_y_deg: float, aspect: float, near: float, far: float) -> np.ndarray:
@@ -220,8 +222,10 @@ class ProceduralRenderer:
         self.sun_fbo.viewport = (0, 0, *self.sun_map.size)
         self._draw_shadow(self._sun_vp, origin, f, True)
 
-    def _set_uniforms(self, view: np.ndarray, campos: np.ndarray, emission: float) -> None:
+    def _set_uniforms(self, view: np.ndarray, campos: np.ndarray, emission: float, planar: bool, mirror: bool) -> None:
         p, sc = self.prog, self.scene
+        p["u_has_planar"].value = 1 if planar else 0
+        p["u_clip_floor"].value = 1 if mirror else 0
         p["u_view"].write(_gl(view))
         p["u_viewrot"].write(_gl(view[:3, :3]))
         p["u_campos"].value = tuple(map(float, campos))
@@ -254,8 +258,13 @@ class ProceduralRenderer:
         self.sun_map.use(2)
         self.env.use(3)
         p["u_materials"].value, p["u_shadow_atlas"].value, p["u_sun_map"].value, p["u_env"].value = 0, 1, 2, 3
+        if planar:
+            self._planar_fbo.color_attachments[0].use(4)
+            p["u_planar"].value = 4
+            p["u_planar_mips"].value = float(np.log2(max(self._planar_fbo.size)))
 
-    def _draw(self, fbo, viewproj: np.ndarray, view: np.ndarray, campos: np.ndarray, emission: float, cull: bool) -> list[np.ndarray]:
+    def _draw(self, fbo, viewproj: np.ndarray, view: np.ndarray, campos: np.ndarray, emission: float, cull: bool,
+              planar: bool = False, mirror: bool = False, read: bool = True) -> list[np.ndarray]:
         fbo.use()
         fbo.viewport = (0, 0, *fbo.size)
         self.ctx.enable(self.ctx.DEPTH_TEST)
@@ -263,12 +272,30 @@ class ProceduralRenderer:
             self.ctx.enable(self.ctx.CULL_FACE)
         else:
             self.ctx.disable(self.ctx.CULL_FACE)
+        self.ctx.front_face = "cw" if mirror else "ccw"  # a mirror image flips the winding
         fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        self._set_uniforms(view, campos, emission)
+        self._set_uniforms(view, campos, emission, planar, mirror)
         self.prog["u_viewproj"].write(_gl(viewproj))
         self.vao.render()
+        self.ctx.front_face = "ccw"
+        if not read:
+            return []
         w, h = fbo.size
         return [np.frombuffer(fbo.read(components=4, attachment=i, dtype="f4"), np.float32).reshape(h, w, 4) for i in range(4)]
+
+    def _render_mirror(self, view: np.ndarray, proj: np.ndarray, campos: np.ndarray, w: int, h: int) -> None:
+        """Render the room mirrored in the floor plane y = 0 into the planar-reflection texture (with mipmaps)."""
+        import moderngl
+
+        if getattr(self, "_planar_fbo", None) is None or self._planar_fbo.size != (w, h):
+            tex = self.ctx.texture((w, h), 4, dtype="f4")
+            self._planar_fbo = self.ctx.framebuffer([tex], self.ctx.depth_renderbuffer((w, h)))
+        mirror = np.diag([1.0, -1.0, 1.0, 1.0])
+        view_m = view @ mirror
+        self._draw(self._planar_fbo, proj @ view_m, view_m, mirror[:3, :3] @ campos, 1.0, cull=True, mirror=True, read=False)
+        tex = self._planar_fbo.color_attachments[0]
+        tex.build_mipmaps()
+        tex.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
 
     def _render_probe(self, origin: np.ndarray, emission: float) -> list[tuple[np.ndarray, np.ndarray]]:
         """6 faces: (radiance (S, S, 3) as read back, object ids (S, S)) each."""
@@ -301,7 +328,10 @@ class ProceduralRenderer:
         view = np.linalg.inv(c2w)
         k = max(1, int(self.cfg.ssaa))
         proj = perspective(pose.fov_y_deg or 60.0, self.width / self.height, self.cfg.near, self.cfg.far)
-        rgb, alb, nrm, irr = (a[::-1] for a in self._draw(self._fbo(self.width * k, self.height * k), proj @ view, view, c2w[:3, 3], 1.0, cull=True))
+        if self.cfg.planar:
+            self._render_mirror(view, proj, c2w[:3, 3], self.width * k, self.height * k)
+        rgb, alb, nrm, irr = (a[::-1] for a in self._draw(self._fbo(self.width * k, self.height * k), proj @ view, view, c2w[:3, 3], 1.0,
+                                                          cull=True, planar=self.cfg.planar))
         if k > 1:  # box-filter the shaded channels; ids and depth keep the sample nearest the pixel centre
             h, w = self.height, self.width
             pick = lambda a: a[k // 2::k, k // 2::k]  # noqa: E731

@@ -62,6 +62,8 @@ uniform vec3 u_sun_origin;
 uniform vec3 u_sh[9];               // irradiance SH (already convolved, divided by pi)
 uniform samplerCube u_env; uniform int u_has_env; uniform vec3 u_probe; uniform vec3 u_box_lo; uniform vec3 u_box_hi;
 uniform float u_env_mips; uniform float u_emission_scale;
+uniform sampler2D u_planar; uniform int u_has_planar; uniform float u_planar_mips;  // mirror image of the room in the floor
+uniform int u_clip_floor;           // 1 while rendering that mirror image: drop what lies below the floor plane
 
 in vec3 v_pos; in vec3 v_nrm; flat in int v_mat; flat in int v_id;
 layout(location = 0) out vec4 o_rgb;      // rgb, view depth
@@ -76,23 +78,40 @@ float vnoise(vec2 p) {
 }
 float fbm(vec2 p) { return 0.5 * vnoise(p) + 0.3 * vnoise(p * 2.03 + 7.1) + 0.2 * vnoise(p * 4.01 + 3.3); }
 
-// multiplicative albedo modulation of a procedural pattern (mean close to 1)
-float pattern(int kind, vec2 uv, float s, float c) {
+// a line of half-width `hw` at distance `g` from its centre, box-filtered over a pixel of size `px` (coverage 0..1)
+float line_cov(float g, float hw, float px) {
+    px = max(px, 1e-6);
+    return clamp(min(g + 0.5 * px, hw) - max(g - 0.5 * px, -hw), 0.0, px) / px;
+}
+
+// integral of the square wave step(0.5, fract(t)), for box-filtered stripes
+float sq_int(float t) { return floor(t) * 0.5 + max(fract(t) - 0.5, 0.0); }
+
+// multiplicative albedo modulation of a procedural pattern (mean close to 1), filtered against aliasing:
+// features smaller than a pixel fade to their mean (px = pixel footprint in metres)
+float pattern_raw(int kind, vec2 uv, float s, float c, float px) {
     if (kind == 1) {            // planks along x, staggered joints, dark grooves
         float row = floor(uv.y / s);
         float len = 1.2;
-        float seg = floor(uv.x / len + hash(vec2(row, 3.0)));
+        float sh = hash(vec2(row, 3.0));
+        float seg = floor(uv.x / len + sh);
         float g = min(fract(uv.y / s), 1.0 - fract(uv.y / s)) * s;
-        float e = min(fract(uv.x / len + hash(vec2(row, 3.0))), 1.0 - fract(uv.x / len + hash(vec2(row, 3.0)))) * len;
+        float e = min(fract(uv.x / len + sh), 1.0 - fract(uv.x / len + sh)) * len;
         float m = 1.0 + c * (2.0 * hash(vec2(row, seg)) - 1.0) + 0.5 * c * (fbm(vec2(uv.x * 2.0, uv.y * 40.0)) - 0.5);
-        return (g < 0.003 || e < 0.003) ? 0.6 * m : m;
+        float groove = max(line_cov(g, 0.003, px), line_cov(e, 0.003, px));
+        return m * (1.0 - 0.45 * groove);
     }
     if (kind == 2) {            // tiles with grout lines
         vec2 cell = floor(uv / s); vec2 f = fract(uv / s);
         float g = min(min(f.x, 1.0 - f.x), min(f.y, 1.0 - f.y)) * s;
-        return g < 0.004 ? 0.75 : 1.0 + c * (2.0 * hash(cell) - 1.0);
+        return mix(1.0 + c * (2.0 * hash(cell) - 1.0), 0.7, line_cov(g, 0.003, px));
     }
-    if (kind == 3) return fract(uv.x / s) < 0.5 ? 1.0 + c : 1.0 - c;   // stripes
+    if (kind == 3) {            // stripes, box-filtered over the pixel
+        float w = max(px / s, 1e-4);
+        float x = uv.x / s;
+        float dark = (sq_int(x + 0.5 * w) - sq_int(x - 0.5 * w)) / w;
+        return mix(1.0 + c, 1.0 - c, dark);
+    }
     if (kind == 4) return 1.0 + 2.0 * c * (fbm(uv / s) - 0.5);          // noise
     if (kind == 5) return 1.0 + 2.0 * c * (fbm(vec2(uv.x / (s * 12.0), uv.y / s)) - 0.5) + 0.6 * c * sin(uv.y / s * 6.0 + 3.0 * fbm(uv / (s * 5.0)));  // grain
     if (kind == 6) {            // marble veins
@@ -100,6 +119,14 @@ float pattern(int kind, vec2 uv, float s, float c) {
         return 1.0 + c * 0.4 - c * 1.5 * pow(clamp(1.0 - v, 0.0, 1.0), 6.0);
     }
     return 1.0;
+}
+
+float pattern(int kind, vec2 uv, float s, float c) {
+    float px = max(length(dFdx(uv)), length(dFdy(uv)));
+    float m = pattern_raw(kind, uv, s, c, px);
+    // noise-like detail finer than ~2 pixels fades to its mean (the grooves, grout and stripes filter themselves)
+    float fade = (kind >= 4) ? clamp(2.0 - px / (0.25 * s), 0.0, 1.0) : 1.0;
+    return mix(1.0, m, fade);
 }
 
 vec2 atlas_uv(int light, vec3 D) {  // direction from the light -> uv in the shadow atlas
@@ -110,23 +137,35 @@ vec2 atlas_uv(int light, vec3 D) {  // direction from the light -> uv in the sha
     vec3 F, R, U;
 %(FACES)s
     vec2 st = vec2(dot(D, R), dot(D, U)) / dot(D, F) * 0.5 + 0.5;
-    float m = 1.5 / float(u_shadow_size);
+    float m = 2.5 / float(u_shadow_size);
     st = clamp(st, vec2(m), vec2(1.0 - m));
     return (vec2(float(face), float(light)) + st) / vec2(6.0, float(MAXL));
 }
 
+// bilinearly weighted depth comparisons of the 2x2 texels around texel position tc (texel units): smooth edges
+float pcf2(sampler2D map, vec2 tc, float ref) {
+    vec2 b = floor(tc - 0.5), f = tc - 0.5 - b;
+    ivec2 hi = textureSize(map, 0) - 1;
+    float s00 = ref <= texelFetch(map, clamp(ivec2(b), ivec2(0), hi), 0).r ? 1.0 : 0.0;
+    float s10 = ref <= texelFetch(map, clamp(ivec2(b) + ivec2(1, 0), ivec2(0), hi), 0).r ? 1.0 : 0.0;
+    float s01 = ref <= texelFetch(map, clamp(ivec2(b) + ivec2(0, 1), ivec2(0), hi), 0).r ? 1.0 : 0.0;
+    float s11 = ref <= texelFetch(map, clamp(ivec2(b) + ivec2(1, 1), ivec2(0), hi), 0).r ? 1.0 : 0.0;
+    return mix(mix(s00, s10, f.x), mix(s01, s11, f.x), f.y);
+}
+
+// a tent filter two texels wide: four bilinear PCF lookups
+float pcf(sampler2D map, vec2 uv, float ref) {
+    vec2 tc = uv * vec2(textureSize(map, 0));
+    return 0.25 * (pcf2(map, tc + vec2(-0.5, -0.5), ref) + pcf2(map, tc + vec2(0.5, -0.5), ref)
+                 + pcf2(map, tc + vec2(-0.5, 0.5), ref) + pcf2(map, tc + vec2(0.5, 0.5), ref));
+}
+
 float point_shadow(int i, vec3 P, vec3 N, vec3 L) {
-    vec3 Q = P + N * 0.015 + L * 0.01;
+    float texel = 2.0 * length(P - u_lpos[i]) / float(u_shadow_size);  // shadow-map texel size there, metres
+    vec3 Q = P + N * (0.005 + 2.0 * texel) + L * 0.01;  // normal offset against acne at grazing angles
     vec3 D = Q - u_lpos[i];
     float d = length(D);
-    vec2 uv = atlas_uv(i, D);
-    vec2 px = 1.0 / vec2(6.0 * float(u_shadow_size), float(MAXL * u_shadow_size));
-    float lit = 0.0;
-    for (int k = 0; k < 4; k++) {
-        vec2 o = vec2((k & 1) == 0 ? -0.7 : 0.7, (k & 2) == 0 ? -0.7 : 0.7) * px;
-        lit += (d - 0.02 * d <= texture(u_shadow_atlas, uv + o).r) ? 0.25 : 0.0;
-    }
-    return lit;
+    return pcf(u_shadow_atlas, atlas_uv(i, D), d - 0.02 * d);
 }
 
 float sun_shadow(vec3 P, vec3 N) {
@@ -135,13 +174,7 @@ float sun_shadow(vec3 P, vec3 N) {
     vec2 uv = c.xy * 0.5 + 0.5;
     if (any(lessThan(uv, vec2(0.0))) || any(greaterThan(uv, vec2(1.0)))) return 1.0;
     float d = dot(Q - u_sun_origin, -u_sun_dir);
-    vec2 px = 1.0 / vec2(textureSize(u_sun_map, 0));
-    float lit = 0.0;
-    for (int k = 0; k < 4; k++) {
-        vec2 o = vec2((k & 1) == 0 ? -0.7 : 0.7, (k & 2) == 0 ? -0.7 : 0.7) * px;
-        lit += (d - 0.03 <= texture(u_sun_map, uv + o).r) ? 0.25 : 0.0;
-    }
-    return lit;
+    return pcf(u_sun_map, uv, d - 0.03);
 }
 
 vec3 sh_irradiance(vec3 n) {
@@ -172,6 +205,7 @@ vec3 env_brdf(vec3 F0, float rough, float nv) {   // Karis' analytic fit of the 
 }
 
 void main() {
+    if (u_clip_floor == 1 && v_pos.y < 0.002) discard;
     vec4 m0 = texelFetch(u_materials, ivec2(0, v_mat), 0);
     vec4 m1 = texelFetch(u_materials, ivec2(1, v_mat), 0);
     vec4 m2 = texelFetch(u_materials, ivec2(2, v_mat), 0);
@@ -214,7 +248,10 @@ void main() {
     }
     irr += sh_irradiance(N);
     vec3 refl = vec3(0.0);
-    if (u_has_env == 1) {  // box-projected (parallax-corrected) reflection probe, blurred by roughness
+    if (u_has_planar == 1 && N.y > 0.99 && P.y < 0.02) {  // the floor (and rugs on it): planar reflection
+        vec3 env = textureLod(u_planar, gl_FragCoord.xy / vec2(textureSize(u_planar, 0)), rough * u_planar_mips).rgb;
+        refl = env * env_brdf(F0, rough, max(dot(N, V), 1e-3)) * sw;
+    } else if (u_has_env == 1) {  // box-projected (parallax-corrected) reflection probe, blurred by roughness
         vec3 R = reflect(-V, N);
         vec3 t1 = (u_box_hi - P) / R, t2 = (u_box_lo - P) / R;
         vec3 tf = max(t1, t2);
