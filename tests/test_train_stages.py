@@ -38,9 +38,9 @@ def runs(tmp_path_factory, one_thread):
     out["vae_resumed"] = run_vae_stage(ds["train"], ds["test"], root / "vae", vstage, LoopConfig(steps=3, ckpt_every=1, warmup=1))
     cfg, vae = load_vae(root / "vae")
     out["cache_info"] = build_cache(ds, vae, cfg, root / "cache", text_encoder=FakeTextEncoder(), scale_frames=4)
-    istage = ImageStageConfig(unet_channels=(16, 32), batch=2)
+    istage = ImageStageConfig(unet_channels=(16, 32), batch=2, heldout_batches=1)
     out["image"] = run_image_stage(root / "cache", root / "image", istage, loop)
-    out["video"] = run_video_stage(root / "image", root / "cache", root / "video", VideoStageConfig(batch=1), loop)
+    out["video"] = run_video_stage(root / "image", root / "cache", root / "video", VideoStageConfig(batch=1, heldout_batches=1), loop)
     out["lcm"] = run_lcm_stage(root / "video", root / "cache", root / "lcm", LCMStageConfig(batch=1), loop)
     return out
 
@@ -102,6 +102,8 @@ def test_image_video_lcm_stages_load_as_models(runs):
         assert res["step"] == 2 and res["speed"]["steps_per_s"] > 0
         log = json.loads((runs["root"] / key / "log.json").read_text())
         assert len(log) == 2 and all(np.isfinite(h["loss"]) for h in log)
+        if key != "lcm":
+            assert set(res["heldout_v_loss"]) == {"full", "augmented"} and all(0 < v < 10 for v in res["heldout_v_loss"].values())
 
 
 def _frame_conditioning(shot, t, keep, amr=None):

@@ -44,3 +44,30 @@ def v_loss(unet: UNet2DConditionModel, sched: DDPMScheduler, b: Batch) -> tuple[
     v = predict(unet, x_t, t, b)
     loss = F.mse_loss(v.float(), target.float())
     return loss, {"t_mean": float(t.float().mean()), "frames": float(bn)}
+
+
+#: timesteps the held-out loss averages over (fixed, so runs compare)
+HELDOUT_T = (50, 250, 500, 750, 950)
+
+
+@torch.no_grad()
+def heldout_v_loss(unet: UNet2DConditionModel, batches: list[Batch], seed: int = 0) -> float:
+    """Mean v-prediction MSE over fixed held-out batches at fixed timesteps `HELDOUT_T`, seeded noise:
+    a cheap, comparable number (e.g. shading prior on vs off) before rendering anything."""
+    sched = noise_scheduler()
+    was_training = unet.training
+    unet.eval()
+    dev = next(unet.parameters()).device
+    g = torch.Generator().manual_seed(seed)
+    total, n = 0.0, 0
+    for b in batches:
+        b = b.to(dev)
+        for t in HELDOUT_T:
+            tw = torch.full((b.windows,), t, device=dev, dtype=torch.long)
+            noise = torch.randn(b.x0.shape, generator=g).to(dev)
+            tf = tw.repeat_interleave(b.num_frames)
+            v = predict(unet, sched.add_noise(b.x0, noise, tf), tw, b)
+            total += float(F.mse_loss(v.float(), sched.get_velocity(b.x0, noise, tf).float()))
+            n += 1
+    unet.train(was_training)
+    return total / max(n, 1)

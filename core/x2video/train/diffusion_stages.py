@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
 import torch
 from diffusers import UNet2DConditionModel
 
@@ -22,7 +23,7 @@ from x2video.model.checkpoint import load_into, read_config, save_checkpoint
 from x2video.model.config import ModelConfig, UNetConfig, preset
 from x2video.model.unet import build_unet, convert_image_to_video
 from x2video.train.batches import AugmentConfig, LatentData, WindowConfig, image_batches, video_batches
-from x2video.train.diffusion import noise_scheduler, v_loss
+from x2video.train.diffusion import heldout_v_loss, noise_scheduler, v_loss
 from x2video.train.loop import LoopConfig, StepLog, train
 from x2video.train.runs import check_same_vae, load_vae, model_dir, write_results
 
@@ -42,6 +43,8 @@ class ImageStageConfig:
     batch: int = 16
     """Frames per batch."""
     seed: int = 0
+    heldout_batches: int = 4
+    """Batches of held-out (test) frames for the final held-out v-loss (0: skip)."""
     augment: AugmentConfig = field(default_factory=AugmentConfig)
 
 
@@ -54,8 +57,17 @@ class VideoStageConfig:
     shading_prior: bool | None = None
     """None: as the image model was trained."""
     seed: int = 0
+    heldout_batches: int = 4
+    """Batches of held-out (test) windows for the final held-out v-loss (0: skip)."""
     augment: AugmentConfig = field(default_factory=AugmentConfig)
     window: WindowConfig = field(default_factory=WindowConfig)
+
+
+def _resume_fields(stage) -> dict:
+    """The stage settings a resumed run must share (the held-out report size is free to change)."""
+    d = dataclasses.asdict(stage)
+    d.pop("heldout_batches", None)
+    return d
 
 
 def image_model_config(stage: ImageStageConfig, cache_cfg: ModelConfig) -> ModelConfig:
@@ -74,8 +86,22 @@ def image_model_config(stage: ImageStageConfig, cache_cfg: ModelConfig) -> Model
                                video=False, shading_prior=stage.shading_prior)
 
 
+def _heldout(unet: UNet2DConditionModel, cache: Path, cfg: ModelConfig, shading: bool, n: int, draw) -> dict:
+    """Held-out v-loss on the cache's test split: all channels, and with the training augmentation."""
+    from x2video.train.cache import read_info
+
+    if n <= 0 or not any(r["split"] == "test" for r in read_info(cache).rooms):
+        return {}
+    data = LatentData(cache, "test", cfg.latent_scales, shading)
+    out = {}
+    for name, aug in (("full", AugmentConfig(channel_drop_p=0.0, prompt_drop_p=0.0, mask_p=0.0)), ("augmented", AugmentConfig())):
+        rng = np.random.default_rng(1234)
+        out[name] = heldout_v_loss(unet, [draw(data, rng, aug) for _ in range(n)])
+    return out
+
+
 def _run(unet: UNet2DConditionModel, cfg: ModelConfig, cache: Path, out_dir: Path, loop: LoopConfig, batch_size: int,
-         batches, stage_config: dict, on_step: Callable[[StepLog], None] | None, key: str) -> dict:
+         batches, stage_config: dict, on_step: Callable[[StepLog], None] | None, key: str, heldout=None) -> dict:
     _, vae = load_vae(cache / "model")
     sched = noise_scheduler()
     unet.requires_grad_(True)
@@ -93,6 +119,11 @@ def _run(unet: UNet2DConditionModel, cfg: ModelConfig, cache: Path, out_dir: Pat
 
     result = {"checkpoint": str(ck), "model": str(ck / "model"), "step": int(ck.name.split("-")[-1]),
               "shading_prior": cfg.shading_prior, "speed": json.loads(summary)}
+    if heldout is not None:
+        ema = build_unet(cfg)
+        load_into(ema, ck / "model" / "unet.safetensors", "unet")
+        result["heldout_v_loss"] = heldout(ema.to(next(unet.parameters()).device))
+        log.info("%s stage held-out v-loss: %s", key, result["heldout_v_loss"])
     write_results(out_dir, key, result)
     return result
 
@@ -112,8 +143,12 @@ def run_image_stage(cache: str | Path, out_dir: str | Path, stage: ImageStageCon
     unet = build_unet(cfg)
     n = sum(p.numel() for p in unet.parameters())
     log.info("image UNet: %.2f M parameters, %d training frames", n / 1e6, data.num_rows)
-    sc = {"stage": "image", **dataclasses.asdict(stage), "model": cfg.to_dict(), "cache": str(cache.resolve())}
-    return _run(unet, cfg, cache, out_dir, loop, stage.batch, image_batches(data, stage.batch, stage.augment, stage.seed), sc, on_step, "image")
+    sc = {"stage": "image", **_resume_fields(stage), "model": cfg.to_dict(), "cache": str(cache.resolve())}
+    def heldout(m):
+        return _heldout(m, cache, cfg, False, stage.heldout_batches, lambda d, rng, aug: d.sample(rng, d.random_frames(rng, stage.batch), aug))
+
+    return _run(unet, cfg, cache, out_dir, loop, stage.batch, image_batches(data, stage.batch, stage.augment, stage.seed), sc, on_step,
+                "image", heldout)
 
 
 def load_image_unet(init: str | Path) -> tuple[ModelConfig, UNet2DConditionModel]:
@@ -137,7 +172,12 @@ def run_video_stage(init: str | Path, cache: str | Path, out_dir: str | Path, st
     unet = convert_image_to_video(image_unet, cfg.hybrid, sp)
     data = LatentData(cache, "train", cfg.latent_scales, sp)
     log.info("video UNet: %.2f M parameters, %d training frames", sum(p.numel() for p in unet.parameters()) / 1e6, data.num_rows)
-    sc = {"stage": "video", **dataclasses.asdict(stage), "model": cfg.to_dict(), "cache": str(cache.resolve()),
+    sc = {"stage": "video", **_resume_fields(stage), "model": cfg.to_dict(), "cache": str(cache.resolve()),
           "init": str(model_dir(init).resolve())}
     batches = video_batches(data, stage.batch, stage.augment, stage.window, stage.seed)
-    return _run(unet, cfg, cache, out_dir, loop, stage.batch * stage.window.frames, batches, sc, on_step, "video")
+    def draw(d, rng, aug):
+        windows, mode, level, refs = d.random_windows(rng, stage.batch, stage.window)
+        return d.sample(rng, windows, aug, mode=mode, level=level, ref_positions=refs)
+
+    return _run(unet, cfg, cache, out_dir, loop, stage.batch * stage.window.frames, batches, sc, on_step, "video",
+                lambda m: _heldout(m, cache, cfg, sp, stage.heldout_batches, draw))
