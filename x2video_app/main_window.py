@@ -67,6 +67,7 @@ class MainWindow(QMainWindow):
         self.follow_box.setChecked(True)
         self.follow_box.setToolTip("While rendering, show each frame as it finishes")
         self.info_label = QLabel()
+        self.info_label.setMinimumWidth(self.info_label.fontMetrics().horizontalAdvance("frame 0000/0000: not rendered (level 00)"))
         bar = QHBoxLayout()
         bar.setContentsMargins(4, 4, 4, 0)
         bar.addWidget(QLabel("View"))
@@ -196,7 +197,6 @@ class MainWindow(QMainWindow):
             self.model_status.setText(f"Model: {d}")
         else:
             self.render_ctl.set_model(None)
-            self.model_status.setText("No model weights in resources/ — Render menu: use the untrained tiny model")
             self.statusBar().showMessage(f"Model weights not found in {d}; renders need them (or the untrained tiny model for a smoke test).", 15000)
         self._update_model_label()
 
@@ -214,8 +214,11 @@ class MainWindow(QMainWindow):
     def _update_model_label(self) -> None:
         c = self.render_ctl.choice
         text = c.label if c is not None else "Model: none (weights missing)"
+        tip = c.detail if c is not None else f"No checkpoint in {weights_dir()}; Render offers the untrained tiny model."
         self.model_status.setText(text)
+        self.model_status.setToolTip(tip)
         self.render_panel.model_label.setText(text)
+        self.render_panel.model_label.setToolTip(tip)
         self.render_panel.model_label.setStyleSheet("color: #ffb347;" if c is None or c.kind == "untrained" else "")
 
     # -- rendering ---------------------------------------------------------------
@@ -362,7 +365,12 @@ class MainWindow(QMainWindow):
             self.mask_panel.set_coverage("Add a mask, then paint it in the viewer.")
             return
         frames = edit_ops.mask_frames(self.doc.edits, i)
-        self.mask_panel.set_coverage(f"Painted on {len(frames)} of {self.doc.num_frames} frames")
+        ids = edit_ops.mask_ids(self.doc.edits, i)
+        text = f"Painted on {len(frames)} of {self.doc.num_frames} frames"
+        if ids:
+            caps = self.doc.shot.info.object_captions
+            text += "; objects on every frame: " + ", ".join(f"{o}" + (f" ({caps[o]})" if o in caps else "") for o in ids)
+        self.mask_panel.set_coverage(text)
 
     def _hover(self, x: float, y: float) -> None:
         if self.doc.shot is None:
@@ -386,18 +394,39 @@ class MainWindow(QMainWindow):
             self.render_ctl.cancel()
             self.render_ctl.wait(120000)
         self.project.shutdown()
-        QSettings("x2video", "studio").setValue("geometry", self.saveGeometry())
         ev.accept()
 
 
 def run(argv: list[str]) -> int:
-    """Start the editor: `python -m x2video_app [SHOT|PROJECT]` (no argument: the demo shot)."""
+    """Start the editor: `python -m x2video_app [--untrained] [SHOT|PROJECT]` (no path: the demo shot)."""
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="x2video-studio", description="X2Video Studio: edit intrinsic channels, render video.")
+    ap.add_argument("path", nargs="?", help="a shot folder/file the loaders read, or a project file (.x2v.json); default: the demo shot")
+    ap.add_argument("--untrained", action="store_true", help="use the UNTRAINED tiny model (smoke test) instead of the shipped weights")
+    ap.add_argument("--smoke-test", action="store_true", help=argparse.SUPPRESS)  # open, report, quit (packaging checks)
+    args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    app = QApplication.instance() or QApplication(sys.argv[:1] + list(argv))
+    app = QApplication.instance() or QApplication(sys.argv[:1])
     app.setApplicationName(APP_NAME)
     apply_style(app)
+    settings = QSettings("x2video", "studio")
     win = MainWindow()
+    if settings.value("geometry") is not None:
+        win.restoreGeometry(settings.value("geometry"))
+    app.aboutToQuit.connect(lambda: settings.setValue("geometry", win.saveGeometry()))
+    if args.untrained:
+        win.act_untrained.setChecked(True)
     win.show()
-    target = argv[0] if argv else None
-    QTimer.singleShot(0, lambda: win.project.open_path(target) if target else win.project.open_demo())
+
+    def start() -> None:
+        ok = win.project.open_path(args.path) if args.path else win.project.open_demo()
+        if args.smoke_test:
+            print(f"smoke-test: opened={ok} frames={win.doc.num_frames} errors={win.errors_shown}", flush=True)
+            win.render_ctl.wait(120_000)
+            win.undo.setClean()
+            win.close()
+            app.exit(0 if ok else 1)
+
+    QTimer.singleShot(0, start)
     return app.exec()

@@ -47,7 +47,7 @@ class MaskPanel(QWidget):
     def __init__(self, parent=None) -> None:
         super().__init__(parent)
         self.list = QListWidget()
-        self.list.setMinimumHeight(90)
+        self.list.setMinimumHeight(60)
         self.list.setToolTip("Masks: tick to show in the overlay, double-click to rename")
         self.add_button = QPushButton("Add mask")
         self.remove_button = QPushButton("Remove")
@@ -91,6 +91,8 @@ class MaskPanel(QWidget):
         self.propagate_button.setToolTip("Carry the selected mask on the current frame to every frame with optical flow")
         self.clear_button = QPushButton("Clear on this frame")
         self.coverage = QLabel("")
+        self.coverage.setWordWrap(True)
+        self.coverage.setMinimumHeight(2 * self.coverage.fontMetrics().lineSpacing() + 2)
 
         grid = QGridLayout()
         grid.addWidget(QLabel("Tool"), 0, 0)
@@ -120,6 +122,7 @@ class MaskPanel(QWidget):
         self.list.itemChanged.connect(self._item_changed)
         self._colours: list[tuple[int, int, int]] = []
         self._updating = False
+        self.setMinimumHeight(self.sizeHint().height())  # docks must not squeeze wrapped labels into each other
 
     # -- refresh from the document --------------------------------------------
     def set_masks(self, masks: list[dict], selected: int) -> None:

@@ -50,7 +50,13 @@ class ModelChoice:
 
     @property
     def label(self) -> str:
-        return f"Model: {self.path}" if self.kind == "pretrained" else "Model: UNTRAINED tiny (smoke test; frames are not meaningful)"
+        return f"Model: {self.path.name if self.path else '?'}" if self.kind == "pretrained" else "Model: UNTRAINED tiny (smoke test)"
+
+    @property
+    def detail(self) -> str:
+        if self.kind == "pretrained":
+            return f"Trained weights from {self.path}"
+        return "Randomly initialised tiny model: it runs the whole pipeline, but its frames are noise, not renders."
 
 
 def load_model(choice: ModelChoice):

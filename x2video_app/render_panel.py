@@ -64,7 +64,6 @@ class RenderPanel(QWidget):
         buttons.addWidget(self.cancel_button)
 
         self.model_label = QLabel()
-        self.model_label.setWordWrap(True)
         self.status_label = QLabel("Ready")
         self.status_label.setWordWrap(True)
         self.status_label.setMinimumHeight(2 * self.status_label.fontMetrics().lineSpacing() + 4)
@@ -83,6 +82,7 @@ class RenderPanel(QWidget):
         lay.addWidget(self.bars_box)
         lay.addWidget(self.status_label)
         lay.addStretch(1)
+        self.setMinimumHeight(self.sizeHint().height())
 
     def values(self) -> dict:
         return {
@@ -110,6 +110,7 @@ class RenderPanel(QWidget):
             b.setTextVisible(True)
             self._bars[lv] = b
             self.bars_layout.addWidget(b)
+        self.setMinimumHeight(self.sizeHint().height())
 
     def show_state(self, st: RenderState) -> None:
         progress = st.level_progress()
