@@ -204,3 +204,18 @@ def test_bad_files_keep_the_project(win, tmp_path):
     (tmp_path / "bad.png").write_bytes(b"not a png")
     assert not win.edits.load_reference(str(tmp_path / "bad.png"))
     assert "bad.png" in win.errors_shown[-1][1] and win.doc.edits.reference is None
+
+
+def test_untitled_work_is_autosaved_and_offered_back(win, qtbot, tmp_path, shot_dir):
+    win.edits.add_mask()
+    win.edits.set_local_prompt(0, "autosaved prompt")
+    side = win.project.autosave()
+    assert side is not None and side.is_file() and str(tmp_path / "cache") in str(side)
+    other = MainWindow(bench_dir=tmp_path, autosave_ms=0)
+    qtbot.addWidget(other)
+    asked = []
+    other.ask = lambda title, *a: asked.append(title) or QMessageBox.StandardButton.Yes
+    assert other.project.open_path(shot_dir)
+    assert asked == ["Recover autosaved work?"]
+    assert other.doc.edits.local_prompts == {"mask 1": "autosaved prompt"} and other.isWindowModified()
+    assert other.doc.project_path is None

@@ -71,7 +71,10 @@ class ProjectController(QObject):
         )
         if b == QMessageBox.StandardButton.Save:
             return self.save()
-        return b == QMessageBox.StandardButton.Discard
+        if b == QMessageBox.StandardButton.Discard:
+            edit_ops.remove_project(autosave_path(self.doc.project_path, self.doc.shot_path))  # nothing to recover later
+            return True
+        return False
 
     # -- opening ---------------------------------------------------------------
     def open_shot_dialog(self) -> None:
@@ -98,6 +101,23 @@ class ProjectController(QObject):
             return False
         self.doc.set_shot(shot, str(p))
         self.force_dirty = False
+        side = autosave_path(None, str(p))
+        if side.is_file():
+            b = self.win.ask(
+                "Recover autosaved work?",
+                f"Unsaved work on {p.name} was autosaved {time.ctime(side.stat().st_mtime)} (probably before a crash). Recover it?",
+                QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No,
+                QMessageBox.StandardButton.Yes,
+            )
+            if b == QMessageBox.StandardButton.Yes:
+                try:
+                    _, edits = edit_ops.load_project(side)
+                    self.doc.set_shot(shot, str(p), edits)
+                    self.force_dirty = True
+                except Exception as e:
+                    self.win.show_error("Cannot recover the autosave", f"{side}:\n{e}")
+            else:
+                edit_ops.remove_project(side)
         self.update_title()
         self.win.statusBar().showMessage(f"Opened {p} ({shot.num_frames} frames, {shot.size[1]}×{shot.size[0]}, channels: {', '.join(shot.channels)})", 8000)
         return True
