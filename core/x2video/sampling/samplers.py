@@ -117,6 +117,3 @@ def sample_lcm(
         if callback is not None:
             callback({"x": x, "i": i, "t": int(t), "denoised": out.denoised, "steps": steps})
     return x
-
-
-SAMPLERS: dict[str, Callable[..., torch.Tensor]] = {"ddim": sample_ddim, "lcm": sample_lcm}
