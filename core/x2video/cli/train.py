@@ -114,7 +114,10 @@ def _run(desc: str, steps: int, fn: Callable) -> dict:
 
 
 def _print_result(result: dict) -> None:
-    print(json.dumps(result, indent=1))
+    from x2video.train.loop import process_index
+
+    if process_index() == 0:  # one print under `accelerate launch` / torchrun
+        print(json.dumps(result, indent=1))
 
 
 # -- stages -------------------------------------------------------------------------

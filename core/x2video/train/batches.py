@@ -21,6 +21,7 @@ import torch
 
 from x2video.model.vae import area_downsample
 from x2video.train.cache import SHADING_KEYS, load_split, load_text, read_info, shading_key
+from x2video.train.loop import process_index
 
 CHANNELS = ("albedo", "normal", "roughness", "metallic", "irradiance")
 AMR = ("albedo", "roughness", "metallic")
@@ -222,7 +223,7 @@ def image_batches(data: LatentData, batch: int, aug: AugmentConfig, seed: int):
     """Batch source for `train`: single frames, no reference (the XRGB-style image stage)."""
 
     def make(start: int) -> Iterator[Batch]:
-        rng = np.random.default_rng([seed, start])
+        rng = np.random.default_rng([seed, start, process_index()])
         while True:
             yield data.sample(rng, data.random_frames(rng, batch), aug)
 
@@ -233,7 +234,7 @@ def video_batches(data: LatentData, batch: int, aug: AugmentConfig, wc: WindowCo
     """Batch source for `train`: keyframe / interpolation windows with optional references."""
 
     def make(start: int) -> Iterator[Batch]:
-        rng = np.random.default_rng([seed, start])
+        rng = np.random.default_rng([seed, start, process_index()])
         while True:
             windows, mode, level, refs = data.random_windows(rng, batch, wc)
             yield data.sample(rng, windows, aug, mode=mode, level=level, ref_positions=refs)

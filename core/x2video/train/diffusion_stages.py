@@ -24,7 +24,7 @@ from x2video.model.config import ModelConfig, UNetConfig, preset
 from x2video.model.unet import build_unet, convert_image_to_video
 from x2video.train.batches import AugmentConfig, LatentData, WindowConfig, image_batches, video_batches
 from x2video.train.diffusion import heldout_v_loss, noise_scheduler, v_loss
-from x2video.train.loop import LoopConfig, StepLog, train
+from x2video.train.loop import LoopConfig, StepLog, process_index, train
 from x2video.train.runs import check_same_vae, load_vae, model_dir, write_results
 
 log = logging.getLogger(__name__)
@@ -119,7 +119,7 @@ def _run(unet: UNet2DConditionModel, cfg: ModelConfig, cache: Path, out_dir: Pat
 
     result = {"checkpoint": str(ck), "model": str(ck / "model"), "step": int(ck.name.split("-")[-1]),
               "shading_prior": cfg.shading_prior, "speed": json.loads(summary)}
-    if heldout is not None:
+    if heldout is not None and process_index() == 0:
         ema = build_unet(cfg)
         load_into(ema, ck / "model" / "unet.safetensors", "unet")
         result["heldout_v_loss"] = heldout(ema.to(next(unet.parameters()).device))

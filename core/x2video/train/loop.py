@@ -70,6 +70,14 @@ class StepLog:
 TIMING_STEPS = 10
 
 
+def process_index() -> int:
+    """This process's rank under `accelerate launch` (0 alone): batch sources mix it into their
+    seed so that every process draws different samples."""
+    from accelerate import PartialState
+
+    return int(PartialState().process_index)
+
+
 def list_checkpoints(out_dir: Path) -> list[Path]:
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
@@ -164,6 +172,13 @@ def train(
 
     def checkpoint() -> Path:
         ck = out_dir / f"{CKPT_PREFIX}{step:09d}"
+        accel.wait_for_everyone()
+        if accel.is_main_process:  # several processes (accelerate launch): one writes
+            _write_checkpoint(ck)
+        accel.wait_for_everyone()
+        return ck
+
+    def _write_checkpoint(ck: Path) -> None:
         tmp = out_dir / f".tmp-{ck.name}"
         shutil.rmtree(tmp, ignore_errors=True)
         tmp.mkdir()
@@ -190,7 +205,6 @@ def train(
         _write_json_atomic(out_dir / "log.json", history)
         for old in list_checkpoints(out_dir)[: -max(1, cfg.keep_ckpts)]:
             shutil.rmtree(old, ignore_errors=True)
-        return ck
 
     module.train()
     if resume is not None:
@@ -276,7 +290,8 @@ def train(
             "timing_s": timing,
             "device": str(accel.device),
         }
-        _write_json_atomic(out_dir / "summary.json", summary)
+        if accel.is_main_process:
+            _write_json_atomic(out_dir / "summary.json", summary)
     return last_ck
 
 

@@ -45,8 +45,13 @@ def check_same_vae(cfg: ModelConfig, cache_cfg: ModelConfig, where: str) -> None
 
 
 def write_results(run_dir: str | Path, key: str, value: Any) -> Path:
-    """Merge `{key: value}` into the run's results.json (atomic write)."""
+    """Merge `{key: value}` into the run's results.json (atomic write; only the main process writes)."""
     import json
+
+    from x2video.train.loop import process_index
+
+    if process_index() != 0:
+        return Path(run_dir) / RESULTS
 
     path = Path(run_dir) / RESULTS
     data = json.loads(path.read_text()) if path.is_file() else {}

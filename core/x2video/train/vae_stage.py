@@ -24,7 +24,7 @@ from x2video.model.config import ModelConfig, VAEConfig, preset
 from x2video.model.vae import build_vae, encode_mode, to_vae_range
 from x2video.shot import Shot
 from x2video.train.data import read_frame
-from x2video.train.loop import LoopConfig, StepLog, train
+from x2video.train.loop import LoopConfig, StepLog, process_index, train
 from x2video.train.runs import write_results
 
 log = logging.getLogger(__name__)
@@ -90,7 +90,7 @@ def crop_batches(pool: dict[str, np.ndarray], batch: int, crop: int, seed: int) 
         raise ValueError(f"--crop {crop} is larger than the {w}x{h} training frames")
 
     def make(start: int) -> Iterator[torch.Tensor]:
-        rng = np.random.default_rng([seed, start])
+        rng = np.random.default_rng([seed, start, process_index()])
         while True:
             c = rng.integers(len(names), size=batch)
             f = rng.integers(m, size=batch)
@@ -173,7 +173,8 @@ def run_vae_stage(
     from x2video.train.runs import load_vae
 
     _, ema_vae = load_vae(ck / "model")
-    psnr = reconstruction_psnr(ema_vae, test_shots, stage.eval_frames_per_room, stage.size) if test_shots else {}
+    main = process_index() == 0
+    psnr = reconstruction_psnr(ema_vae, test_shots, stage.eval_frames_per_room, stage.size) if test_shots and main else {}
     result = {"checkpoint": str(ck), "step": int(ck.name.split("-")[-1]), "latent_factor": f,
               "vae_channels": list(cfg.vae.block_out_channels), "heldout_psnr_db": psnr,
               "heldout_rooms": len(test_shots), "frames_per_room": stage.eval_frames_per_room}
