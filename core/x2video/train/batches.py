@@ -198,9 +198,11 @@ class LatentData:
         if n < 3 and mode == "interp":
             mode = "key"
         feasible = [k for k in range(1, wc.levels + 1) if (n - 1) * (wc.frames - 1) ** (k - 1) + 1 <= longest]
-        if not feasible:
+        if not feasible:  # rooms shorter than a window: the longest window they allow
             n = min(n, longest)
             feasible = [1]
+            if n < 3:
+                mode = "key"
         k = int(rng.choice(feasible))
         stride = (wc.frames - 1) ** (k - 1)
         span = (n - 1) * stride + 1
