@@ -206,7 +206,7 @@ def test_cli_image_stage_runs_and_resumes(runs, tmp_path, capsys):
     from x2video.cli import main
 
     args = ["train", "image", "--cache", str(runs["root"] / "cache"), "--out", str(tmp_path / "img"), "--unet-channels", "16,32",
-            "--batch", "2", "--warmup", "1", "--threads", "1", "--no-shading-prior"]
+            "--batch", "2", "--warmup", "1", "--threads", "1", "--no-shading-prior", "--heldout-batches", "1"]
     assert main(args + ["--steps", "1"]) == 0
     assert main(args + ["--steps", "2"]) == 0
     res = json.loads((tmp_path / "img" / "results.json").read_text())["image"]

@@ -171,7 +171,7 @@ def cmd_image(a: argparse.Namespace) -> int:
 
     loop = _loop_cfg(a)
     stage = ImageStageConfig(preset=a.preset, unet_channels=a.unet_channels, shading_prior=not a.no_shading_prior, batch=a.batch,
-                             seed=a.seed, augment=_aug(a))
+                             seed=a.seed, heldout_batches=a.heldout_batches, augment=_aug(a))
     _print_result(_run("image", loop.steps, lambda bar: run_image_stage(a.cache, a.out, stage, loop, bar)))
     return 0
 
@@ -181,7 +181,8 @@ def cmd_video(a: argparse.Namespace) -> int:
 
     loop = _loop_cfg(a)
     sp = None if a.shading_prior is None else a.shading_prior == "on"
-    stage = VideoStageConfig(batch=a.batch, shading_prior=sp, seed=a.seed, augment=_aug(a), window=_window(a))
+    stage = VideoStageConfig(batch=a.batch, shading_prior=sp, seed=a.seed, heldout_batches=a.heldout_batches, augment=_aug(a),
+                             window=_window(a))
     _print_result(_run("video", loop.steps, lambda bar: run_video_stage(a.init, a.cache, a.out, stage, loop, bar)))
     return 0
 
@@ -233,6 +234,7 @@ def register(subparsers) -> None:
     s.add_argument("--unet-channels", type=_ints, default=None, help="UNet block widths overriding the preset, e.g. 32,64,128")
     s.add_argument("--no-shading-prior", action="store_true", help="the paper's layout: no classical shading input")
     s.add_argument("--batch", type=int, default=16, help="frames per batch")
+    s.add_argument("--heldout-batches", type=int, default=4, help="test-room batches for the final held-out v-loss (0: skip)")
     _aug_args(s)
     _loop_args(s, steps=2000, lr=1e-4)
     s.set_defaults(func=cmd_image)
@@ -243,6 +245,7 @@ def register(subparsers) -> None:
     s.add_argument("--out", type=Path, required=True)
     s.add_argument("--batch", type=int, default=2, help="windows per batch")
     s.add_argument("--shading-prior", choices=("on", "off"), default=None, help="default: as the image model")
+    s.add_argument("--heldout-batches", type=int, default=4, help="test-room batches for the final held-out v-loss (0: skip)")
     _aug_args(s)
     _window_args(s)
     _loop_args(s, steps=2000, lr=5e-5)
