@@ -67,6 +67,8 @@ class Charts(QWidget):
         self.window_plot.setLabel("left", "seconds")
         self.window_plot.setMinimumHeight(140)
         self.legend = QLabel()  # level colours, below the plot (an in-plot legend hides bars)
+        self.legend.setWordWrap(True)
+        self.legend.setStyleSheet("QLabel { background: #1e1e22; color: #e0e0e4; padding: 3px; }")
         self.legend.setTextFormat(Qt.TextFormat.RichText)
         self._legend_levels: set[int] = set()
         self.num_windows = 0
@@ -75,6 +77,7 @@ class Charts(QWidget):
         self.bench_plot.setLabel("left", "PSNR (dB)")
         self.bench_note = QLabel()
         self.bench_note.setWordWrap(True)
+        self.bench_note.setStyleSheet("QLabel { background: #1e1e22; color: #e0e0e4; padding: 3px; }")
         bench = QWidget()
         bl = QVBoxLayout(bench)
         bl.setContentsMargins(0, 0, 0, 0)
@@ -92,6 +95,7 @@ class Charts(QWidget):
         lay.addWidget(self.tabs)
         self.windows: list[tuple[int, int, float]] = []  # (window index, level, seconds)
         self.top_level = 1
+        self.reset(1)
         if results_dir is not None:
             self.load_bench(results_dir)
 
@@ -102,7 +106,7 @@ class Charts(QWidget):
         self.num_windows = num_windows
         self.window_plot.clear()
         self._legend_levels.clear()
-        self.legend.setText("")
+        self.legend.setText("Seconds per window of the current render appear here as windows finish.")
         if num_windows:
             self.window_plot.setXRange(-0.6, num_windows - 0.4, padding=0)
 
@@ -114,6 +118,8 @@ class Charts(QWidget):
         if self.num_windows:
             self.window_plot.setXRange(-0.6, max(self.num_windows, index + 1) - 0.4, padding=0)
         if level not in self._legend_levels:
+            if not self._legend_levels:
+                self.legend.setText("")
             self._legend_levels.add(level)
             parts = []
             for lv in sorted(self._legend_levels, reverse=True):

@@ -216,6 +216,7 @@ class MainWindow(QMainWindow):
         text = c.label if c is not None else "Model: none (weights missing)"
         tip = c.detail if c is not None else f"No checkpoint in {weights_dir()}; Render offers the untrained tiny model."
         self.model_status.setText(text)
+        self.model_status.setMinimumWidth(self.model_status.fontMetrics().horizontalAdvance(text) + 28)
         self.model_status.setToolTip(tip)
         self.render_panel.model_label.setText(text)
         self.render_panel.model_label.setToolTip(tip)
@@ -327,6 +328,11 @@ class MainWindow(QMainWindow):
             self._update_coverage()
 
     def refresh_all(self) -> None:
+        has = self.doc.shot is not None
+        for w in (self.mask_panel, self.edit_panel, self.scene_panel, self.render_panel.render_button, self.timeline):
+            w.setEnabled(has)
+        for a in (self.act_save, self.act_save_as, self.act_export_mp4, self.act_export_exr, self.act_render):
+            a.setEnabled(has)
         self.refresh_view()
         self.refresh_panels()
         self.refresh_timeline()

@@ -144,6 +144,7 @@ class MaskPanel(QWidget):
         for w in (self.remove_button, self.colour_button, self.prompt, self.mask_out, self.propagate_button, self.clear_button):
             w.setEnabled(has)
         self.prompt.setText(masks[selected]["prompt"] if has else "")
+        self.prompt.setCursorPosition(0)
         self.mask_out.blockSignals(True)
         self.mask_out.setChecked(bool(masks[selected]["mask_out"]) if has else False)
         self.mask_out.blockSignals(False)

@@ -19,6 +19,23 @@ from x2video_app.render_worker import RenderWorker
 log = logging.getLogger(__name__)
 
 
+def set_render_threads() -> int:
+    """Torch threads for rendering: X2VIDEO_TORCH_THREADS, else all cores but one.
+
+    The spare core keeps the GUI responsive, and on a busy machine oversubscribed OpenMP
+    threads crawl: on the 2-core development machine, shared with other jobs, one thread
+    rendered the demo shot about 10x faster than torch's default of two.
+    """
+    import os
+
+    import torch
+
+    env = os.environ.get("X2VIDEO_TORCH_THREADS")
+    n = int(env) if env else max(1, (os.cpu_count() or 2) - 1)
+    torch.set_num_threads(n)
+    return n
+
+
 def is_out_of_memory(exc: BaseException) -> bool:
     text = f"{type(exc).__name__}: {exc}".lower()
     return isinstance(exc, MemoryError) or "out of memory" in text or "outofmemory" in text
@@ -47,15 +64,9 @@ class RenderController(QObject):
 
     @staticmethod
     def _default_factory(choice: ModelChoice) -> Any:
-        import os
-
         from x2video.sampling.renderer import Renderer
 
-        threads = os.environ.get("X2VIDEO_TORCH_THREADS")
-        if threads:  # e.g. 1 on a machine whose cores are busy: oversubscribed OpenMP threads crawl
-            import torch
-
-            torch.set_num_threads(int(threads))
+        set_render_threads()
         return Renderer(load_model(choice))
 
     def set_model(self, choice: ModelChoice | None) -> None:
