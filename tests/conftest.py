@@ -14,12 +14,17 @@ import pytest as _pytest
 
 
 @_pytest.fixture(autouse=True)
-def _no_dangling_qt_threads():
-    """After each test: no superqt worker still registered, the Qt thread pool idle, no extra QThread alive.
+def _no_dangling_qt_threads(request):
+    """After each editor test (tests/test_app_*.py): no superqt worker still registered, the Qt
+    thread pool idle, no new non-daemon Python thread alive.
 
-    Only checks when the test imported Qt. A test that starts a render or export must wait for
-    it (or cancel and wait) before it ends; otherwise this fails it.
+    A test that starts a render or export must wait for it (or cancel and wait) before it
+    ends; otherwise this fails it. Other test files are left alone (their libraries may keep
+    worker threads of their own).
     """
+    if not request.node.path.name.startswith("test_app_"):
+        yield
+        return
     before = set(_threading.enumerate())
     yield
     if "PySide6" not in _sys.modules:

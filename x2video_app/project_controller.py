@@ -92,6 +92,9 @@ class ProjectController(QObject):
         p = Path(path)
         if not self.confirm_discard("open another file"):
             return False
+        if self.win.render_ctl.running:  # its frames belong to the shot being closed
+            self.win.render_ctl.cancel()
+            self.win.render_ctl.wait(120_000)
         try:
             if edit_ops.is_project_file(p):
                 return self._open_project(p)
