@@ -101,10 +101,10 @@ def sheet(args: argparse.Namespace) -> dict:
         tiles = [_u8(tonemap(f["rgb"])), _u8(tonemap(f["albedo"])), _u8(f["normal"] * 0.5 + 0.5),
                  _u8(np.repeat(f["roughness"], 3, -1)), _u8(np.repeat(f["metallic"], 3, -1)), _u8(tonemap(irr))]
         row = np.concatenate([np.pad(t, ((2, 2), (2, 2), (0, 0)), constant_values=255) for t in tiles], 1)
-        label = f"{seed}: {sc.caption}"
-        cv2.putText(row, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 3, cv2.LINE_AA)
-        cv2.putText(row, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
-        rows.append(row)
+        band = np.full((18, row.shape[1], 3), 255, np.uint8)
+        label = f"room seed {seed}: {sc.caption} ({sc.width:.1f} x {sc.depth:.1f} x {sc.height:.1f} m, {len(sc.objects)} objects)"
+        cv2.putText(band, label, (6, 13), cv2.FONT_HERSHEY_SIMPLEX, 0.42, (0, 0, 0), 1, cv2.LINE_AA)
+        rows.append(np.concatenate([band, row], 0))
     r.release()
     head = np.full((22, rows[0].shape[1], 3), 255, np.uint8)
     for k, name in enumerate(["rgb (tonemap)", "albedo", "normal (camera)", "roughness", "metallic", "irradiance (tonemap)"]):

@@ -29,7 +29,7 @@ class PathConfig:
     pitch: tuple[float, float] = (-16.0, -6.0)
     fov_y_deg: float = 60.0
     #: keep the eye this far from walls and furniture footprints, metres
-    clearance: float = 0.3
+    clearance: float = 0.45
 
 
 def look_matrix(pos: np.ndarray, yaw: float, pitch: float) -> np.ndarray:

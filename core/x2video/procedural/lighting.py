@@ -111,7 +111,7 @@ def sun_for(mood: Mood, rng: np.random.Generator, windows: list[tuple[np.ndarray
     return SunLight(d / np.linalg.norm(d), kelvin_rgb(kelvin), 3.0 * mood.sun)
 
 
-def white_balance(lighting: Lighting, strength: float = 0.5) -> None:
+def white_balance(lighting: Lighting, strength: float = 0.7) -> None:
     """Partly neutralise the mean light colour (as a camera's white balance would), in place; keeps luminances."""
     cols = [(p.colour, p.intensity) for p in lighting.points] + ([(lighting.sun.colour, lighting.sun.intensity)] if lighting.sun else [])
     if not cols:

@@ -15,7 +15,7 @@ import numpy as np
 from x2video.procedural.geometry import scene_vertices
 from x2video.procedural.materials import PATTERNS
 from x2video.procedural.scene import Scene
-from x2video.procedural.shaders import CUBE_FACES, FRAGMENT, MAX_LIGHTS, SHADOW_FRAGMENT, SHADOW_VERTEX, VERTEX
+from x2video.procedural.shaders import CUBE_FACES, FRAGMENT, MAX_LIGHTS, MAX_OCCLUDERS, SHADOW_FRAGMENT, SHADOW_VERTEX, VERTEX
 from x2video.shot import CameraPose
 
 log = logging.getLogger(__name__)
@@ -148,6 +148,7 @@ class ProceduralRenderer:
         self._render_point_shadows(lights)
         self._render_sun_shadow()
         self._lights = lights
+        self._occluders = [o for o in scene.objects if o.blocks_camera][:MAX_OCCLUDERS]
         self._scale = 1.0
         self._sh = np.zeros((9, 3), np.float32)
         self._has_env = False
@@ -246,6 +247,13 @@ class ProceduralRenderer:
             p["u_sun_vp"].write(_gl(self._sun_vp))
             p["u_sun_origin"].value = tuple(map(float, self._sun_origin))
         p["u_sh"].write(np.asarray(self._sh, np.float32).tobytes())
+        occ = self._occluders
+        p["u_nocc"].value = len(occ)
+        if occ:
+            pad3 = lambda a: np.concatenate([np.asarray(a, np.float32).reshape(-1, 3), np.zeros((MAX_OCCLUDERS - len(occ), 3), np.float32)])  # noqa: E731
+            p["u_occ_lo"].write(pad3([o.lo for o in occ]).tobytes())
+            p["u_occ_hi"].write(pad3([o.hi for o in occ]).tobytes())
+            p["u_occ_id"].write(np.array([o.id for o in occ] + [0] * (MAX_OCCLUDERS - len(occ)), np.int32).tobytes())
         p["u_has_env"].value = 1 if self._has_env else 0
         p["u_probe"].value = tuple(map(float, self._probe))
         p["u_box_lo"].value = (0.0, 0.0, 0.0)

@@ -182,9 +182,10 @@ def generate_scene(seed: int) -> Scene:
     o, a, n, _ = wall_frame(openings[0].wall, w, d)
     p0, p1 = o + a * (openings[0].u0 - 0.2), o + a * (openings[0].u1 + 0.2) + n * 1.2
     zones.append((min(p0[0], p1[0]), min(p0[2], p1[2]), max(p0[0], p1[0]), max(p0[2], p1[2])))
-    cands = [np.array([x, 0, z]) for x in (0.45, w / 2, w - 0.45) for z in (0.45, d / 2, d - 0.45) if not (x == w / 2 and z == d / 2)]
+    inset = 0.6  # camera starts: corners and wall midpoints, this far from the walls
+    cands = [np.array([x, 0, z]) for x in (inset, w / 2, w - inset) for z in (inset, d / 2, d - inset) if not (x == w / 2 and z == d / 2)]
     start = cands[int(rng.integers(len(cands)))]
-    zones.append((start[0] - 0.45, start[2] - 0.45, start[0] + 0.45, start[2] + 0.45))
+    zones.append((start[0] - 0.55, start[2] - 0.55, start[0] + 0.55, start[2] + 0.55))
     win_zones = []
     for op in openings[1:]:
         o, a, n, _ = wall_frame(op.wall, w, d)

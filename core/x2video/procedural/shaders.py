@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 MAX_LIGHTS = 10
+MAX_OCCLUDERS = 40
 
 #: faces of a cube map in OpenGL order (+X, -X, +Y, -Y, +Z, -Z): (forward, right, up) chosen so that the image
 #: rendered with right/up as NDC x/y is exactly what glTexImage2D expects for that face (GL spec table 8.19)
@@ -50,6 +51,7 @@ void main() { dist = u_ortho == 1 ? dot(v_pos - u_origin, u_axis) : length(v_pos
 FRAGMENT = """
 #version 330
 #define MAXL %(MAXL)d
+#define MAXO %(MAXO)d
 #define PI 3.14159265
 uniform vec3 u_campos; uniform mat3 u_viewrot; uniform mat4 u_view;
 uniform sampler2D u_materials;      // (4, M) RGBA32F: albedo+pattern | rough, metal, scale, contrast | emission+sky | -
@@ -64,6 +66,7 @@ uniform samplerCube u_env; uniform int u_has_env; uniform vec3 u_probe; uniform 
 uniform float u_env_mips; uniform float u_emission_scale;
 uniform sampler2D u_planar; uniform int u_has_planar; uniform float u_planar_mips;  // mirror image of the room in the floor
 uniform int u_clip_floor;           // 1 while rendering that mirror image: drop what lies below the floor plane
+uniform int u_nocc; uniform vec3 u_occ_lo[MAXO]; uniform vec3 u_occ_hi[MAXO]; uniform int u_occ_id[MAXO];  // furniture boxes
 
 in vec3 v_pos; in vec3 v_nrm; flat in int v_mat; flat in int v_id;
 layout(location = 0) out vec4 o_rgb;      // rgb, view depth
@@ -177,6 +180,26 @@ float sun_shadow(vec3 P, vec3 N) {
     return pcf(u_sun_map, uv, d - 0.03);
 }
 
+// ambient occlusion of the indirect light by nearby furniture, each taken as its bounding box: the closer the box and
+// the more it faces the surface, the less ambient light arrives (world space, so it does not flicker between frames)
+float furniture_ao(vec3 P, vec3 N, int id) {
+    float occ = 0.0;
+    for (int i = 0; i < MAXO; i++) {
+        if (i >= u_nocc) break;
+        if (u_occ_id[i] == id) continue;
+        vec3 lo = u_occ_lo[i], hi = u_occ_hi[i];
+        float R = clamp(0.6 * length(hi - lo), 0.15, 0.6);  // reach of the occlusion
+        vec3 q = clamp(P, lo, hi);
+        vec3 dv = q - P;
+        float d = length(dv);
+        if (d >= R) continue;
+        float facing = d < 1e-3 ? 1.0 : clamp(dot(N, dv / d) * 0.75 + 0.25, 0.0, 1.0);
+        float k = 1.0 - d / R;
+        occ += 0.55 * k * k * facing;
+    }
+    return clamp(1.0 - occ, 0.35, 1.0);
+}
+
 vec3 sh_irradiance(vec3 n) {
     return max(u_sh[0] * 0.282095 + u_sh[1] * 0.488603 * n.y + u_sh[2] * 0.488603 * n.z + u_sh[3] * 0.488603 * n.x
          + u_sh[4] * 1.092548 * n.x * n.y + u_sh[5] * 1.092548 * n.y * n.z + u_sh[6] * 0.315392 * (3.0 * n.z * n.z - 1.0)
@@ -246,7 +269,7 @@ void main() {
             spec += ggx(N, V, u_sun_dir, rough, F0) * (PI * sw) * E;
         }
     }
-    irr += sh_irradiance(N);
+    irr += sh_irradiance(N) * furniture_ao(P, N, v_id);
     vec3 refl = vec3(0.0);
     if (u_has_planar == 1 && N.y > 0.99 && P.y < 0.02) {  // the floor (and rugs on it): planar reflection
         vec3 env = textureLod(u_planar, gl_FragCoord.xy / vec2(textureSize(u_planar, 0)), rough * u_planar_mips).rgb;
@@ -266,4 +289,4 @@ void main() {
     o_normal = vec4(ncam, metal);
     o_irr = vec4(irr, float(v_id));
 }
-""" % {"MAXL": MAX_LIGHTS, "FACES": _FACES_GLSL}
+""" % {"MAXL": MAX_LIGHTS, "MAXO": MAX_OCCLUDERS, "FACES": _FACES_GLSL}
