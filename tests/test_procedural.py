@@ -136,7 +136,7 @@ def test_camera_path_stays_clear_of_geometry_and_is_smooth(seed):
                 inside = np.all(p > part.lo - 0.05) and np.all(p < part.hi + 0.05)
                 assert not inside, f"seed {seed}: camera at {p} inside {o.caption}"
     steps = np.linalg.norm(np.diff(pos, axis=0), axis=1)
-    assert steps.max() < 0.0501 and (steps.min() > 0.049 or steps.max() < 1e-9)  # constant speed, or a pan in place
+    assert steps.max() < 0.0501 and (steps.min() > 0.045 or steps.max() < 1e-9)  # ~constant speed (no cusps), or a pan
     fwd = np.array([-p.cam_to_world[:3, 2] for p in poses])
     turn = np.degrees(np.arccos(np.clip((fwd[1:] * fwd[:-1]).sum(1), -1, 1)))
     assert turn.max() < 3.0

@@ -1,5 +1,5 @@
 """Camera paths as the paper's data set section describes: eye height 1.7 m, start at a corner or wall midpoint facing the
-room centre, 900 collision-free candidates per step drawn with weight (visible objects)^2, smooth spline at ~0.05 m/frame."""
+room centre, 900 collision-free candidates per step drawn with weight (visible objects)^2, smooth B-spline at ~0.05 m/frame."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -24,7 +24,7 @@ class PathConfig:
     #: largest change of heading between waypoints, degrees
     max_turn: float = 3.0
     #: largest change of walking direction between waypoints, degrees
-    max_bend: float = 60.0
+    max_bend: float = 45.0
     #: camera pitch range, degrees (negative = looking down)
     pitch: tuple[float, float] = (-16.0, -6.0)
     fov_y_deg: float = 60.0
@@ -83,14 +83,14 @@ def visible_counts(scene: Scene, pos: np.ndarray, yaw: np.ndarray, pitch: float,
     return inside.any(2).sum(1)
 
 
-def _catmull_rom(p: np.ndarray, n: int) -> np.ndarray:
-    """Uniform Catmull-Rom through the rows of p (K, D), n samples per segment: (n*(K-1)+1, D)."""
-    q = np.concatenate([2 * p[:1] - p[1:2], p, 2 * p[-1:] - p[-2:-1]])
-    out = []
+def _bspline(p: np.ndarray, n: int) -> np.ndarray:
+    """Uniform cubic B-spline (C2, cuts corners: no kinks) with the rows of p (K, D) as control points, ends
+    clamped by tripled end points, n samples per segment: (n*(K+1)+1, D)."""
+    q = np.concatenate([p[:1], p[:1], p, p[-1:], p[-1:]])
     t = np.linspace(0, 1, n, endpoint=False)[:, None]
-    for i in range(1, len(q) - 2):
-        p0, p1, p2, p3 = q[i - 1], q[i], q[i + 1], q[i + 2]
-        out.append(0.5 * (2 * p1 + (-p0 + p2) * t + (2 * p0 - 5 * p1 + 4 * p2 - p3) * t**2 + (-p0 + 3 * p1 - 3 * p2 + p3) * t**3))
+    b0, b1 = (1 - t) ** 3 / 6, (3 * t**3 - 6 * t**2 + 4) / 6
+    b2, b3 = (-3 * t**3 + 3 * t**2 + 3 * t + 1) / 6, t**3 / 6
+    out = [b0 * q[i] + b1 * q[i + 1] + b2 * q[i + 2] + b3 * q[i + 3] for i in range(len(q) - 3)]
     out.append(p[-1:])
     return np.concatenate(out)
 
@@ -113,15 +113,15 @@ def camera_path(scene: Scene, num_frames: int, aspect: float, seed: int, cfg: Pa
         way, yaws, length, dead = [start], [yaw], 0.0, 0
         while length < need + cfg.step and dead < 3 and len(way) < 200:
             cur = way[-1]
-            ang = heading + rng.uniform(-np.radians(cfg.max_bend), np.radians(cfg.max_bend), cfg.candidates)
+            bend = np.radians(min(cfg.max_bend * (1 + dead), 150.0))  # widen the search after a dead end
+            ang = heading + rng.uniform(-bend, bend, cfg.candidates)
             rad = cfg.step * rng.uniform(0.7, 1.3, cfg.candidates)
             cand = cur + np.stack([np.cos(ang), np.sin(ang)], 1) * rad[:, None]
             cyaw = yaws[-1] + np.radians(rng.uniform(-cfg.max_turn, cfg.max_turn, cfg.candidates))
             ok = np.ones(cfg.candidates, bool)
             for s in np.linspace(0.25, 1.0, 4):  # the straight segment to the candidate must be free too
                 ok &= free(scene, cur + (cand - cur) * s, cfg.clearance)
-            if not ok.any():  # dead end: turn around (give up this start after a few)
-                heading += np.pi
+            if not ok.any():  # dead end: look wider (never straight back: no cusps); give up this start after 3
                 dead += 1
                 continue
             dead = 0
@@ -137,7 +137,7 @@ def camera_path(scene: Scene, num_frames: int, aspect: float, seed: int, cfg: Pa
             yaws.append(float(cyaw[ok][k]))
         if len(way) < 2:
             continue
-        dense = _catmull_rom(np.column_stack([np.array(way), np.array(yaws)]), 64)  # (S, 3): x, z, yaw
+        dense = _bspline(np.column_stack([np.array(way), np.array(yaws)]), 64)  # (S, 3): x, z, yaw
         seg = np.linalg.norm(np.diff(dense[:, :2], axis=0), axis=1)
         arc = np.concatenate([[0.0], np.cumsum(seg)])
         if arc[-1] < need:
