@@ -40,7 +40,7 @@ FAMILIES: dict[str, Family] = {f.name: f for f in (
     Family("plastic", ("plastic",), (0.2, 0.5), (0.0, 0.0),
            ("white", "black", "red", "yellow", "blue", "green", "orange", "grey"), ("flat",)),
     Family("ceramic", ("ceramic", "porcelain"), (0.05, 0.25), (0.0, 0.0),
-           ("white", "cream", "light blue", "teal", "grey", "dark green", "black"), ("flat", "tiles")),
+           ("white", "cream", "light blue", "teal", "grey", "dark green", "black"), ("flat", "flat", "noise")),
     Family("metal", ("metal", "steel", "chrome"), (0.08, 0.45), (0.9, 1.0),
            ("silver", "brass", "copper", "black"), ("flat", "noise")),
     Family("stone", ("marble", "granite", "polished stone"), (0.04, 0.2), (0.0, 0.0),
