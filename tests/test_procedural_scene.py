@@ -86,3 +86,21 @@ def test_dataset_make_is_split_by_room_and_resumable(tmp_path):
     assert main(["dataset", "make", "--rooms", "1", "--out", str(tmp_path / "x"), "--size", "10"]) == 2  # bad size
     clash = [a if a != "2" else "4" for a in args]  # same folder, other --frames
     assert main(clash) == 2
+
+
+def test_dataset_demo_writes_a_deterministic_shot(tmp_path, monkeypatch):
+    from x2video.cli import dataset, main
+    from x2video.io.shotdir import load_shot
+
+    monkeypatch.setitem(dataset.DEMO, "frames", 3)
+    monkeypatch.setitem(dataset.DEMO, "width", 48)
+    monkeypatch.setitem(dataset.DEMO, "height", 32)
+    shots = []
+    for name in ("a", "b"):
+        assert main(["dataset", "demo", str(tmp_path / name)]) == 0
+        shots.append(load_shot(tmp_path / name))
+    a, b = shots
+    assert a.num_frames == 3 and a.info.caption == b.info.caption
+    for t in range(3):
+        for ch in ("rgb", "albedo", "irradiance", "ids"):
+            np.testing.assert_array_equal(a.channel(ch, t), b.channel(ch, t))

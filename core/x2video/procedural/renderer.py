@@ -33,7 +33,8 @@ class RenderConfig:
     bounces: int = 2
     near: float = 0.05
     far: float = 40.0
-    #: supersampling factor per axis for the shaded channels (ids and depth/motion use one sample per pixel)
+    #: supersampling factor per axis for the shaded channels; ids and depth (hence motion) keep one sample per
+    #: pixel, the pixel centre for odd factors (exact motion), a quarter pixel off for even ones
     ssaa: int = 1
     #: planar mirror reflection of the room in the floor (an extra pass per frame); off = probe reflections only
     planar: bool = True
