@@ -30,6 +30,9 @@ class PathConfig:
     fov_y_deg: float = 60.0
     #: keep the eye this far from walls and furniture footprints, metres
     clearance: float = 0.45
+    #: candidates looking at a wall closer than this (metres, along the view) are dropped when others remain
+    #: (our addition to the paper's recipe: keeps the view from ending up pressed against a wall)
+    min_view_depth: float = 1.8
 
 
 def look_matrix(pos: np.ndarray, yaw: float, pitch: float) -> np.ndarray:
@@ -50,6 +53,15 @@ def free(scene: Scene, xz: np.ndarray, clearance: float) -> np.ndarray:
     for x0, z0, x1, z1 in scene.obstacles:
         ok &= ~((x > x0 - clearance) & (x < x1 + clearance) & (z > z0 - clearance) & (z < z1 + clearance))
     return ok
+
+
+def wall_distance(scene: Scene, xz: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """(N,) distance from floor points (N, 2) to the room's walls along the horizontal view directions yaw (N,)."""
+    f = np.stack([np.cos(yaw), np.sin(yaw)], 1)
+    size = np.array([scene.width, scene.depth])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(f > 1e-9, (size - xz) / f, np.where(f < -1e-9, -xz / f, np.inf))
+    return t.min(1)
 
 
 def _object_points(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -125,6 +137,9 @@ def camera_path(scene: Scene, num_frames: int, aspect: float, seed: int, cfg: Pa
                 dead += 1
                 continue
             dead = 0
+            roomy = wall_distance(scene, cand, cyaw) > cfg.min_view_depth
+            if (ok & roomy).any():
+                ok &= roomy
             pos3 = np.concatenate([cand[:, :1], np.full((len(cand), 1), cfg.eye_height), cand[:, 1:]], 1)
             n = visible_counts(scene, pos3[ok], cyaw[ok], pitch, cfg.fov_y_deg, aspect, points)
             wgt = n.astype(np.float64) ** 2  # paper: w_i = N_i^2

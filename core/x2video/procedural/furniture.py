@@ -193,10 +193,16 @@ def painting(rng: np.random.Generator) -> Design:
                   caption="{main} painting in {accent} frame")
 
 
+def vase(rng: np.random.Generator) -> Design:
+    r, h = rng.uniform(0.06, 0.12), rng.uniform(0.2, 0.45)
+    p = [_b(-r, 0, -r, r, h * 0.75, r, kind="cylinder"), _b(-r * 0.55, h * 0.75, -r * 0.55, r * 0.55, h, r * 0.55, kind="cylinder")]
+    return Design("vase", p, 2 * r, 2 * r, h, ("ceramic", "ceramic", "stone", "metal"), blocks_camera=False)
+
+
 #: every category the room builder can place
 CATEGORIES: dict[str, Callable[[np.random.Generator], Design]] = {
     "sofa": sofa, "armchair": armchair, "bed": bed, "dining table": dining_table, "coffee table": coffee_table,
     "chair": chair, "desk": desk, "wardrobe": wardrobe, "bookshelf": bookshelf, "cabinet": cabinet,
     "nightstand": nightstand, "floor lamp": floor_lamp, "table lamp": table_lamp, "potted plant": plant,
-    "rug": rug, "television": tv, "painting": painting,
+    "rug": rug, "television": tv, "painting": painting, "vase": vase,
 }

@@ -10,7 +10,7 @@ from x2video.procedural.colors import linear_rgb
 from x2video.procedural.geometry import Part, SceneObject, rotate_y
 from x2video.procedural.lighting import MOODS, Lighting, ceiling_on, light_points_for, sun_for, white_balance
 from x2video.procedural.materials import Material, emissive, sample_material, sky
-from x2video.procedural.room import WALL_T, Opening, door_parts, sky_part, wall_frame, wall_parts, window_centre, window_frame_parts
+from x2video.procedural.room import WALL_T, Opening, door_parts, sky_part, wall_box, wall_frame, wall_parts, window_centre, window_frame_parts
 
 #: style -> colours its materials are drawn from (metals keep their own tints)
 STYLES: dict[str, tuple[str, ...]] = {
@@ -184,7 +184,10 @@ def generate_scene(seed: int) -> Scene:
     zones.append((min(p0[0], p1[0]), min(p0[2], p1[2]), max(p0[0], p1[0]), max(p0[2], p1[2])))
     inset = 0.6  # camera starts: corners and wall midpoints, this far from the walls
     cands = [np.array([x, 0, z]) for x in (inset, w / 2, w - inset) for z in (inset, d / 2, d - inset) if not (x == w / 2 and z == d / 2)]
-    start = cands[int(rng.integers(len(cands)))]
+    corners = [c for c in cands if c[0] != w / 2 and c[2] != d / 2]
+    mids = [c for c in cands if c[0] == w / 2 or c[2] == d / 2]
+    pool = corners if rng.random() < 0.75 else mids  # corners see the room along its diagonal: favour them
+    start = pool[int(rng.integers(len(pool)))]
     zones.append((start[0] - 0.55, start[2] - 0.55, start[0] + 0.55, start[2] + 0.55))
     win_zones = []
     for op in openings[1:]:
@@ -193,6 +196,20 @@ def generate_scene(seed: int) -> Scene:
         win_zones.append(((min(p0[0], p1[0]), min(p0[2], p1[2]), max(p0[0], p1[0]), max(p0[2], p1[2])), op.y0))
 
     occupied: list[tuple[float, float, float, float]] = []
+    for op in openings[1:]:  # curtains beside some windows (before furniture, which then keeps clear of them)
+        o, a, n, length = wall_frame(op.wall, w, d)
+        pw = rng.uniform(0.25, 0.45)
+        if rng.random() > 0.6 or op.u0 - pw < 0.05 or op.u1 + pw > length - 0.05:
+            continue
+        cm = b.draw(("fabric",), None, str(rng.choice(["flat", "flat", "stripes", "noise"])))
+        ci_ = b.material(cm)
+        top = min(h - 0.05, op.y1 + 0.25)
+        parts = []
+        for u0, u1 in ((op.u0 - pw, op.u0 + 0.06), (op.u1 - 0.06, op.u1 + pw)):
+            lo, hi = wall_box(op.wall, w, d, u0, u1, 0.02, top, 0.03, 0.11)
+            parts.append(Part("box", lo, hi, ci_))
+            occupied.append((lo[0], lo[2], hi[0], hi[2]))
+        b.add("curtains", _caption(cm, "curtains", plural=True), parts, False)
     lamp_bulbs: list[np.ndarray] = []
     lamp_objs: list[tuple[SceneObject, Material]] = []
 
@@ -266,6 +283,8 @@ def generate_scene(seed: int) -> Scene:
                     put_rug(origin[0], origin[2], r[2] - r[0], r[3] - r[1])
                     continue
                 put(des, turns, origin, r)
+                if cat == "dining table" and rng.random() < 0.5:
+                    put_on(F.vase(rng), turns, origin, des.height)
                 if "chairs" in where:
                     chair_main = b.draw(F.chair(rng).main)
                     long_x = (r[2] - r[0]) >= (r[3] - r[1])
@@ -292,6 +311,8 @@ def generate_scene(seed: int) -> Scene:
             if "tv" in where and des.height < 0.85:
                 tvd = F.tv(rng)
                 put_on(tvd, turns, origin - fwd_v * 0.05, des.height)
+            elif cat == "cabinet" and rng.random() < 0.6:  # a vase on top, off centre
+                put_on(F.vase(rng), turns, origin + side_v * rng.uniform(-0.3, 0.3) * des.width, des.height)
             if "nightstands" in where:
                 for s in (-1, 1):
                     ns = F.nightstand(rng)
