@@ -219,3 +219,17 @@ def test_untitled_work_is_autosaved_and_offered_back(win, qtbot, tmp_path, shot_
     assert asked == ["Recover autosaved work?"]
     assert other.doc.edits.local_prompts == {"mask 1": "autosaved prompt"} and other.isWindowModified()
     assert other.doc.project_path is None
+
+
+def test_slider_drag_is_one_undo_step(win):
+    count = win.undo.count()
+    for v, final in ((10.0, False), (20.0, False), (35.0, True)):
+        win.edit_panel.sigParam.emit("hue", v, final)
+    assert win.undo.count() == count + 1
+    assert edit_ops.get_params(win.doc.edits, None)["hue"] == 35.0
+    win.edit_panel.sigParam.emit("hue", 50.0, True)  # a new drag after release is a new step
+    assert win.undo.count() == count + 2
+    win.act_undo.trigger()
+    win.act_undo.trigger()
+    assert edit_ops.get_params(win.doc.edits, None)["hue"] == 0.0 and win.doc.edits.ops == []
+    assert win.edit_panel.hue.value() == 0.0  # the panel follows the document

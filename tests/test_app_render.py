@@ -190,3 +190,15 @@ def test_model_preloads_when_chosen(win, qtbot):
     assert win.start_render()
     wait_idle(qtbot, win)
     assert win.render_ctl.renderer is r and win.doc.render.status == "finished"
+
+
+def test_weights_in_the_default_place_are_loaded(qtbot, tmp_path, monkeypatch, tiny_model, shot_dir):
+    weights = tiny_model.save_pretrained(tmp_path / "weights")
+    monkeypatch.setenv("X2VIDEO_WEIGHTS", str(weights))
+    w = MainWindow(bench_dir=tmp_path, autosave_ms=0)
+    qtbot.addWidget(w)
+    assert w.render_ctl.choice is not None and w.render_ctl.choice.kind == "pretrained"
+    assert "UNTRAINED" not in w.model_status.text() and "weights" in w.model_status.text()
+    qtbot.waitUntil(lambda: w.render_ctl.renderer is not None and w.render_ctl.preload_worker is None, timeout=120_000)
+    model = w.render_ctl.renderer.model
+    assert not model.is_untrained and tiny_model.content_key().endswith(model.content_key())  # same weights, loaded from disk
