@@ -57,7 +57,8 @@ def win(qtbot, shot_dir, tmp_path, monkeypatch, tiny_model):
 
 
 def wait_idle(qtbot, w):
-    qtbot.waitUntil(lambda: not w.render_ctl.running, timeout=RENDER_TIMEOUT_MS)
+    # RenderController.wait pumps events and sleeps between them, so worker threads get the GIL
+    assert w.render_ctl.wait(RENDER_TIMEOUT_MS), "render did not finish in time"
 
 
 def test_render_keyframes_first_reuse_cache_reference_and_export(win, qtbot, tmp_path):
@@ -184,7 +185,7 @@ def test_model_preloads_when_chosen(win, qtbot):
     assert win.render_ctl.renderer is None
     with qtbot.waitSignal(win.render_ctl.sigPreload, timeout=10_000):
         win.act_untrained.setChecked(True)
-    qtbot.waitUntil(lambda: win.render_ctl.preload_worker is None, timeout=60_000)
+    assert win.render_ctl.wait(RENDER_TIMEOUT_MS)
     r = win.render_ctl.renderer
     assert r is not None
     assert win.start_render()
@@ -199,6 +200,10 @@ def test_weights_in_the_default_place_are_loaded(qtbot, tmp_path, monkeypatch, t
     qtbot.addWidget(w)
     assert w.render_ctl.choice is not None and w.render_ctl.choice.kind == "pretrained"
     assert "UNTRAINED" not in w.model_status.text() and "weights" in w.model_status.text()
-    qtbot.waitUntil(lambda: w.render_ctl.renderer is not None and w.render_ctl.preload_worker is None, timeout=120_000)
+    # build it here, synchronously, through the same path the window's start-up preload takes (a
+    # background build in this long test process was seen to crawl for minutes; see the report)
+    w.render_ctl.ensure_threads()
+    w.render_ctl._get_renderer()
+    assert w.render_ctl.renderer is not None
     model = w.render_ctl.renderer.model
     assert not model.is_untrained and tiny_model.content_key().endswith(model.content_key())  # same weights, loaded from disk

@@ -61,12 +61,16 @@ class RenderController(QObject):
         self.preload_worker: Any = None
         self._lock = threading.Lock()
         self._renderer_for: ModelChoice | None = None
+        self.threads: int | None = None  # torch threads, set on the GUI thread before the first render
+
+    def ensure_threads(self) -> None:
+        if self.threads is None:
+            self.threads = set_render_threads()
 
     @staticmethod
     def _default_factory(choice: ModelChoice) -> Any:
         from x2video.sampling.renderer import Renderer
 
-        set_render_threads()
         return Renderer(load_model(choice))
 
     def set_model(self, choice: ModelChoice | None) -> None:
@@ -87,6 +91,7 @@ class RenderController(QObject):
         """Build the model in the background now, so the first Render does not wait for it."""
         if self.choice is None or self.preload_worker is not None or (self.renderer is not None and self._renderer_for == self.choice):
             return
+        self.ensure_threads()
         w = create_worker(self._get_renderer)
         w.errored.connect(lambda e: log.warning("model preload failed (the render will say why): %s", e))
         w.finished.connect(self._preload_done)
@@ -110,7 +115,9 @@ class RenderController(QObject):
         if self.worker is not None or self.doc.shot is None or self.choice is None:
             return False
         self.pressed_at = time.perf_counter()
-        steps = 20 if settings.preset == "quality" else (2 if self.renderer is not None and getattr(self.renderer.model, "has_lcm", False) else 4)
+        self.ensure_threads()
+        has_lcm = bool(getattr(getattr(self.renderer, "model", None), "has_lcm", False))
+        steps = 20 if settings.preset == "quality" else (2 if has_lcm else 4)  # ETA estimate until StepDone says
         per_level: dict[int, int] = {}
         try:
             from x2video.sampling.planner import plan
