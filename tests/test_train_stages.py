@@ -213,3 +213,29 @@ def test_cli_image_stage_runs_and_resumes(runs, tmp_path, capsys):
     assert res["step"] == 2 and res["shading_prior"] is False and res["speed"]["first_step"] == 1
     assert main(["train", "image", "--cache", str(tmp_path / "nope"), "--out", str(tmp_path / "x")]) == 2
     assert "nope" in capsys.readouterr().err
+
+
+def test_ship_writes_fp16_model_with_training_size(runs):
+    from safetensors.torch import load_file
+
+    from x2video.eval.data import training_size
+    from x2video.model.pipeline import X2VideoModel
+    from x2video.train.ship import ship
+
+    out = runs["root"] / "resources" / "x2video-tiny"
+    info = ship(runs["root"] / "lcm", out, image=runs["root"] / "image", runs=[runs["root"] / "video"])
+    assert training_size(out) == tuple(info["size"]) == (32, 24)
+    for part in ("unet", "vae", "lcm_unet"):
+        sd = load_file(str(out / f"{part}.safetensors"))
+        assert all(v.dtype == torch.float16 for v in sd.values() if v.is_floating_point())
+    doc = json.loads((out / "training.json").read_text())
+    assert doc["runs"]["video"]["results"]["video"]["step"] == 2
+    model = X2VideoModel.from_pretrained(out, text_encoder=FakeTextEncoder())
+    ref = X2VideoModel.from_pretrained(runs["lcm"]["model"], text_encoder=FakeTextEncoder())
+    assert model.has_lcm and (out / "image" / "unet.safetensors").is_file()
+    w, w_ref = model.unet.conv_in.weight, ref.unet.conv_in.weight
+    assert float((w - w_ref).abs().max()) < 1e-3 * float(w_ref.abs().max()) + 1e-4  # fp16 rounding only
+    with pytest.raises(FileExistsError, match="--overwrite"):
+        ship(runs["root"] / "lcm", out)
+    ship(runs["root"] / "video", out, overwrite=True)  # replaced in place, no lcm any more
+    assert not (out / "lcm_unet.safetensors").exists() and not list(out.parent.glob(".x2video-tiny*"))

@@ -196,6 +196,14 @@ def cmd_lcm(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_ship(a: argparse.Namespace) -> int:
+    """Write a trained model as the fp16 folder the CLI, editor and eval load by default."""
+    from x2video.train.ship import ship
+
+    _print_result(ship(a.model, a.out, image=a.image, size=a.size, runs=a.run, overwrite=a.overwrite))
+    return 0
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser("train", help="train the VAE, cache latents, train the image, video and LCM models",
                               description="Training stages, in order: vae -> cache -> image -> video -> lcm. Each is resumable: "
@@ -261,3 +269,15 @@ def register(subparsers) -> None:
     _window_args(s)
     _loop_args(s, steps=1000, lr=1e-5, ema=0.99)
     s.set_defaults(func=cmd_lcm)
+
+    s = sub.add_parser("ship", help="write a trained model (fp16 safetensors + training.json) into resources/",
+                       description="Copies the newest model of a run (lcm, video or image) in fp16 into OUT with a "
+                                   "training.json recording the training size and the runs' results, so `x2video render`, "
+                                   "the editor and `x2video eval` pick it up.")
+    s.add_argument("--model", type=Path, required=True, help="lcm or video run (newest checkpoint) or model folder")
+    s.add_argument("--image", type=Path, default=None, help="image run shipped beside it in OUT/image (eval table a)")
+    s.add_argument("--out", type=Path, required=True, help="e.g. resources/x2video-tiny")
+    s.add_argument("--size", type=_size, default=None, help="training size WxH (default: read from the run's latent cache)")
+    s.add_argument("--run", type=Path, action="append", default=[], help="training run folder whose summary/results go into training.json (repeatable)")
+    s.add_argument("--overwrite", action="store_true", help="replace an existing OUT")
+    s.set_defaults(func=cmd_ship)

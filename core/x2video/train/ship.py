@@ -1,0 +1,95 @@
+"""Ship a trained model: the newest model of a run, in fp16, as the folder `resources/` holds.
+
+    OUT/config.json, unet.safetensors, vae.safetensors[, lcm_unet.safetensors]   (fp16)
+    OUT/image/...        optional: the image-stage model (eval table a)
+    OUT/training.json    {"size": [W, H], "source": ..., "runs": {name: {summary, results}}}
+
+`training.json`'s size is what `x2video eval` and the renderers read to know the resolution the
+model was trained at. The folder is assembled beside OUT and renamed into place, so an
+interrupted ship never leaves a half-written model where the CLI and editor look for one.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors.torch import load_file, save_file
+
+from x2video.eval.data import training_size
+from x2video.model.checkpoint import PARTS, read_config
+from x2video.train.runs import model_dir
+
+
+def _copy_fp16(src: Path, dst: Path) -> dict[str, Any]:
+    dst.mkdir(parents=True, exist_ok=True)
+    read_config(src)  # validates it is a checkpoint folder
+    shutil.copyfile(src / "config.json", dst / "config.json")
+    sizes = {}
+    for part in PARTS:
+        f = src / f"{part}.safetensors"
+        if not f.is_file():
+            continue
+        sd = load_file(str(f))
+        bad = [k for k, v in sd.items() if v.is_floating_point() and not torch.isfinite(v).all()]
+        if bad:
+            raise ValueError(f"{f}: non-finite values in {len(bad)} tensors (first: {bad[0]}); not shipping a broken model")
+        half = {}
+        for k, v in sd.items():
+            if v.is_floating_point():
+                h = v.to(torch.float16)
+                if not torch.isfinite(h).all():
+                    raise ValueError(f"{f}: tensor {k} overflows float16 (max |x| = {v.abs().max().item():.3g})")
+                half[k] = h.contiguous()
+            else:
+                half[k] = v.contiguous()
+        save_file(half, str(dst / f.name), metadata={"format": "x2video", "dtype": "float16"})
+        sizes[part] = (dst / f.name).stat().st_size
+    if "unet" not in sizes or "vae" not in sizes:
+        raise FileNotFoundError(f"{src}: a shippable model needs unet.safetensors and vae.safetensors")
+    return {"source": str(src.resolve()), "bytes": sizes}
+
+
+def _run_doc(run: Path) -> dict[str, Any]:
+    doc: dict[str, Any] = {"path": str(run)}
+    for name in ("summary.json", "results.json"):
+        f = run / name
+        if f.is_file():
+            doc[name.removesuffix(".json")] = json.loads(f.read_text())
+    return doc
+
+
+def ship(model: str | Path, out: str | Path, *, image: str | Path | None = None, size: tuple[int, int] | None = None,
+         runs: list[Path] | None = None, overwrite: bool = False) -> dict[str, Any]:
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
+    src = model_dir(model)
+    size = size or training_size(src)
+    if size is None:
+        raise ValueError(f"{src}: training size unknown (its latent cache is gone); pass --size WxH")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        info = {"model": _copy_fp16(src, tmp)}
+        if image is not None:
+            info["image"] = _copy_fp16(model_dir(image), tmp / "image")
+        doc = {"size": [int(size[0]), int(size[1])], "shipped": info,
+               "runs": {Path(r).name: _run_doc(Path(r)) for r in (runs or [])}}
+        (tmp / "training.json").write_text(json.dumps(doc, indent=1))
+        if out.exists():
+            old = out.with_name(f".{out.name}.old")
+            shutil.rmtree(old, ignore_errors=True)
+            out.rename(old)
+            tmp.rename(out)
+            shutil.rmtree(old)
+        else:
+            tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    total = sum(v for part in info.values() for v in part["bytes"].values())
+    return {"out": str(out), "size": doc["size"], "megabytes": round(total / 2**20, 2), "parts": info}
