@@ -240,3 +240,27 @@ def test_mhf_gather_matches_its_definition(frames, heads):
     for i in range(frames):
         for h in range(heads):
             assert torch.equal(out[:, i, h], src[:, (i + h) % frames, :, h]), (i, h)
+
+
+def test_image_unet_with_shading_prior_converts_exactly():
+    """A 27-input image UNet (XRGB 23 + shading 4): its shading weights move behind reference and
+    mask, so the converted video UNet (alphas 0) reproduces it on every frame, shading included."""
+    torch.manual_seed(3)
+    cfg = preset("tiny")
+    image = build_image_unet(cfg.unet, shading_prior=True)
+    assert image.config.in_channels == 27
+    with torch.no_grad():
+        image.conv_in.weight.normal_()  # make the shading weights non-trivial
+    video = convert_image_to_video(image, cfg.hybrid, shading_prior=True)
+    assert video.config.in_channels == 32
+    x, cond, ref, text = _inputs(seed=5)
+    with torch.no_grad():
+        expected = run_unet(image, x, 300, cond, None, num_frames=N, text_global=text)
+        got = run_unet(video, x, 300, cond, ref, num_frames=N, text_global=text, ref_positions=(0,), mode="key", level=1)
+        cond_other = cond.clone()
+        cond_other[:, -4:] += 1.0  # the shading latent is an input of both
+        moved = run_unet(image, x, 300, cond_other, None, num_frames=N, text_global=text)
+    assert (got - expected).abs().max().item() <= 1e-4
+    assert (moved - expected).abs().max().item() > 1e-3
+    with pytest.raises(ValueError, match="shading prior on"):
+        convert_image_to_video(image, cfg.hybrid, shading_prior=False)

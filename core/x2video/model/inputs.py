@@ -16,7 +16,7 @@ import torch
 from diffusers import UNet2DConditionModel
 
 from x2video.model.context import AttnContext
-from x2video.model.unet import IMAGE_IN, INTRINSIC_CHANNELS, LATENT, MASK_CHANNELS, REF_CHANNELS, SHADING_CHANNELS
+from x2video.model.unet import IMAGE_IN, IMAGE_IN_PRIOR, INTRINSIC_CHANNELS, LATENT, MASK_CHANNELS, REF_CHANNELS, SHADING_CHANNELS
 
 
 def cond_channels(shading_prior: bool) -> int:
@@ -25,18 +25,23 @@ def cond_channels(shading_prior: bool) -> int:
 
 
 def is_video_unet(unet: UNet2DConditionModel) -> bool:
-    return int(unet.config.in_channels) != IMAGE_IN
+    return int(unet.config.in_channels) not in (IMAGE_IN, IMAGE_IN_PRIOR)
 
 
 def unet_inputs(x_t: torch.Tensor, cond: torch.Tensor, ref: torch.Tensor | None, in_channels: int) -> torch.Tensor:
     """(BN, 4, h, w) noisy latents + (BN, C_cond, h, w) conditioning + (BN, 4, h, w) references
     -> (BN, in_channels, h, w) in the UNet's input order. in_channels 23 (image UNet: reference,
-    mask and shading are not inputs), 28 or 32."""
+    mask and shading are not inputs), 27 (image UNet with the shading prior), 28 or 32."""
     if x_t.shape[0] != cond.shape[0] or x_t.shape[-2:] != cond.shape[-2:]:
         raise ValueError(f"x_t {tuple(x_t.shape)} and cond {tuple(cond.shape)} disagree in frames or size")
     intrinsic = cond[:, :INTRINSIC_CHANNELS]  # (BN, 19, h, w)
     if in_channels == IMAGE_IN:
         return torch.cat([x_t, intrinsic], dim=1)  # (BN, 23, h, w)
+    if in_channels == IMAGE_IN_PRIOR:
+        if cond.shape[1] != INTRINSIC_CHANNELS + MASK_CHANNELS + SHADING_CHANNELS:
+            raise ValueError(f"the image UNet takes the shading prior (27 inputs) but cond has {cond.shape[1]} channels, "
+                             f"not {INTRINSIC_CHANNELS + MASK_CHANNELS + SHADING_CHANNELS} (shading prior on one side only?)")
+        return torch.cat([x_t, intrinsic, cond[:, -SHADING_CHANNELS:]], dim=1)  # (BN, 27, h, w)
     rest = cond[:, INTRINSIC_CHANNELS:]  # (BN, 1 [+4], h, w): mask [, shading]
     expected = in_channels - LATENT - INTRINSIC_CHANNELS - REF_CHANNELS
     if rest.shape[1] != expected:

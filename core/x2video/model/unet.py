@@ -30,6 +30,12 @@ REF_CHANNELS = 4
 MASK_CHANNELS = 1
 SHADING_CHANNELS = 4
 VIDEO_IN = IMAGE_IN + REF_CHANNELS + MASK_CHANNELS  # 28
+IMAGE_IN_PRIOR = IMAGE_IN + SHADING_CHANNELS  # 27: our image UNet with the shading prior appended
+
+
+def image_in_channels(shading_prior: bool) -> int:
+    """23 (XRGB layout) or 27 (with the shading prior appended)."""
+    return IMAGE_IN + (SHADING_CHANNELS if shading_prior else 0)
 
 
 def video_in_channels(shading_prior: bool) -> int:
@@ -37,13 +43,14 @@ def video_in_channels(shading_prior: bool) -> int:
     return VIDEO_IN + (SHADING_CHANNELS if shading_prior else 0)
 
 
-def build_image_unet(cfg: UNetConfig, sample_size: int = 64) -> UNet2DConditionModel:
-    """A freshly initialised XRGB-layout image UNet (23 inputs, 4 outputs, v-prediction by training)."""
+def build_image_unet(cfg: UNetConfig, sample_size: int = 64, shading_prior: bool = False) -> UNet2DConditionModel:
+    """A freshly initialised XRGB-layout image UNet (23 inputs, or 27 with the shading prior
+    appended; 4 outputs, v-prediction by training)."""
     down = tuple("CrossAttnDownBlock2D" if a else "DownBlock2D" for a in cfg.attention_levels)
     up = tuple("CrossAttnUpBlock2D" if a else "UpBlock2D" for a in reversed(cfg.attention_levels))
     unet = UNet2DConditionModel(
         sample_size=sample_size,
-        in_channels=IMAGE_IN,
+        in_channels=image_in_channels(shading_prior),
         out_channels=LATENT,
         down_block_types=down,
         up_block_types=up,
@@ -94,20 +101,29 @@ def install_video_processors(unet: UNet2DConditionModel, hybrid: HybridConfig) -
 def convert_image_to_video(image_unet: UNet2DConditionModel, hybrid: HybridConfig, shading_prior: bool) -> UNet2DConditionModel:
     """A new video UNet from an XRGB image UNet (the input is left untouched).
 
-    New input channels (reference 4, mask 1, [shading 4]) start at zero; reference/temporal
-    projections start as copies of each self-attention's q/k/v; a_r = a_t = 0 and LoRA `up`
-    weights are zero, so the output equals the image UNet's on every frame."""
-    if image_unet.config.in_channels != IMAGE_IN:
-        raise ValueError(f"expected an image UNet with {IMAGE_IN} input channels, got {image_unet.config.in_channels}")
+    New input channels (reference 4, mask 1, and shading 4 unless the image UNet already had
+    them) start at zero; a 27-channel image UNet's shading weights move behind reference and
+    mask. Reference/temporal projections start as copies of each self-attention's q/k/v;
+    a_r = a_t = 0 and LoRA `up` weights are zero, so the output equals the image UNet's on every frame."""
+    cin = int(image_unet.config.in_channels)
+    if cin not in (IMAGE_IN, IMAGE_IN_PRIOR):
+        raise ValueError(f"expected an image UNet with {IMAGE_IN} (or {IMAGE_IN_PRIOR}, shading prior) input channels, got {cin}")
+    if cin == IMAGE_IN_PRIOR and not shading_prior:
+        raise ValueError("this image UNet was trained with the shading prior (27 inputs); convert it with the shading prior on")
     unet = copy.deepcopy(image_unet)
     _widen_conv_in(unet, video_in_channels(shading_prior))
+    if cin == IMAGE_IN_PRIOR:  # [x 4 | intrinsic 19 | shading 4] -> [x 4 | intrinsic 19 | ref 4 | mask 1 | shading 4]
+        with torch.no_grad():
+            w = unet.conv_in.weight
+            w[:, VIDEO_IN:] = w[:, IMAGE_IN:IMAGE_IN_PRIOR].clone()
+            w[:, IMAGE_IN:VIDEO_IN] = 0
     install_video_processors(unet, hybrid)
     return unet
 
 
 def build_unet(cfg: ModelConfig) -> UNet2DConditionModel:
-    """The UNet a config describes, freshly initialised: image (23) or converted video (28/32)."""
-    image = build_image_unet(cfg.unet)
+    """The UNet a config describes, freshly initialised: image (23/27) or converted video (28/32)."""
+    image = build_image_unet(cfg.unet, shading_prior=cfg.shading_prior and not cfg.video)
     if not cfg.video:
         return image
     return convert_image_to_video(image, cfg.hybrid, cfg.shading_prior)

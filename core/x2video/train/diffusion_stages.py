@@ -134,18 +134,16 @@ def run_image_stage(cache: str | Path, out_dir: str | Path, stage: ImageStageCon
     cache, out_dir = Path(cache), Path(out_dir)
     cache_cfg = read_config(cache / "model")
     cfg = image_model_config(stage, cache_cfg)
-    # The XRGB image UNet (23 inputs) has no shading-prior input: the flag is recorded in the
-    # config (the video conversion adds the shading channels zero-initialised when it is on).
-    if cfg.shading_prior:
-        log.info("image UNet: the shading prior is not an input of the 23-channel image layout; it enters at the video stage")
-    data = LatentData(cache, "train", cfg.latent_scales, shading_prior=False)
+    # With the shading prior the image UNet takes 27 inputs (XRGB's 23 + the shading latent), so
+    # prior on/off is compared at the image stage on the same budget and the winner carried forward.
+    data = LatentData(cache, "train", cfg.latent_scales, shading_prior=cfg.shading_prior)
     torch.manual_seed(stage.seed)
     unet = build_unet(cfg)
     n = sum(p.numel() for p in unet.parameters())
     log.info("image UNet: %.2f M parameters, %d training frames", n / 1e6, data.num_rows)
     sc = {"stage": "image", **_resume_fields(stage), "model": cfg.to_dict(), "cache": str(cache.resolve())}
     def heldout(m):
-        return _heldout(m, cache, cfg, False, stage.heldout_batches, lambda d, rng, aug: d.sample(rng, d.random_frames(rng, stage.batch), aug))
+        return _heldout(m, cache, cfg, cfg.shading_prior, stage.heldout_batches, lambda d, rng, aug: d.sample(rng, d.random_frames(rng, stage.batch), aug))
 
     return _run(unet, cfg, cache, out_dir, loop, stage.batch, image_batches(data, stage.batch, stage.augment, stage.seed), sc, on_step,
                 "image", heldout)
