@@ -112,14 +112,27 @@ def main() -> None:
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     ap.add_argument("--fp16", action="store_true")
     ap.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+    ap.add_argument("--weights", type=Path, default=None, help="model folder (default: the shipped weights in resources/, else untrained tiny)")
+    ap.add_argument("--untrained", action="store_true", help="untrained tiny weights even when shipped ones exist")
     ap.add_argument("--out", type=Path, default=RESULTS)
     args = ap.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
     device = torch.device(args.device)
     dtype = torch.float16 if args.fp16 else torch.float32
 
-    base = X2VideoModel.untrained("tiny", device=device, dtype=dtype)
-    lcm = X2VideoModel(base.config, base.unet, base.vae, base.text_encoder, copy.deepcopy(base.unet), device=device, dtype=dtype, untrained=True)
+    from x2video.cli.render import shipped_weights
+
+    weights = None if args.untrained else (args.weights or shipped_weights())
+    if weights is None:
+        base = X2VideoModel.untrained("tiny", device=device, dtype=dtype)
+        lcm = X2VideoModel(base.config, base.unet, base.vae, base.text_encoder, copy.deepcopy(base.unet), device=device, dtype=dtype, untrained=True)
+        weights_label = "untrained tiny (speed only); LCM-2 uses an untrained copy of the UNet"
+    else:
+        lcm = X2VideoModel.from_pretrained(weights, device=device, dtype=dtype)
+        if not lcm.has_lcm:
+            raise SystemExit(f"{weights} has no lcm_unet.safetensors; LCM-2 cannot be timed (use --untrained for speed only)")
+        base = lcm
+        weights_label = f"{weights} (vae {list(base.config.vae.block_out_channels)}, f={base.config.vae.downsample}; unet {list(base.config.unet.block_out_channels)})"
     shot = synthetic_shot(args.frames, width, height)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -141,7 +154,7 @@ def main() -> None:
             print(f"{scheme:10s} {sampler}-{steps:<3d} {res['seconds_per_frame']:.3f} s/frame warm, {res['seconds_per_frame_cold']:.3f} cold  "
                   f"({res['seconds']:.1f} s, {res['windows']} windows, first frames after {res['first_frames_seconds']:.2f} s)")
 
-    label = device_label(device)
+    label = device_label(device) + ("" if weights is None else " shipped")
     data = json.loads(args.out.read_text()) if args.out.is_file() else {"runs": {}}
     data.setdefault("runs", {})[label] = {
         "device": label,
@@ -150,7 +163,7 @@ def main() -> None:
         "size": [width, height],
         "frames": args.frames,
         "window": args.window,
-        "weights": "untrained tiny (speed only); LCM-2 uses an untrained copy of the UNet",
+        "weights": weights_label,
         "encode_seconds_per_frame": round(encode_s, 4),
         "note": "seconds_per_frame: UNet calls + VAE decoding with the conditioning cache warm (editor re-render); "
         "seconds_per_frame_cold adds encode_seconds_per_frame (first render of a shot)",

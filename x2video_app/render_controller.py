@@ -12,6 +12,7 @@ from PySide6.QtCore import QObject, Signal
 from superqt.utils import create_worker
 
 from x2video.sampling.events import FramesReady, RenderEvent, RenderSettings
+from x2video.sampling.renderer import select_steps
 from x2video_app.document import Document
 from x2video_app.model_source import ModelChoice, load_model
 from x2video_app.render_worker import RenderWorker
@@ -116,8 +117,11 @@ class RenderController(QObject):
             return False
         self.pressed_at = time.perf_counter()
         self.ensure_threads()
-        has_lcm = bool(getattr(getattr(self.renderer, "model", None), "has_lcm", False))
-        steps = 20 if settings.preset == "quality" else (2 if has_lcm else 4)  # ETA estimate until StepDone says
+        model = getattr(self.renderer, "model", None)
+        if model is not None:
+            steps = select_steps(settings, model).steps  # the Renderer's own rule: fast = LCM-2 or DDIM-4
+        else:  # model still loading: an ETA estimate until StepDone says
+            steps = 20 if settings.preset == "quality" else 4
         per_level: dict[int, int] = {}
         try:
             from x2video.sampling.planner import plan
