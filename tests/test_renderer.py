@@ -91,8 +91,10 @@ def test_conditioning_encoded_once_per_frame_and_cached_across_renders() -> None
     assert model.encoded_frames == 17
     st = renderer.cache_stats()
     assert st.misses == 17 and st.hits == 8 and st.entries == 17
+    assert renderer.encode_seconds > 0  # the time spent encoding is measured ...
     run(renderer, shot, RenderSettings(steps=1, window=5, seed=3))
     assert model.encoded_frames == 17 and renderer.cache_stats().hits == 8 + 25
+    assert renderer.encode_seconds == 0.0  # ... and is zero on a re-render from a warm cache
     # changed content misses; another model's weights miss
     run(renderer, make_shot(17, seed=1), RenderSettings(steps=1, window=5))
     assert model.encoded_frames == 34

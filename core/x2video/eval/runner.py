@@ -73,7 +73,8 @@ class EvalProgress:
 
 
 def render_shot(renderer: Renderer, shot: EvalShot, edits: Any, settings: RenderSettings, cancel: CancelToken | None = None) -> tuple[list[np.ndarray], float]:
-    """(T linear frames, wall seconds) of one full render, conditioning cache emptied first."""
+    """(T linear frames, wall seconds) of one full render, conditioning cache emptied first
+    (`renderer.encode_seconds` then holds the part of it spent encoding the channels)."""
     frames: dict[int, np.ndarray] = {}
     cancelled: list[bool] = []
 
@@ -167,14 +168,17 @@ def evaluate(
                 if (mid, spec.sampler) not in warmed:
                     warm_up(renderers[mid], shots[0], spec.sampler)
                     warmed.add((mid, spec.sampler))
-                preds, secs = {}, {}
+                preds, secs, enc = {}, {}, 0.0
                 for s in shots:
                     emit(EvalProgress(done, total, table, spec.label, s.name, "render"))
                     preds[s.name], secs[s.name] = render_shot(renderers[mid], s, edits[s.name][0], _settings(spec, config, s.num_frames), cancel)
+                    enc += renderers[mid].encode_seconds
                     if on_frames is not None:
                         on_frames(spec, s, preds[s.name])
                     done += 1
                 row["model"] = scorers[spec.data].score(preds, secs)
+                # the once-per-shot channel encoding inside seconds_per_frame (the editor caches it across re-renders)
+                row["model"]["encode_seconds_per_frame"] = enc / max(1, sum(s.num_frames for s in shots))
                 renders[key] = (f"{table}: {spec.label}", row["model"])
             bkey = spec.baseline_key()
             if bkey not in baselines:

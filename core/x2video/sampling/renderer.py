@@ -84,6 +84,9 @@ class Renderer:
     def __init__(self, model: RenderModel, *, cache: ConditioningCache | None = None) -> None:
         self.model = model
         self.cache = cache if cache is not None else ConditioningCache()
+        #: wall seconds spent encoding conditioning (channel latents) in the last render; 0 when
+        #: the cache held every frame (the editor's re-render). Benchmarks split time with it.
+        self.encode_seconds = 0.0
         #: most reference latents held at once during the last render (they are dropped after their last use)
         self.peak_latents = 0
         ours, theirs = alphas_cumprod(), model.alphas_cumprod().to(torch.float64).cpu()
@@ -124,6 +127,7 @@ class Renderer:
         """
         emit: Callable[[RenderEvent], None] = on_event if on_event is not None else (lambda e: None)
         done: list[int] = []
+        self.encode_seconds = 0.0
         try:
             self._render(shot, edits, settings, emit, cancel, base_dir, done)
         except Cancelled:
@@ -216,7 +220,9 @@ class Renderer:
             if v is None:
                 missing.setdefault(keys[i], i)
         if missing:
+            t0 = time.perf_counter()
             fresh = self.model.encode_frames([conds[i] for i in missing.values()])  # (m, C_cond, h, w)
+            self.encode_seconds += time.perf_counter() - t0
             encoded = {k: fresh[j].clone() for j, k in enumerate(missing)}
             for k, v in encoded.items():
                 self.cache.put(k, v)
