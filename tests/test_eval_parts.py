@@ -128,10 +128,18 @@ def test_model_card_from_results_and_runs(tmp_path, capsys):
                                                   "device": "cpu"}))
     (run / "log.json").write_text(json.dumps([{"step": i + 1, "loss": 0.1, "steps_per_s": 2.0} for i in range(200)]))
     (run / "results.json").write_text(json.dumps({"vae": {"heldout_psnr_db": {"rgb": 31.5, "albedo": 35.25}}}))
+    img = tmp_path / "image_run"
+    (img / "step-000000050").mkdir(parents=True)
+    (img / "step-000000050" / "state.json").write_text(json.dumps({"step": 50, "loop": {}, "stage_config": {"stage": "image"}}))
+    (img / "results.json").write_text(json.dumps({"image": {"shading_prior": False, "heldout_v_loss": {"full": 0.1571, "augmented": 0.1893}}}))
+    pre = tmp_path / "preface.md"
+    pre.write_text("## Data\n\nmade with `x2video dataset make`\n")
     out = tmp_path / "MODEL_CARD.md"
-    assert card.main([str(res), "--run", str(run), "--out", str(out)]) == 0
+    assert card.main([str(res), "--run", str(run), "--run", str(img), "--preface", str(pre), "--out", str(out)]) == 0
     text = out.read_text()
     assert "| vae | `" in text and "| 200 |" in text and "rgb 31.50 dB" in text
+    assert "shading prior off; held-out v-loss full 0.1571, augmented 0.1893" in text
+    assert text.index("## Data") < text.index("## Training")
     hours = 200 * 0.5 / 3600
     assert f"{hours:.3g}" in text
     assert "x2video eval --weights W --data D --out eval" in text and "| ordering | holds | measured |" in text

@@ -82,6 +82,9 @@ def training_markdown(runs: list[dict[str, Any]]) -> str:
         extra = ""
         if isinstance(res, dict) and res.get("heldout_psnr_db"):
             extra = "held-out VAE PSNR " + ", ".join(f"{k} {v:.2f} dB" for k, v in res["heldout_psnr_db"].items())
+        elif isinstance(res, dict) and res.get("heldout_v_loss"):
+            extra = ("shading prior " + ("on" if res.get("shading_prior") else "off") + "; held-out v-loss "
+                     + ", ".join(f"{k} {v:.4f}" for k, v in res["heldout_v_loss"].items()))
         lines.append(
             f"| {f['stage']} | `{f['run']}` | {f['step']} | {_fmt(f.get('estimated_hours'))} | {_fmt(s.get('steps_per_s'))} | "
             f"{_fmt(s.get('samples_per_s'))} | {_fmt(s.get('seconds'), 5)} | {s.get('device', '–')} | {_fmt(f.get('final_loss'))} | {extra} |"
@@ -96,7 +99,7 @@ def training_markdown(runs: list[dict[str, Any]]) -> str:
 
 
 def card_markdown(results: list[dict[str, Any]], runs: list[dict[str, Any]], renders: Path | None = None,
-                  command: str | None = None) -> str:
+                  command: str | None = None, preface: str | None = None) -> str:
     """The whole model card."""
     out = ["# X2Video model card", ""]
     out.append(f"Generated {_dt.date.today().isoformat()}" + (f" by `{command}`" if command else "") + ". Every figure below "
@@ -104,6 +107,8 @@ def card_markdown(results: list[dict[str, Any]], runs: list[dict[str, Any]], ren
     out.append("")
     if any(d.get("untrained") for r in results for d in r.get("models", {}).values() if isinstance(d, dict)):
         out += ["> **These results were measured with UNTRAINED (random) weights: they test the pipeline, not the model.**", ""]
+    if preface:
+        out += [preface.strip(), ""]
     if runs:
         out += ["## Training", "", training_markdown(runs), ""]
     for i, r in enumerate(results):
@@ -125,6 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("results", nargs="+", type=Path, help="`x2video eval` results folders (or results.json files)")
     p.add_argument("--run", action="append", type=Path, default=[], help="training run folder (repeat: vae, image, video, lcm)")
     p.add_argument("--renders", type=Path, help="folder of contact sheets / MP4s (x2video eval --renders N --renders-out DIR)")
+    p.add_argument("--preface", type=Path, help="Markdown placed after the header (data recipe, how to read the card)")
     p.add_argument("--out", type=Path, help="write the card here (atomically) instead of stdout")
     a = p.parse_args(argv)
     try:
@@ -134,7 +140,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"model card: error: {e}", file=sys.stderr)
         return 2
     argv_ = sys.argv[1:] if argv is None else argv
-    text = card_markdown(results, runs, a.renders, shlex.join(["python", "-m", "x2video.eval.card", *map(str, argv_)]))
+    preface = a.preface.read_text(encoding="utf-8") if a.preface is not None else None
+    text = card_markdown(results, runs, a.renders, shlex.join(["python", "-m", "x2video.eval.card", *map(str, argv_)]), preface)
     if a.out is None:
         sys.stdout.write(text)
     else:

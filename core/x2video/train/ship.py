@@ -80,6 +80,8 @@ def ship(model: str | Path, out: str | Path, *, image: str | Path | None = None,
         doc = {"size": [int(size[0]), int(size[1])], "shipped": info,
                "runs": {Path(r).name: _run_doc(Path(r)) for r in (runs or [])}}
         (tmp / "training.json").write_text(json.dumps(doc, indent=1))
+        for p in [tmp, *tmp.rglob("*")]:  # mkdtemp and safetensors leave owner-only modes
+            p.chmod(0o755 if p.is_dir() else 0o644)
         if out.exists():
             old = out.with_name(f".{out.name}.old")
             shutil.rmtree(old, ignore_errors=True)
