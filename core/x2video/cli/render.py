@@ -57,8 +57,9 @@ def _frame_range(text: str) -> tuple[int, int]:
     return a, b
 
 
-def shipped_weights(resources: Path = RESOURCES) -> Path | None:
+def shipped_weights(resources: Path | None = None) -> Path | None:
     """The first folder under resources/ holding a model checkpoint (config.json + unet.safetensors)."""
+    resources = RESOURCES if resources is None else resources
     if not resources.is_dir():
         return None
     found = sorted(p.parent for p in resources.glob("*/config.json") if (p.parent / "unet.safetensors").is_file())
