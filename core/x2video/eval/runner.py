@@ -213,7 +213,7 @@ def _notes(table: str, config: EvalConfig, data: dict[str, list[EvalShot]]) -> l
     notes = []
     if table == "a":
         notes.append(
-            f"the image model (23-channel XRGB-style UNet) renders every frame independently, {config.image_window} frames per UNet call; "
+            f"the image model (XRGB-style UNet; 27 inputs with the shading prior) renders every frame independently, {config.image_window} frames per UNet call; "
             f"the video model uses Recursive Sampling with N={config.window}"
         )
     if table == "b":
