@@ -73,8 +73,9 @@ class FrameSink:
         self.expected = None if expected is None else sorted(expected)
         self.mp4 = self.out.suffix.lower() == ".mp4"
         parent = self.out.parent
-        if not parent.is_dir():
-            raise FileNotFoundError(f"output folder {parent} does not exist")
+        if parent.exists() and not parent.is_dir():
+            raise NotADirectoryError(f"output folder {parent} is a file")
+        parent.mkdir(parents=True, exist_ok=True)  # `--out out/demo.mp4` on a fresh clone
         if self.out.exists() and self.mp4 == self.out.is_dir():
             kind = "a folder" if self.out.is_dir() else "a file"
             raise ValueError(f"output {self.out} exists and is {kind}")
