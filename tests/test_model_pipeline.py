@@ -188,3 +188,15 @@ def test_sd21_preset_converts_on_the_meta_device():
     assert len(procs) == 16  # SD 2.1: 16 transformer blocks
     first = procs["down_blocks.0.attentions.0.transformer_blocks.0.attn1.processor"]
     assert first.ref.to_q.weight.shape == (320, 320) and set(first.temp.branches) == {"key", "interp1", "interp2", "interp3", "interp4"}
+
+
+def test_checkpoint_refuses_tensors_not_finite_in_its_dtype(tmp_path):
+    from x2video.model.checkpoint import save_checkpoint
+
+    cfg = preset("tiny")
+    with pytest.raises(ValueError, match="unet: tensor w has non-finite values in float16"):
+        save_checkpoint(tmp_path / "a", cfg, {"unet": {"w": torch.tensor([1.0, 1e6])}}, dtype=torch.float16)
+    with pytest.raises(ValueError, match="vae: tensor b has non-finite values in float32"):
+        save_checkpoint(tmp_path / "b", cfg, {"vae": {"b": torch.tensor([float("nan")])}})
+    save_checkpoint(tmp_path / "c", cfg, {"unet": {"w": torch.tensor([1.0, 1e6])}})  # fine in float32
+    assert (tmp_path / "c" / "unet.safetensors").is_file()

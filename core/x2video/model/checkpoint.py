@@ -38,8 +38,22 @@ def _atomic_write(path: Path, write) -> None:
         raise
 
 
-def save_checkpoint(directory: str | os.PathLike, config: ModelConfig, modules: dict[str, nn.Module], dtype: torch.dtype = torch.float32) -> Path:
-    """Write `modules` (names from PARTS) and the config into `directory` (created if needed)."""
+def _cast_state(state: dict[str, torch.Tensor], dtype: torch.dtype, part: str) -> dict[str, torch.Tensor]:
+    """CPU copies with floating tensors in `dtype`; a tensor that is not finite after the cast
+    (NaN in training, or too large for float16) is an error, not a silently broken file."""
+    out = {}
+    for k, v in state.items():
+        v = v.detach().to("cpu", dtype) if v.is_floating_point() else v.detach().cpu()
+        if v.is_floating_point() and not torch.isfinite(v).all():
+            raise ValueError(f"{part}: tensor {k} has non-finite values in {str(dtype).replace('torch.', '')}; not writing a broken checkpoint")
+        out[k] = v.contiguous()
+    return out
+
+
+def save_checkpoint(directory: str | os.PathLike, config: ModelConfig, modules: dict[str, nn.Module | dict[str, torch.Tensor]],
+                    dtype: torch.dtype = torch.float32) -> Path:
+    """Write `modules` (names from PARTS; modules or their state dicts) and the config into
+    `directory` (created if needed), floating tensors cast to `dtype`."""
     if dtype not in (torch.float16, torch.float32, torch.bfloat16):
         raise ValueError(f"checkpoint dtype must be float16, bfloat16 or float32, got {dtype}")
     out = Path(directory)
@@ -47,7 +61,7 @@ def save_checkpoint(directory: str | os.PathLike, config: ModelConfig, modules: 
     for name, module in modules.items():
         if name not in PARTS:
             raise ValueError(f"unknown checkpoint part {name!r} (expected one of {PARTS})")
-        sd = {k: (v.detach().to("cpu", dtype) if v.is_floating_point() else v.detach().cpu()).contiguous() for k, v in module.state_dict().items()}
+        sd = _cast_state(module.state_dict() if isinstance(module, nn.Module) else module, dtype, name)
         _atomic_write(out / f"{name}.safetensors", lambda tmp, sd=sd: save_file(sd, tmp, metadata={"format": FORMAT}))
     text = json.dumps({"format": FORMAT, "version": VERSION, "config": config.to_dict()}, indent=2, sort_keys=True)
 

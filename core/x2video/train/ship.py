@@ -17,40 +17,21 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 
 from x2video.eval.data import training_size
-from x2video.model.checkpoint import PARTS, read_config
+from x2video.model.checkpoint import PARTS, read_config, save_checkpoint
 from x2video.train.runs import model_dir
 
 
 def _copy_fp16(src: Path, dst: Path) -> dict[str, Any]:
-    dst.mkdir(parents=True, exist_ok=True)
-    read_config(src)  # validates it is a checkpoint folder
-    shutil.copyfile(src / "config.json", dst / "config.json")
-    sizes = {}
-    for part in PARTS:
-        f = src / f"{part}.safetensors"
-        if not f.is_file():
-            continue
-        sd = load_file(str(f))
-        bad = [k for k, v in sd.items() if v.is_floating_point() and not torch.isfinite(v).all()]
-        if bad:
-            raise ValueError(f"{f}: non-finite values in {len(bad)} tensors (first: {bad[0]}); not shipping a broken model")
-        half = {}
-        for k, v in sd.items():
-            if v.is_floating_point():
-                h = v.to(torch.float16)
-                if not torch.isfinite(h).all():
-                    raise ValueError(f"{f}: tensor {k} overflows float16 (max |x| = {v.abs().max().item():.3g})")
-                half[k] = h.contiguous()
-            else:
-                half[k] = v.contiguous()
-        save_file(half, str(dst / f.name), metadata={"format": "x2video", "dtype": "float16"})
-        sizes[part] = (dst / f.name).stat().st_size
-    if "unet" not in sizes or "vae" not in sizes:
+    """The checkpoint folder `src` rewritten in fp16 into `dst` (through `save_checkpoint`, which
+    refuses tensors that are not finite in fp16)."""
+    parts = {p: load_file(str(src / f"{p}.safetensors")) for p in PARTS if (src / f"{p}.safetensors").is_file()}
+    if "unet" not in parts or "vae" not in parts:
         raise FileNotFoundError(f"{src}: a shippable model needs unet.safetensors and vae.safetensors")
-    return {"source": str(src.resolve()), "bytes": sizes}
+    save_checkpoint(dst, read_config(src), parts, dtype=torch.float16)
+    return {"source": str(src.resolve()), "bytes": {p: (dst / f"{p}.safetensors").stat().st_size for p in parts}}
 
 
 def _run_doc(run: Path) -> dict[str, Any]:
