@@ -25,6 +25,7 @@ class FakeModel:
     downsample = 8
     latent_channels = 4
     num_train_timesteps = 1000
+    residual_prior = False
 
     def __init__(self, has_lcm: bool = False, key: str = "fake-v1") -> None:
         self.has_lcm = has_lcm
@@ -74,6 +75,12 @@ class FakeModel:
         target = target + 0.1 * torch.tanh(x_t)
         a = self._ac[int(t)]
         return (a.sqrt() * x_t - target) / (1 - a).sqrt()  # exact v of `target`
+
+    def sample_to_latents(self, x0: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
+        return x0
+
+    def detail(self, frames: Sequence[FrameConditioning], cond: torch.Tensor) -> np.ndarray | None:
+        return None
 
     def decode(self, latents: torch.Tensor) -> np.ndarray:
         self.decoded.append(latents.clone())

@@ -200,3 +200,55 @@ def test_checkpoint_refuses_tensors_not_finite_in_its_dtype(tmp_path):
         save_checkpoint(tmp_path / "b", cfg, {"vae": {"b": torch.tensor([float("nan")])}})
     save_checkpoint(tmp_path / "c", cfg, {"unet": {"w": torch.tensor([1.0, 1e6])}})  # fine in float32
     assert (tmp_path / "c" / "unet.safetensors").is_file()
+
+
+def _zero_residual(model: X2VideoModel):
+    """predict_v of a UNet that has learned nothing but 'the residual is zero': x0 = 0 at every step."""
+    ac = model.alphas_cumprod().float()
+
+    def predict_v(x_t, t, window, *, lcm=False):
+        a = ac[int(t)]
+        return (a / (1 - a)).sqrt() * x_t  # v = sqrt(a) eps - sqrt(1-a) x0 with x0 = 0, eps = x_t / sqrt(1-a)
+
+    return predict_v
+
+
+def test_residual_model_with_zero_residual_renders_the_classical_shading(monkeypatch):
+    """A residual-prior model adds the prior's latent to its sample and the VAE-lost detail to the
+    decoded frame, so a UNet that predicts a zero residual reproduces the classical shading exactly;
+    without the detail it is the VAE's reconstruction of the shading; a dropped channel (no prior)
+    leaves the plain decode."""
+    from x2video.model.shading import classical_shading
+    from x2video.sampling.events import FramesReady, RenderSettings
+    from x2video.sampling.renderer import Renderer, plain_conditioning
+    from x2video.shot import ArrayShot
+
+    model = X2VideoModel.untrained("tiny", seed=1, residual_prior=True)
+    assert model.residual_prior and not X2VideoModel.untrained("tiny", seed=1).residual_prior
+    monkeypatch.setattr(model, "predict_v", _zero_residual(model))
+    frames = [_frame(i) for i in range(5)]
+    shot = ArrayShot({k: np.stack([f.channels[k] for f in frames]) for k in frames[0].channels}, fps=10.0)
+
+    def render(settings, shot=shot):
+        out = {}
+        Renderer(model).render(shot, None, settings, on_event=lambda e: out.update(e.frames) if isinstance(e, FramesReady) else None)
+        return np.stack([out[t] for t in range(shot.num_frames)])
+
+    got = render(RenderSettings(steps=3, window=3))
+    want = np.stack([classical_shading(plain_conditioning(shot, t).channels) for t in range(5)])
+    np.testing.assert_allclose(got, want, atol=1e-4)
+    # without the detail: the VAE's reconstruction of the shading, which loses detail
+    cond = model.encode_frames([plain_conditioning(shot, t) for t in range(5)])
+    smooth = model.decode(cond[:, -4:])
+    np.testing.assert_allclose(render(RenderSettings(steps=3, window=3, detail=False)), smooth, atol=1e-4)
+    assert float(np.abs(smooth - want).mean()) > 1e-3
+    # no irradiance -> no prior: the zero residual decodes the zero latent, no detail is added
+    no_irr = ArrayShot({k: np.stack([f.channels[k] for f in frames]) for k in frames[0].channels if k != "irradiance"}, fps=10.0)
+    blank = model.decode(torch.zeros(1, 4, H // 8, W // 8))[0]
+    np.testing.assert_allclose(render(RenderSettings(steps=2, window=3), no_irr), np.broadcast_to(blank, (5, H, W, 3)), atol=1e-4)
+
+
+def test_residual_prior_needs_the_shading_prior():
+    m = X2VideoModel.untrained("tiny", seed=1, residual_prior=True, shading_prior=False)
+    assert not m.residual_prior  # the flag alone does nothing without the prior's latent
+    assert m.detail([_frame(0)], m.encode_frames([_frame(0)])) is None

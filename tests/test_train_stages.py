@@ -95,6 +95,7 @@ def test_image_video_lcm_stages_load_as_models(runs):
     assert lcm.has_lcm
     # the video stage started from the image weights (conv_in's old channels) and then moved
     assert img.unet.config.in_channels == 27 and vid.unet.config.in_channels == 32  # shading prior from the image stage on
+    assert img.residual_prior and vid.residual_prior and lcm.residual_prior  # the residual target is carried forward
     img_w = img.unet.conv_in.weight[:, :23]
     vid_w = vid.unet.conv_in.weight[:, :23]
     assert 0 < float((img_w - vid_w).abs().max()) < 0.1
@@ -240,3 +241,39 @@ def test_ship_writes_fp16_model_with_training_size(runs):
         ship(runs["root"] / "lcm", out)
     ship(runs["root"] / "video", out, overwrite=True)  # replaced in place, no lcm any more
     assert not (out / "lcm_unet.safetensors").exists() and not list(out.parent.glob(".x2video-tiny*"))
+
+
+def test_residual_target_is_rgb_minus_prior_latent(runs):
+    """The residual model's diffusion target: RGB latent minus the shading latent; where the prior is
+    absent (irradiance dropped) that latent is zero and the target is the RGB latent itself."""
+    from x2video.model.checkpoint import read_config
+    from x2video.train.batches import AugmentConfig, LatentData
+    from x2video.train.diffusion import diffusion_batch
+
+    cfg = read_config(runs["root"] / "cache" / "model")
+    data = LatentData(runs["root"] / "cache", "train", cfg.latent_scales, shading_prior=True)
+    rng = np.random.default_rng(0)
+    b = data.sample(rng, data.random_frames(rng, 6), AugmentConfig(channel_drop_p=0.0, prompt_drop_p=0.0, mask_p=0.0))
+    r = diffusion_batch(b, residual=True)
+    torch.testing.assert_close(r.x0, b.x0 - b.cond[:, -4:])
+    assert float(b.cond[:, -4:].abs().mean()) > 0.1  # a real prior was subtracted
+    assert diffusion_batch(b, residual=False) is b
+    assert r.ref is b.ref  # references stay RGB latents
+    b.cond[:, -4:] = 0  # what dropping irradiance gives
+    torch.testing.assert_close(diffusion_batch(b, residual=True).x0, b.x0)
+
+
+def test_image_stage_init_starts_from_the_given_weights(runs, tmp_path):
+    """--init loads the image model; with lr 0 the saved (EMA) weights are exactly the init's.
+    An init of another architecture fails naming it."""
+    from x2video.model.pipeline import X2VideoModel
+    from x2video.train.diffusion_stages import ImageStageConfig, run_image_stage
+
+    stage = ImageStageConfig(unet_channels=(16, 32), batch=2, heldout_batches=0, init=str(runs["root"] / "image"))
+    res = run_image_stage(runs["root"] / "cache", tmp_path / "img", stage, LoopConfig(steps=1, lr=0.0, warmup=0))
+    got = X2VideoModel.from_pretrained(res["model"], text_encoder=FakeTextEncoder()).unet.state_dict()
+    want = X2VideoModel.from_pretrained(runs["image"]["model"], text_encoder=FakeTextEncoder()).unet.state_dict()
+    assert got.keys() == want.keys() and all(torch.equal(got[k], want[k]) for k in want)
+    bad = ImageStageConfig(unet_channels=(16, 32), batch=2, heldout_batches=0, shading_prior=False, init=str(runs["root"] / "image"))
+    with pytest.raises(ValueError, match="not an image model of this stage's architecture"):
+        run_image_stage(runs["root"] / "cache", tmp_path / "bad", bad, LoopConfig(steps=1))

@@ -41,6 +41,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--scheme", choices=["recursive", "sequential"], default=d.scheme, help="frame schedule")
     p.add_argument("--window", type=int, default=d.window, help=f"frames per window N (default {d.window})")
     p.add_argument("--frames", type=_frame_range, help="render only frames START:STOP of the shot")
+    p.add_argument("--no-detail", dest="detail", action="store_false",
+                   help="residual models: do not add back the classical shading's fine detail the VAE loses (an ablation)")
     p.add_argument("--weights", type=Path, help="model checkpoint folder (default: the weights shipped in resources/)")
     p.add_argument("--untrained", action="store_true", help="use untrained tiny weights (smoke test: the output is noise)")
     p.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
@@ -150,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
         scheme=args.scheme,
         frames=args.frames,
         preset=args.preset,
+        detail=args.detail,
     )
     shot, edits, base_dir = load_inputs(args)
     start, stop = settings.frames or (0, shot.num_frames)

@@ -170,7 +170,8 @@ def cmd_image(a: argparse.Namespace) -> int:
     from x2video.train.diffusion_stages import ImageStageConfig, run_image_stage
 
     loop = _loop_cfg(a)
-    stage = ImageStageConfig(preset=a.preset, unet_channels=a.unet_channels, shading_prior=not a.no_shading_prior, batch=a.batch,
+    stage = ImageStageConfig(preset=a.preset, unet_channels=a.unet_channels, shading_prior=not a.no_shading_prior,
+                             residual_prior=not a.no_residual_prior, init=None if a.init is None else str(a.init), batch=a.batch,
                              seed=a.seed, heldout_batches=a.heldout_batches, augment=_aug(a))
     _print_result(_run("image", loop.steps, lambda bar: run_image_stage(a.cache, a.out, stage, loop, bar)))
     return 0
@@ -241,6 +242,9 @@ def register(subparsers) -> None:
     s.add_argument("--preset", default="tiny", help="UNet preset (tiny, small, sd21)")
     s.add_argument("--unet-channels", type=_ints, default=None, help="UNet block widths overriding the preset, e.g. 32,64,128")
     s.add_argument("--no-shading-prior", action="store_true", help="the paper's layout: no classical shading input")
+    s.add_argument("--no-residual-prior", action="store_true",
+                   help="with the shading prior: learn the RGB latent itself, not the residual over the prior's latent")
+    s.add_argument("--init", type=Path, default=None, help="start from this image run or model folder (same architecture)")
     s.add_argument("--batch", type=int, default=16, help="frames per batch")
     s.add_argument("--heldout-batches", type=int, default=4, help="test-room batches for the final held-out v-loss (0: skip)")
     _aug_args(s)

@@ -40,6 +40,8 @@ class RenderModel(Protocol):
     num_train_timesteps: int
     #: whether LCM (distilled) weights are loaded, so `sampler="lcm"` is allowed
     has_lcm: bool
+    #: whether the sampler's output is a residual over the shading prior (see `sample_to_latents`, `detail`)
+    residual_prior: bool
 
     def alphas_cumprod(self) -> torch.Tensor:
         """(num_train_timesteps,) float64 cumulative alphas (zero-terminal-SNR rescaled)."""
@@ -65,6 +67,15 @@ class RenderModel(Protocol):
 
     def predict_v(self, x_t: torch.Tensor, t: torch.Tensor, window: WindowInputs, *, lcm: bool = False) -> torch.Tensor:
         """v-prediction for a window: x_t (N, 4, h, w), t scalar timestep -> (N, 4, h, w)."""
+        ...
+
+    def sample_to_latents(self, x0: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
+        """(N, 4, h, w) RGB latents from a window's sample and its (N, C_cond, h, w) conditioning
+        (identity unless the model samples a residual over a prior)."""
+        ...
+
+    def detail(self, frames: Sequence[FrameConditioning], cond: torch.Tensor) -> np.ndarray | None:
+        """(N, H, W, 3) linear detail to add to the decoded frames of `frames`, or None."""
         ...
 
     def decode(self, latents: torch.Tensor) -> np.ndarray:

@@ -104,6 +104,10 @@ class ModelConfig:
     hybrid: HybridConfig = field(default_factory=HybridConfig)
     shading_prior: bool = True
     """Our addition: 4 more UNet input channels holding the VAE latent of the classical shading."""
+    residual_prior: bool = False
+    """With the shading prior: the diffusion runs on the residual x0 - z_shading (the RGB latent minus
+    the shading prior's latent, zero where the prior is absent), and the decoded frame gets back the
+    shading's fine detail the VAE loses. A model that learned nothing renders the classical shading."""
     video: bool = True
     """True: the video UNet (28/32 inputs, Hybrid Self-Attention). False: the per-frame image UNet (23 inputs)."""
     latent_scales: dict[str, float] = field(default_factory=lambda: {k: 1.0 for k in LATENT_SCALE_KEYS})

@@ -24,6 +24,14 @@ def cond_channels(shading_prior: bool) -> int:
     return INTRINSIC_CHANNELS + MASK_CHANNELS + (SHADING_CHANNELS if shading_prior else 0)
 
 
+def prior_latents(cond: torch.Tensor) -> torch.Tensor:
+    """(BN, 4, h, w) shading-prior latents of (BN, C_cond, h, w) conditioning (zero where the prior is absent)."""
+    full = INTRINSIC_CHANNELS + MASK_CHANNELS + SHADING_CHANNELS
+    if cond.shape[1] != full:
+        raise ValueError(f"residual prior: cond has {cond.shape[1]} channels, a model with the shading prior has {full}")
+    return cond[:, -SHADING_CHANNELS:]
+
+
 def is_video_unet(unet: UNet2DConditionModel) -> bool:
     return int(unet.config.in_channels) not in (IMAGE_IN, IMAGE_IN_PRIOR)
 

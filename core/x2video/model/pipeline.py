@@ -24,7 +24,7 @@ from x2video.conditioning import FrameConditioning
 from x2video.model.api import WindowInputs
 from x2video.model.checkpoint import PARTS, load_into, read_config, save_checkpoint
 from x2video.model.config import ModelConfig, preset
-from x2video.model.inputs import cond_channels, is_video_unet, run_unet
+from x2video.model.inputs import cond_channels, is_video_unet, prior_latents, run_unet
 from x2video.model.shading import classical_shading, shading_available
 from x2video.model.text import TextEncoder, build_text_encoder
 from x2video.model.unet import INTRINSIC_CHANNELS, build_unet, convert_image_to_video
@@ -141,6 +141,11 @@ class X2VideoModel:
         return self.lcm_unet is not None
 
     @property
+    def residual_prior(self) -> bool:
+        """Whether the UNet samples the residual over the shading prior's latent (`ModelConfig.residual_prior`)."""
+        return bool(self.config.shading_prior and self.config.residual_prior)
+
+    @property
     def cond_channels(self) -> int:
         return cond_channels(self.config.shading_prior)
 
@@ -238,6 +243,32 @@ class X2VideoModel:
             text_local=window.text_local.to(dev, dt)[None] if has_local else None,  # (1, P, L, D)
             local_masks=window.local_masks.to(dev, dt) if has_local else None,  # (N, P, H, W)
         )
+
+    def sample_to_latents(self, x0: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
+        """RGB latents (N, 4, h, w) of a window from the sampler's output: the sample itself, or for a
+        residual model the sample plus the shading prior's latent in `cond` (N, C_cond, h, w)."""
+        if not self.residual_prior:
+            return x0
+        return x0 + prior_latents(cond.to(x0.device, x0.dtype))
+
+    @torch.no_grad()
+    def detail(self, frames: Sequence[FrameConditioning], cond: torch.Tensor) -> np.ndarray | None:
+        """(N, H, W, 3) fine detail of the classical shading that the VAE loses, to add to the decoded
+        frames of a residual model: shading - decode(z_shading), zero where the frame has no prior
+        (albedo or irradiance dropped) and inside the A|M|R mask. None for other models."""
+        if not self.residual_prior:
+            return None
+        if len(frames) != cond.shape[0]:
+            raise ValueError(f"detail: {len(frames)} frames but {cond.shape[0]} conditioning latents")
+        H, W = frames[0].size
+        out = np.zeros((len(frames), H, W, 3), np.float32)
+        idx = [i for i, fr in enumerate(frames) if shading_available(fr.channels)]
+        if idx:
+            smooth = self.decode(prior_latents(cond[idx]))  # (n, H, W, 3) what the VAE keeps of the shading
+            for j, i in enumerate(idx):
+                keep = (np.asarray(frames[i].amr_mask, np.float32) <= 0.5)[..., None]
+                out[i] = (classical_shading(frames[i].channels, frames[i].amr_mask) - smooth[j]) * keep
+        return out
 
     @torch.no_grad()
     def decode(self, latents: torch.Tensor) -> np.ndarray:

@@ -24,6 +24,8 @@ class RenderSettings:
     """Recursive Sampling (keyframes, then interpolation levels) or the sequential baseline."""
     frames: tuple[int, int] | None = None
     """Optional [start, stop) range of the shot to render."""
+    detail: bool = True
+    """Residual models only: add back the classical shading's fine detail that the VAE loses."""
     preset: Literal["fast", "quality"] | None = None
     """Overrides sampler and steps when set: 'fast' = LCM-2 if distilled weights are loaded, else
     DDIM-4; 'quality' = DDIM-20 (`x2video.sampling.renderer.select_steps`)."""

@@ -195,9 +195,14 @@ class Renderer:
                     raise Cancelled(f"cancelled before window {index}")
                 emit(WindowStarted(index=index, frames=list(window.frames), mode=window.mode, level=window.level))
                 tw = time.perf_counter()
-                x0 = self._run_window(index, window, settings, conditioning, latents, ref_latent, text_global, text_local, emit, cancel)
+                x0, conds, cond = self._run_window(index, window, settings, conditioning, latents, ref_latent, text_global, text_local, emit, cancel)
+                x0 = model.sample_to_latents(x0, cond)  # RGB latents: later windows read them as references
                 gen_pos = list(window.generate_positions)
                 images = model.decode(x0[gen_pos])  # (G, H, W, 3)
+                if settings.detail:
+                    detail = self._detail([conds[p] for p in gen_pos], cond[gen_pos])
+                    if detail is not None:
+                        images = np.maximum(images + detail, 0)
                 for pos, f in zip(gen_pos, window.generate):
                     if keep_until.get(f, -1) > index:
                         latents[f] = x0[pos].clone()
@@ -229,6 +234,25 @@ class Renderer:
             found = [encoded[keys[i]] if v is None else v for i, v in enumerate(found)]
         return torch.stack(found)  # (n, C_cond, h, w)
 
+    def _detail(self, conds: list[FrameConditioning], cond: torch.Tensor) -> np.ndarray | None:
+        """(G, H, W, 3) `model.detail` of the generated frames, cached like their conditioning latents."""
+        if not self.model.residual_prior:
+            return None
+        key = self.model.content_key()
+        keys = [conditioning_key(c, key) + "#detail" for c in conds]
+        found = [self.cache.get(k) for k in keys]
+        missing = [i for i, v in enumerate(found) if v is None]
+        if missing:
+            t0 = time.perf_counter()
+            fresh = self.model.detail([conds[i] for i in missing], cond[missing])
+            self.encode_seconds += time.perf_counter() - t0
+            if fresh is None:
+                return None
+            for j, i in enumerate(missing):
+                found[i] = torch.from_numpy(np.ascontiguousarray(fresh[j]))
+                self.cache.put(keys[i], found[i])
+        return torch.stack(found).numpy()  # type: ignore[arg-type]
+
     def _run_window(
         self,
         index: int,
@@ -241,8 +265,9 @@ class Renderer:
         text_local: torch.Tensor,
         emit: Callable[[RenderEvent], None],
         cancel: CancelToken | None,
-    ) -> torch.Tensor:
-        """Denoise one window; returns its clean latents (n, 4, h, w)."""
+    ) -> tuple[torch.Tensor, list[FrameConditioning], torch.Tensor]:
+        """Denoise one window; returns the sampler's clean output (n, 4, h, w), the frames'
+        conditioning and their (n, C_cond, h, w) conditioning latents."""
         model = self.model
         conds = [conditioning(f) for f in window.frames]
         cond = self._encode(conds)  # (n, C_cond, h, w)
@@ -280,5 +305,7 @@ class Renderer:
             emit(StepDone(window=index, step=info["i"] + 1, steps=info["steps"]))
 
         if lcm:
-            return sample_lcm(model_fn, x_T, settings.steps, callback=callback, cancel=cancel, generator=gen)
-        return sample_ddim(model_fn, x_T, settings.steps, callback=callback, cancel=cancel)
+            x0 = sample_lcm(model_fn, x_T, settings.steps, callback=callback, cancel=cancel, generator=gen)
+        else:
+            x0 = sample_ddim(model_fn, x_T, settings.steps, callback=callback, cancel=cancel)
+        return x0, conds, cond

@@ -9,11 +9,13 @@ what DDIM/LCM sample.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import torch
 import torch.nn.functional as F
 from diffusers import DDPMScheduler, UNet2DConditionModel
 
-from x2video.model.inputs import run_unet
+from x2video.model.inputs import prior_latents, run_unet
 from x2video.sampling.samplers import SCHEDULE
 from x2video.train.batches import Batch
 
@@ -22,6 +24,14 @@ def noise_scheduler() -> DDPMScheduler:
     """The training noise schedule: SD 2.1 scaled-linear betas, zero terminal SNR, v-prediction."""
     keys = ("num_train_timesteps", "beta_start", "beta_end", "beta_schedule", "prediction_type", "rescale_betas_zero_snr", "clip_sample")
     return DDPMScheduler(**{k: SCHEDULE[k] for k in keys})
+
+
+def diffusion_batch(b: Batch, residual: bool) -> Batch:
+    """The batch the diffusion sees: targets x0 are the RGB latents, or for a residual-prior model
+    (`ModelConfig.residual_prior`) the RGB latents minus the shading prior's latents in `b.cond`
+    (zero where the prior is dropped or masked out, so there the target is the RGB latent).
+    References stay RGB latents: at sampling they are earlier frames' finished latents."""
+    return dataclasses.replace(b, x0=b.x0 - prior_latents(b.cond)) if residual else b
 
 
 def predict(unet: UNet2DConditionModel, x_t: torch.Tensor, t: torch.Tensor, b: Batch) -> torch.Tensor:

@@ -23,7 +23,7 @@ from x2video.model.checkpoint import load_into, read_config, save_checkpoint
 from x2video.model.config import ModelConfig, UNetConfig, preset
 from x2video.model.unet import build_unet, convert_image_to_video
 from x2video.train.batches import AugmentConfig, LatentData, WindowConfig, image_batches, video_batches
-from x2video.train.diffusion import heldout_v_loss, noise_scheduler, v_loss
+from x2video.train.diffusion import diffusion_batch, heldout_v_loss, noise_scheduler, v_loss
 from x2video.train.loop import LoopConfig, StepLog, process_index, train
 from x2video.train.runs import check_same_vae, load_vae, model_dir, write_results
 
@@ -40,6 +40,10 @@ class ImageStageConfig:
     """UNet block widths overriding the preset's (attention on all but the first level)."""
     shading_prior: bool = True
     """Feed the classical shading latent (our addition); the paper's layout is off."""
+    residual_prior: bool = True
+    """With the shading prior: learn the residual over the prior's latent (ignored without the prior)."""
+    init: str | None = None
+    """Start from this image model (a run or model folder of the same architecture) instead of random weights."""
     batch: int = 16
     """Frames per batch."""
     seed: int = 0
@@ -83,7 +87,7 @@ def image_model_config(stage: ImageStageConfig, cache_cfg: ModelConfig) -> Model
                           cross_attention_dim=unet.cross_attention_dim, norm_num_groups=min(unet.norm_num_groups, min(widths)),
                           use_linear_projection=unet.use_linear_projection)
     return dataclasses.replace(cfg, unet=unet, vae=cache_cfg.vae, text=cache_cfg.text, latent_scales=dict(cache_cfg.latent_scales),
-                               video=False, shading_prior=stage.shading_prior)
+                               video=False, shading_prior=stage.shading_prior, residual_prior=stage.shading_prior and stage.residual_prior)
 
 
 def _heldout(unet: UNet2DConditionModel, cache: Path, cfg: ModelConfig, shading: bool, n: int, draw) -> dict:
@@ -96,7 +100,7 @@ def _heldout(unet: UNet2DConditionModel, cache: Path, cfg: ModelConfig, shading:
     out = {}
     for name, aug in (("full", AugmentConfig(channel_drop_p=0.0, prompt_drop_p=0.0, mask_p=0.0)), ("augmented", AugmentConfig())):
         rng = np.random.default_rng(1234)
-        out[name] = heldout_v_loss(unet, [draw(data, rng, aug) for _ in range(n)])
+        out[name] = heldout_v_loss(unet, [diffusion_batch(draw(data, rng, aug), cfg.residual_prior) for _ in range(n)])
     return out
 
 
@@ -107,7 +111,7 @@ def _run(unet: UNet2DConditionModel, cfg: ModelConfig, cache: Path, out_dir: Pat
     unet.requires_grad_(True)
 
     def loss_fn(b, step):
-        return v_loss(unet, sched, b.to(next(unet.parameters()).device))
+        return v_loss(unet, sched, diffusion_batch(b.to(next(unet.parameters()).device), cfg.residual_prior))
 
     def save(module: torch.nn.Module, d: Path) -> None:
         save_checkpoint(d, cfg, {"unet": module, "vae": vae})
@@ -139,6 +143,14 @@ def run_image_stage(cache: str | Path, out_dir: str | Path, stage: ImageStageCon
     data = LatentData(cache, "train", cfg.latent_scales, shading_prior=cfg.shading_prior)
     torch.manual_seed(stage.seed)
     unet = build_unet(cfg)
+    if stage.init:
+        init_cfg = read_config(model_dir(stage.init))
+        if init_cfg.video or init_cfg.unet != cfg.unet or init_cfg.shading_prior != cfg.shading_prior:
+            raise ValueError(f"--init {stage.init}: not an image model of this stage's architecture (video={init_cfg.video}, "
+                             f"shading_prior={init_cfg.shading_prior}, unet {init_cfg.unet.block_out_channels})")
+        check_same_vae(init_cfg, cache_cfg, f"image model {stage.init}")
+        load_into(unet, model_dir(stage.init) / "unet.safetensors", "unet")
+        log.info("image UNet initialised from %s", model_dir(stage.init))
     n = sum(p.numel() for p in unet.parameters())
     log.info("image UNet: %.2f M parameters, %d training frames", n / 1e6, data.num_rows)
     sc = {"stage": "image", **_resume_fields(stage), "model": cfg.to_dict(), "cache": str(cache.resolve())}
@@ -166,7 +178,7 @@ def run_video_stage(init: str | Path, cache: str | Path, out_dir: str | Path, st
     img_cfg, image_unet = load_image_unet(init)
     check_same_vae(img_cfg, read_config(cache / "model"), f"image model {init}")
     sp = img_cfg.shading_prior if stage.shading_prior is None else stage.shading_prior
-    cfg = dataclasses.replace(img_cfg, video=True, shading_prior=sp)
+    cfg = dataclasses.replace(img_cfg, video=True, shading_prior=sp, residual_prior=sp and img_cfg.residual_prior)
     unet = convert_image_to_video(image_unet, cfg.hybrid, sp)
     data = LatentData(cache, "train", cfg.latent_scales, sp)
     log.info("video UNet: %.2f M parameters, %d training frames", sum(p.numel() for p in unet.parameters()) / 1e6, data.num_rows)

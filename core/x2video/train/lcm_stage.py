@@ -30,7 +30,7 @@ from x2video.model.checkpoint import load_into, read_config, save_checkpoint
 from x2video.model.unet import build_unet
 from x2video.sampling.samplers import lcm_scheduler
 from x2video.train.batches import AugmentConfig, Batch, LatentData, WindowConfig, video_batches
-from x2video.train.diffusion import noise_scheduler, predict
+from x2video.train.diffusion import diffusion_batch, noise_scheduler, predict
 from x2video.train.loop import LoopConfig, StepLog, train
 from x2video.train.runs import check_same_vae, load_vae, model_dir, write_results
 
@@ -131,7 +131,7 @@ def run_lcm_stage(teacher: str | Path, cache: str | Path, out_dir: str | Path, s
         dev = next(student.parameters()).device
         teacher_unet.to(dev)
         target.to(dev)
-        return loss(b.to(dev), step)
+        return loss(diffusion_batch(b.to(dev), cfg.residual_prior), step)
 
     def save(module: torch.nn.Module, out: Path) -> None:
         save_checkpoint(out, cfg, {"unet": teacher_unet, "vae": vae, "lcm_unet": module})
