@@ -64,12 +64,14 @@ def device_label(device: torch.device) -> str:
 
 
 def time_encoding(model: X2VideoModel, shot: ArrayShot, batch: int) -> float:
-    """Seconds per frame to encode the conditioning (VAE of 4 channels + shading prior), cold."""
+    """Seconds per frame to encode the conditioning (VAE of 4 channels + shading prior, and for a
+    residual model the shading detail the Renderer caches beside it), cold."""
     conds = [plain_conditioning(shot, t) for t in range(shot.num_frames)]
     t0 = time.perf_counter()
     with torch.inference_mode():
         for i in range(0, len(conds), batch):
-            model.encode_frames(conds[i : i + batch])
+            cond = model.encode_frames(conds[i : i + batch])
+            model.detail(conds[i : i + batch], cond)  # None (free) unless the model is residual
     if model.device.type == "cuda":
         torch.cuda.synchronize()
     return (time.perf_counter() - t0) / len(conds)

@@ -277,3 +277,21 @@ def test_image_stage_init_starts_from_the_given_weights(runs, tmp_path):
     bad = ImageStageConfig(unet_channels=(16, 32), batch=2, heldout_batches=0, shading_prior=False, init=str(runs["root"] / "image"))
     with pytest.raises(ValueError, match="not an image model of this stage's architecture"):
         run_image_stage(runs["root"] / "cache", tmp_path / "bad", bad, LoopConfig(steps=1))
+
+
+def test_video_stage_continues_a_video_model(runs, tmp_path):
+    """--init with a video model continues it without conversion (lr 0: same weights) and may switch
+    the diffusion target; it cannot change the shading-prior layout."""
+    from x2video.model.pipeline import X2VideoModel
+    from x2video.train.diffusion_stages import VideoStageConfig, run_video_stage
+
+    res = run_video_stage(runs["root"] / "video", runs["root"] / "cache", tmp_path / "v",
+                          VideoStageConfig(batch=1, heldout_batches=0, residual_prior=False), LoopConfig(steps=1, lr=0.0, warmup=0))
+    got = X2VideoModel.from_pretrained(res["model"], text_encoder=FakeTextEncoder())
+    want = X2VideoModel.from_pretrained(runs["video"]["model"], text_encoder=FakeTextEncoder())
+    assert got.config.video and not got.residual_prior and want.residual_prior
+    sd, ref = got.unet.state_dict(), want.unet.state_dict()
+    assert sd.keys() == ref.keys() and all(torch.equal(sd[k], ref[k]) for k in ref)
+    with pytest.raises(ValueError, match="cannot change"):
+        run_video_stage(runs["root"] / "video", runs["root"] / "cache", tmp_path / "w",
+                        VideoStageConfig(batch=1, heldout_batches=0, shading_prior=False), LoopConfig(steps=1))

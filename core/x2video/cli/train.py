@@ -182,7 +182,8 @@ def cmd_video(a: argparse.Namespace) -> int:
 
     loop = _loop_cfg(a)
     sp = None if a.shading_prior is None else a.shading_prior == "on"
-    stage = VideoStageConfig(batch=a.batch, shading_prior=sp, seed=a.seed, heldout_batches=a.heldout_batches, augment=_aug(a),
+    rp = None if a.residual_prior is None else a.residual_prior == "on"
+    stage = VideoStageConfig(batch=a.batch, shading_prior=sp, residual_prior=rp, seed=a.seed, heldout_batches=a.heldout_batches, augment=_aug(a),
                              window=_window(a))
     _print_result(_run("video", loop.steps, lambda bar: run_video_stage(a.init, a.cache, a.out, stage, loop, bar)))
     return 0
@@ -252,11 +253,14 @@ def register(subparsers) -> None:
     s.set_defaults(func=cmd_image)
 
     s = sub.add_parser("video", help="convert the image UNet to the video UNet and train it on windows")
-    s.add_argument("--init", type=Path, required=True, help="image run (newest checkpoint) or image model folder")
+    s.add_argument("--init", type=Path, required=True,
+                   help="image run (newest checkpoint) or image model folder, converted; or a video run/model, continued")
     s.add_argument("--cache", type=Path, required=True)
     s.add_argument("--out", type=Path, required=True)
     s.add_argument("--batch", type=int, default=2, help="windows per batch")
     s.add_argument("--shading-prior", choices=("on", "off"), default=None, help="default: as the image model")
+    s.add_argument("--residual-prior", choices=("on", "off"), default=None,
+                   help="learn the residual over the shading prior's latent (default: as the --init model)")
     s.add_argument("--heldout-batches", type=int, default=4, help="test-room batches for the final held-out v-loss (0: skip)")
     _aug_args(s)
     _window_args(s)

@@ -83,7 +83,8 @@ def training_markdown(runs: list[dict[str, Any]]) -> str:
         if isinstance(res, dict) and res.get("heldout_psnr_db"):
             extra = "held-out VAE PSNR " + ", ".join(f"{k} {v:.2f} dB" for k, v in res["heldout_psnr_db"].items())
         elif isinstance(res, dict) and res.get("heldout_v_loss"):
-            extra = ("shading prior " + ("on" if res.get("shading_prior") else "off") + "; held-out v-loss "
+            prior = ("on, residual target" if res.get("residual_prior") else "on") if res.get("shading_prior") else "off"
+            extra = ("shading prior " + prior + "; held-out v-loss "
                      + ", ".join(f"{k} {v:.4f}" for k, v in res["heldout_v_loss"].items()))
         lines.append(
             f"| {f['stage']} | `{f['run']}` | {f['step']} | {_fmt(f.get('estimated_hours'))} | {_fmt(s.get('steps_per_s'))} | "

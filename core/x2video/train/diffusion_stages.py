@@ -60,6 +60,8 @@ class VideoStageConfig:
     """Windows per batch (each of `window.frames` frames)."""
     shading_prior: bool | None = None
     """None: as the image model was trained."""
+    residual_prior: bool | None = None
+    """None: as the --init model was trained; True continues an absolute-target model as a residual one."""
     seed: int = 0
     heldout_batches: int = 4
     """Batches of held-out (test) windows for the final held-out v-loss (0: skip)."""
@@ -122,7 +124,7 @@ def _run(unet: UNet2DConditionModel, cfg: ModelConfig, cache: Path, out_dir: Pat
     import json
 
     result = {"checkpoint": str(ck), "model": str(ck / "model"), "step": int(ck.name.split("-")[-1]),
-              "shading_prior": cfg.shading_prior, "speed": json.loads(summary)}
+              "shading_prior": cfg.shading_prior, "residual_prior": cfg.residual_prior, "speed": json.loads(summary)}
     if heldout is not None and process_index() == 0:
         ema = build_unet(cfg)
         load_into(ema, ck / "model" / "unet.safetensors", "unet")
@@ -136,6 +138,8 @@ def run_image_stage(cache: str | Path, out_dir: str | Path, stage: ImageStageCon
                     on_step: Callable[[StepLog], None] | None = None) -> dict:
     """Train (or resume) the image UNet on the cache's train split."""
     cache, out_dir = Path(cache), Path(out_dir)
+    if stage.init:  # absolute, so a resumed run matches whatever folder it is started from
+        stage = dataclasses.replace(stage, init=str(Path(stage.init).resolve()))
     cache_cfg = read_config(cache / "model")
     cfg = image_model_config(stage, cache_cfg)
     # With the shading prior the image UNet takes 27 inputs (XRGB's 23 + the shading latent), so
@@ -175,11 +179,23 @@ def run_video_stage(init: str | Path, cache: str | Path, out_dir: str | Path, st
                     on_step: Callable[[StepLog], None] | None = None) -> dict:
     """Convert the image UNet of `init` to the video UNet and train it on windows of the cache."""
     cache, out_dir = Path(cache), Path(out_dir)
-    img_cfg, image_unet = load_image_unet(init)
-    check_same_vae(img_cfg, read_config(cache / "model"), f"image model {init}")
-    sp = img_cfg.shading_prior if stage.shading_prior is None else stage.shading_prior
-    cfg = dataclasses.replace(img_cfg, video=True, shading_prior=sp, residual_prior=sp and img_cfg.residual_prior)
-    unet = convert_image_to_video(image_unet, cfg.hybrid, sp)
+    init_cfg = read_config(model_dir(init))
+    if init_cfg.video:
+        # continue a video model (e.g. into the residual target): no conversion, the architecture is kept
+        if stage.shading_prior is not None and stage.shading_prior != init_cfg.shading_prior:
+            raise ValueError(f"--init {init} is a video model with shading_prior={init_cfg.shading_prior}; it cannot change")
+        check_same_vae(init_cfg, read_config(cache / "model"), f"video model {init}")
+        sp = init_cfg.shading_prior
+        cfg = dataclasses.replace(init_cfg, residual_prior=sp and (stage.residual_prior if stage.residual_prior is not None else init_cfg.residual_prior))
+        unet = build_unet(cfg)
+        load_into(unet, model_dir(init) / "unet.safetensors", "unet")
+    else:
+        img_cfg, image_unet = load_image_unet(init)
+        check_same_vae(img_cfg, read_config(cache / "model"), f"image model {init}")
+        sp = img_cfg.shading_prior if stage.shading_prior is None else stage.shading_prior
+        res = img_cfg.residual_prior if stage.residual_prior is None else stage.residual_prior
+        cfg = dataclasses.replace(img_cfg, video=True, shading_prior=sp, residual_prior=sp and res)
+        unet = convert_image_to_video(image_unet, cfg.hybrid, sp)
     data = LatentData(cache, "train", cfg.latent_scales, sp)
     log.info("video UNet: %.2f M parameters, %d training frames", sum(p.numel() for p in unet.parameters()) / 1e6, data.num_rows)
     sc = {"stage": "video", **_resume_fields(stage), "model": cfg.to_dict(), "cache": str(cache.resolve()),
