@@ -248,6 +248,42 @@ def test_residual_model_with_zero_residual_renders_the_classical_shading(monkeyp
     np.testing.assert_allclose(render(RenderSettings(steps=2, window=3), no_irr), np.broadcast_to(blank, (5, H, W, 3)), atol=1e-4)
 
 
+def test_zero_x0_head_renders_the_classical_shading():
+    """The real UNet path: an x0-predicting residual model whose output layer is zero (how training
+    starts it) renders the classical shading exactly, with DDIM and with LCM."""
+    from x2video.model.shading import classical_shading
+    from x2video.sampling.events import FramesReady, RenderSettings
+    from x2video.sampling.renderer import Renderer, plain_conditioning
+    from x2video.shot import ArrayShot
+    from x2video.train.diffusion_stages import zero_output_layer
+
+    model = X2VideoModel.untrained("tiny", seed=2, residual_prior=True, prediction="sample")
+    zero_output_layer(model.unet)
+    model.lcm_unet = model.unet
+    frames = [_frame(i) for i in range(3)]
+    shot = ArrayShot({k: np.stack([f.channels[k] for f in frames]) for k in frames[0].channels}, fps=10.0)
+    want = np.stack([classical_shading(plain_conditioning(shot, t).channels) for t in range(3)])
+    for sampler, steps in (("ddim", 4), ("lcm", 2)):
+        out = {}
+        Renderer(model).render(shot, None, RenderSettings(sampler=sampler, steps=steps, window=3),
+                               on_event=lambda e: out.update(e.frames) if isinstance(e, FramesReady) else None)
+        np.testing.assert_allclose(np.stack([out[t] for t in range(3)]), want, atol=1e-4)
+
+
+def test_x0_prediction_is_converted_to_v():
+    """run_unet with prediction="sample" returns the v whose x0 is the UNet's output, at any timestep."""
+    from x2video.model.inputs import sd_alphas_cumprod, v_from_sample
+
+    x0, x_t = torch.randn(3, 4, 2, 2), torch.randn(3, 4, 2, 2)
+    t = torch.tensor([0, 500, 999])
+    v = v_from_sample(x0, x_t, t)
+    a = sd_alphas_cumprod().float()[t].view(-1, 1, 1, 1)
+    torch.testing.assert_close(a.sqrt() * x_t - (1 - a).sqrt() * v, x0, atol=1e-5, rtol=1e-5)  # x0 from v (DDIM's formula)
+    torch.testing.assert_close(v[2], -x0[2])  # zero terminal SNR
+    with pytest.raises(ValueError, match="prediction"):
+        ModelConfig(prediction="eps")
+
+
 def test_residual_prior_needs_the_shading_prior():
     m = X2VideoModel.untrained("tiny", seed=1, residual_prior=True, shading_prior=False)
     assert not m.residual_prior  # the flag alone does nothing without the prior's latent

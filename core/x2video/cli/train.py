@@ -171,7 +171,8 @@ def cmd_image(a: argparse.Namespace) -> int:
 
     loop = _loop_cfg(a)
     stage = ImageStageConfig(preset=a.preset, unet_channels=a.unet_channels, shading_prior=not a.no_shading_prior,
-                             residual_prior=not a.no_residual_prior, init=None if a.init is None else str(a.init), batch=a.batch,
+                             residual_prior=not a.no_residual_prior, init=None if a.init is None else str(a.init),
+                             prediction=a.prediction, batch=a.batch,
                              seed=a.seed, heldout_batches=a.heldout_batches, augment=_aug(a))
     _print_result(_run("image", loop.steps, lambda bar: run_image_stage(a.cache, a.out, stage, loop, bar)))
     return 0
@@ -183,7 +184,7 @@ def cmd_video(a: argparse.Namespace) -> int:
     loop = _loop_cfg(a)
     sp = None if a.shading_prior is None else a.shading_prior == "on"
     rp = None if a.residual_prior is None else a.residual_prior == "on"
-    stage = VideoStageConfig(batch=a.batch, shading_prior=sp, residual_prior=rp, seed=a.seed, heldout_batches=a.heldout_batches, augment=_aug(a),
+    stage = VideoStageConfig(batch=a.batch, shading_prior=sp, residual_prior=rp, prediction=a.prediction, seed=a.seed, heldout_batches=a.heldout_batches, augment=_aug(a),
                              window=_window(a))
     _print_result(_run("video", loop.steps, lambda bar: run_video_stage(a.init, a.cache, a.out, stage, loop, bar)))
     return 0
@@ -246,6 +247,8 @@ def register(subparsers) -> None:
     s.add_argument("--no-residual-prior", action="store_true",
                    help="with the shading prior: learn the RGB latent itself, not the residual over the prior's latent")
     s.add_argument("--init", type=Path, default=None, help="start from this image run or model folder (same architecture)")
+    s.add_argument("--prediction", choices=("v", "sample"), default=None,
+                   help="UNet output: v, or sample (x0; a new x0 head starts at zero). Default: sample with the residual prior, else v")
     s.add_argument("--batch", type=int, default=16, help="frames per batch")
     s.add_argument("--heldout-batches", type=int, default=4, help="test-room batches for the final held-out v-loss (0: skip)")
     _aug_args(s)
@@ -261,6 +264,8 @@ def register(subparsers) -> None:
     s.add_argument("--shading-prior", choices=("on", "off"), default=None, help="default: as the image model")
     s.add_argument("--residual-prior", choices=("on", "off"), default=None,
                    help="learn the residual over the shading prior's latent (default: as the --init model)")
+    s.add_argument("--prediction", choices=("v", "sample"), default=None,
+                   help="UNet output (default: as the --init model); sample on a v model starts a zero x0 head")
     s.add_argument("--heldout-batches", type=int, default=4, help="test-room batches for the final held-out v-loss (0: skip)")
     _aug_args(s)
     _window_args(s)

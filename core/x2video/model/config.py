@@ -104,6 +104,10 @@ class ModelConfig:
     hybrid: HybridConfig = field(default_factory=HybridConfig)
     shading_prior: bool = True
     """Our addition: 4 more UNet input channels holding the VAE latent of the classical shading."""
+    prediction: str = "v"
+    """What the UNet outputs: "v" (v-prediction, the paper) or "sample" (x0, converted to v for the
+    samplers). The residual models use "sample" with an output layer that starts at zero, so until
+    trained they predict a zero residual, i.e. the classical shading."""
     residual_prior: bool = False
     """With the shading prior: the diffusion runs on the residual x0 - z_shading (the RGB latent minus
     the shading prior's latent, zero where the prior is absent), and the decoded frame gets back the
@@ -117,6 +121,8 @@ class ModelConfig:
     beta_end: float = 0.012
 
     def __post_init__(self) -> None:
+        if self.prediction not in ("v", "sample"):
+            raise ValueError(f"ModelConfig.prediction must be 'v' or 'sample', got {self.prediction!r}")
         missing = [k for k in LATENT_SCALE_KEYS if k not in self.latent_scales]
         if missing:
             raise ValueError(f"ModelConfig.latent_scales lacks {missing}")

@@ -12,16 +12,38 @@ from __future__ import annotations
 
 from typing import Sequence
 
+import functools
+
 import torch
 from diffusers import UNet2DConditionModel
+from diffusers.schedulers.scheduling_ddim import rescale_zero_terminal_snr
 
 from x2video.model.context import AttnContext
 from x2video.model.unet import IMAGE_IN, IMAGE_IN_PRIOR, INTRINSIC_CHANNELS, LATENT, MASK_CHANNELS, REF_CHANNELS, SHADING_CHANNELS
 
 
+#: what a UNet may output (`ModelConfig.prediction`)
+PREDICTIONS = ("v", "sample")
+
+
 def cond_channels(shading_prior: bool) -> int:
     """C_cond of `encode_frames`: 20, or 24 with the shading prior."""
     return INTRINSIC_CHANNELS + MASK_CHANNELS + (SHADING_CHANNELS if shading_prior else 0)
+
+
+@functools.lru_cache(maxsize=4)
+def sd_alphas_cumprod(num_train_timesteps: int = 1000, beta_start: float = 0.00085, beta_end: float = 0.012) -> torch.Tensor:
+    """SD 2.1 scaled-linear betas rescaled to zero terminal SNR (Lin et al. 2024, Alg. 1) -> (T,) float64 alphas_cumprod."""
+    betas = torch.linspace(beta_start**0.5, beta_end**0.5, num_train_timesteps, dtype=torch.float64) ** 2
+    betas = rescale_zero_terminal_snr(betas)
+    return torch.cumprod(1.0 - betas, dim=0)
+
+
+def v_from_sample(x0: torch.Tensor, x_t: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """v of an x0 prediction at per-frame timesteps t (BN,): v = (sqrt(a) x_t - x0) / sqrt(1 - a).
+    With zero terminal SNR a(999) = 0 and v = -x0; 1 - a >= 1 - a(0) = 0.00085, so it never divides by zero."""
+    a = sd_alphas_cumprod().to(x_t.device)[t.long()].to(x_t.dtype).view(-1, 1, 1, 1)
+    return (a.sqrt() * x_t - x0) / (1 - a).sqrt()
 
 
 def prior_latents(cond: torch.Tensor) -> torch.Tensor:
@@ -76,8 +98,11 @@ def run_unet(
     level: int = 1,
     text_local: torch.Tensor | None = None,
     local_masks: torch.Tensor | None = None,
+    prediction: str = "v",
 ) -> torch.Tensor:
     """v-prediction for B windows of N frames (window-major batch BN = B*N). Differentiable (training).
+    `prediction` is what the UNet outputs (`ModelConfig.prediction`): "v", or "sample" (x0), which is
+    converted to v here, so samplers and losses always see v.
 
     x_t, ref: (BN, 4, h, w); cond: (BN, C_cond, h, w); t: scalar or (B,) per window or (BN,);
     text_global: (B, L, D) or (1, L, D); text_local: (B, P, L, D) or None; local_masks:
@@ -97,10 +122,13 @@ def run_unet(
     if text_global.shape[0] not in (1, b):
         raise ValueError(f"text_global has {text_global.shape[0]} prompts for {b} windows")
     enc = text_global.to(x_t.dtype).repeat_interleave(num_frames, 0) if text_global.shape[0] == b else text_global.to(x_t.dtype).expand(bn, -1, -1)
+    if prediction not in PREDICTIONS:
+        raise ValueError(f"unknown prediction {prediction!r} (one of {', '.join(PREDICTIONS)})")
     in_channels = int(unet.config.in_channels)
     sample = unet_inputs(x_t, cond.to(x_t.dtype), ref, in_channels)
     if not is_video_unet(unet):
-        return unet(sample, t, encoder_hidden_states=enc).sample
+        out = unet(sample, t, encoder_hidden_states=enc).sample
+        return v_from_sample(out, x_t, t) if prediction == "sample" else out
     if text_local is not None and text_local.shape[0] == 1 and b > 1:
         text_local = text_local.expand(b, -1, -1, -1)
     ctx = AttnContext(
@@ -112,4 +140,5 @@ def run_unet(
         text_local=None if text_local is None else text_local.to(x_t.dtype),
         local_masks=local_masks,
     )
-    return unet(sample, t, encoder_hidden_states=enc, cross_attention_kwargs={"x2v": ctx}).sample
+    out = unet(sample, t, encoder_hidden_states=enc, cross_attention_kwargs={"x2v": ctx}).sample
+    return v_from_sample(out, x_t, t) if prediction == "sample" else out

@@ -18,13 +18,12 @@ from typing import Sequence
 import numpy as np
 import torch
 from diffusers import AutoencoderKL, UNet2DConditionModel
-from diffusers.schedulers.scheduling_ddim import rescale_zero_terminal_snr
 
 from x2video.conditioning import FrameConditioning
 from x2video.model.api import WindowInputs
 from x2video.model.checkpoint import PARTS, load_into, read_config, save_checkpoint
 from x2video.model.config import ModelConfig, preset
-from x2video.model.inputs import cond_channels, is_video_unet, prior_latents, run_unet
+from x2video.model.inputs import cond_channels, is_video_unet, prior_latents, run_unet, sd_alphas_cumprod
 from x2video.model.shading import classical_shading, shading_available
 from x2video.model.text import TextEncoder, build_text_encoder
 from x2video.model.unet import INTRINSIC_CHANNELS, build_unet, convert_image_to_video
@@ -39,13 +38,6 @@ _AMR = ("albedo", "roughness", "metallic")
 _IRR_SLOT = 16
 _MASK_SLOT = INTRINSIC_CHANNELS  # 19
 _SHADING_SLOT = INTRINSIC_CHANNELS + 1  # 20
-
-
-def sd_alphas_cumprod(num_train_timesteps: int = 1000, beta_start: float = 0.00085, beta_end: float = 0.012) -> torch.Tensor:
-    """SD 2.1 scaled-linear betas rescaled to zero terminal SNR (Lin et al. 2024, Alg. 1) -> (T,) float64 alphas_cumprod."""
-    betas = torch.linspace(beta_start**0.5, beta_end**0.5, num_train_timesteps, dtype=torch.float64) ** 2
-    betas = rescale_zero_terminal_snr(betas)
-    return torch.cumprod(1.0 - betas, dim=0)
 
 
 def _prepare(module: torch.nn.Module, device: torch.device, dtype: torch.dtype) -> torch.nn.Module:
@@ -242,6 +234,7 @@ class X2VideoModel:
             level=window.level,
             text_local=window.text_local.to(dev, dt)[None] if has_local else None,  # (1, P, L, D)
             local_masks=window.local_masks.to(dev, dt) if has_local else None,  # (N, P, H, W)
+            prediction=self.config.prediction,
         )
 
     def sample_to_latents(self, x0: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:

@@ -34,25 +34,40 @@ def diffusion_batch(b: Batch, residual: bool) -> Batch:
     return dataclasses.replace(b, x0=b.x0 - prior_latents(b.cond)) if residual else b
 
 
-def predict(unet: UNet2DConditionModel, x_t: torch.Tensor, t: torch.Tensor, b: Batch) -> torch.Tensor:
-    """v_theta for a batch: x_t (BN, 4, h, w), t (B,) per window -> (BN, 4, h, w)."""
+def predict(unet: UNet2DConditionModel, x_t: torch.Tensor, t: torch.Tensor, b: Batch, prediction: str = "v") -> torch.Tensor:
+    """v_theta for a batch: x_t (BN, 4, h, w), t (B,) per window -> (BN, 4, h, w); an x0-predicting
+    UNet (`prediction="sample"`) is converted to v."""
     return run_unet(
         unet, x_t, t, b.cond, b.ref,
         num_frames=b.num_frames, text_global=b.text_global, ref_positions=b.ref_positions,
-        mode=b.mode, level=b.level, text_local=b.text_local, local_masks=b.local_masks,
+        mode=b.mode, level=b.level, text_local=b.text_local, local_masks=b.local_masks, prediction=prediction,
     )
 
 
-def v_loss(unet: UNet2DConditionModel, sched: DDPMScheduler, b: Batch) -> tuple[torch.Tensor, dict[str, float]]:
-    """MSE between predicted and true velocity for random per-window timesteps."""
+#: min-SNR-gamma (Hang et al. 2023) of the x0-predicting models' loss
+MIN_SNR_GAMMA = 5.0
+
+
+def v_loss(unet: UNet2DConditionModel, sched: DDPMScheduler, b: Batch, prediction: str = "v") -> tuple[torch.Tensor, dict[str, float]]:
+    """MSE between predicted and true velocity for random per-window timesteps.
+
+    For an x0-predicting UNet the v error is (x0 error) / sqrt(1 - a), i.e. the x0 error weighted
+    by 1 + SNR, which reaches 1,176 at t = 0 and would spend the gradient on nearly clean inputs;
+    there the per-frame weight is min(1 + SNR, gamma) / (1 + SNR) = min(1, gamma (1 - a)) with
+    gamma = MIN_SNR_GAMMA (min-SNR weighting of the x0 loss, Hang et al. 2023)."""
     bn = b.x0.shape[0]
     t = torch.randint(0, sched.config.num_train_timesteps, (b.windows,), device=b.x0.device)  # (B,)
     t_frames = t.repeat_interleave(b.num_frames)  # (BN,)
     noise = torch.randn_like(b.x0)
     x_t = sched.add_noise(b.x0, noise, t_frames)
     target = sched.get_velocity(b.x0, noise, t_frames)
-    v = predict(unet, x_t, t, b)
-    loss = F.mse_loss(v.float(), target.float())
+    v = predict(unet, x_t, t, b, prediction)
+    if prediction == "sample":
+        a = sched.alphas_cumprod.to(b.x0.device)[t_frames].float()  # (BN,)
+        w = torch.clamp(MIN_SNR_GAMMA * (1 - a), max=1.0).view(-1, 1, 1, 1)
+        loss = (w * (v.float() - target.float()) ** 2).mean()
+    else:
+        loss = F.mse_loss(v.float(), target.float())
     return loss, {"t_mean": float(t.float().mean()), "frames": float(bn)}
 
 
@@ -61,7 +76,7 @@ HELDOUT_T = (50, 250, 500, 750, 950)
 
 
 @torch.no_grad()
-def heldout_v_loss(unet: UNet2DConditionModel, batches: list[Batch], seed: int = 0) -> float:
+def heldout_v_loss(unet: UNet2DConditionModel, batches: list[Batch], seed: int = 0, prediction: str = "v") -> float:
     """Mean v-prediction MSE over fixed held-out batches at fixed timesteps `HELDOUT_T`, seeded noise:
     a cheap, comparable number (e.g. shading prior on vs off) before rendering anything."""
     sched = noise_scheduler()
@@ -76,7 +91,7 @@ def heldout_v_loss(unet: UNet2DConditionModel, batches: list[Batch], seed: int =
             tw = torch.full((b.windows,), t, device=dev, dtype=torch.long)
             noise = torch.randn(b.x0.shape, generator=g).to(dev)
             tf = tw.repeat_interleave(b.num_frames)
-            v = predict(unet, sched.add_noise(b.x0, noise, tf), tw, b)
+            v = predict(unet, sched.add_noise(b.x0, noise, tf), tw, b, prediction)
             total += float(F.mse_loss(v.float(), sched.get_velocity(b.x0, noise, tf).float()))
             n += 1
     unet.train(was_training)

@@ -44,6 +44,9 @@ class ImageStageConfig:
     """With the shading prior: learn the residual over the prior's latent (ignored without the prior)."""
     init: str | None = None
     """Start from this image model (a run or model folder of the same architecture) instead of random weights."""
+    prediction: str | None = None
+    """What the UNet outputs: "v" or "sample" (x0). None: "sample" for a residual model, else "v". A
+    "sample" head that is new (fresh weights, or an --init trained for v) starts at zero."""
     batch: int = 16
     """Frames per batch."""
     seed: int = 0
@@ -62,11 +65,22 @@ class VideoStageConfig:
     """None: as the image model was trained."""
     residual_prior: bool | None = None
     """None: as the --init model was trained; True continues an absolute-target model as a residual one."""
+    prediction: str | None = None
+    """None: as the --init model; "sample" continues a v model with a zero-initialised x0 head."""
     seed: int = 0
     heldout_batches: int = 4
     """Batches of held-out (test) windows for the final held-out v-loss (0: skip)."""
     augment: AugmentConfig = field(default_factory=AugmentConfig)
     window: WindowConfig = field(default_factory=WindowConfig)
+
+
+def zero_output_layer(unet: UNet2DConditionModel) -> None:
+    """Zero the UNet's output convolution (weights and bias): an x0 head that predicts 0, i.e. for a
+    residual model the classical shading, until training moves it (ControlNet's zero convolutions)."""
+    with torch.no_grad():
+        unet.conv_out.weight.zero_()
+        if unet.conv_out.bias is not None:
+            unet.conv_out.bias.zero_()
 
 
 def _resume_fields(stage) -> dict:
@@ -89,7 +103,8 @@ def image_model_config(stage: ImageStageConfig, cache_cfg: ModelConfig) -> Model
                           cross_attention_dim=unet.cross_attention_dim, norm_num_groups=min(unet.norm_num_groups, min(widths)),
                           use_linear_projection=unet.use_linear_projection)
     return dataclasses.replace(cfg, unet=unet, vae=cache_cfg.vae, text=cache_cfg.text, latent_scales=dict(cache_cfg.latent_scales),
-                               video=False, shading_prior=stage.shading_prior, residual_prior=stage.shading_prior and stage.residual_prior)
+                               video=False, shading_prior=stage.shading_prior, residual_prior=stage.shading_prior and stage.residual_prior,
+                               prediction=stage.prediction or ("sample" if stage.shading_prior and stage.residual_prior else "v"))
 
 
 def _heldout(unet: UNet2DConditionModel, cache: Path, cfg: ModelConfig, shading: bool, n: int, draw) -> dict:
@@ -102,7 +117,7 @@ def _heldout(unet: UNet2DConditionModel, cache: Path, cfg: ModelConfig, shading:
     out = {}
     for name, aug in (("full", AugmentConfig(channel_drop_p=0.0, prompt_drop_p=0.0, mask_p=0.0)), ("augmented", AugmentConfig())):
         rng = np.random.default_rng(1234)
-        out[name] = heldout_v_loss(unet, [diffusion_batch(draw(data, rng, aug), cfg.residual_prior) for _ in range(n)])
+        out[name] = heldout_v_loss(unet, [diffusion_batch(draw(data, rng, aug), cfg.residual_prior) for _ in range(n)], prediction=cfg.prediction)
     return out
 
 
@@ -113,7 +128,7 @@ def _run(unet: UNet2DConditionModel, cfg: ModelConfig, cache: Path, out_dir: Pat
     unet.requires_grad_(True)
 
     def loss_fn(b, step):
-        return v_loss(unet, sched, diffusion_batch(b.to(next(unet.parameters()).device), cfg.residual_prior))
+        return v_loss(unet, sched, diffusion_batch(b.to(next(unet.parameters()).device), cfg.residual_prior), cfg.prediction)
 
     def save(module: torch.nn.Module, d: Path) -> None:
         save_checkpoint(d, cfg, {"unet": module, "vae": vae})
@@ -124,7 +139,7 @@ def _run(unet: UNet2DConditionModel, cfg: ModelConfig, cache: Path, out_dir: Pat
     import json
 
     result = {"checkpoint": str(ck), "model": str(ck / "model"), "step": int(ck.name.split("-")[-1]),
-              "shading_prior": cfg.shading_prior, "residual_prior": cfg.residual_prior, "speed": json.loads(summary)}
+              "shading_prior": cfg.shading_prior, "residual_prior": cfg.residual_prior, "prediction": cfg.prediction, "speed": json.loads(summary)}
     if heldout is not None and process_index() == 0:
         ema = build_unet(cfg)
         load_into(ema, ck / "model" / "unet.safetensors", "unet")
@@ -155,6 +170,9 @@ def run_image_stage(cache: str | Path, out_dir: str | Path, stage: ImageStageCon
         check_same_vae(init_cfg, cache_cfg, f"image model {stage.init}")
         load_into(unet, model_dir(stage.init) / "unet.safetensors", "unet")
         log.info("image UNet initialised from %s", model_dir(stage.init))
+    if cfg.prediction == "sample" and (not stage.init or init_cfg.prediction != "sample"):
+        zero_output_layer(unet)
+        log.info("x0 head zero-initialised: the untrained residual model renders the classical shading")
     n = sum(p.numel() for p in unet.parameters())
     log.info("image UNet: %.2f M parameters, %d training frames", n / 1e6, data.num_rows)
     sc = {"stage": "image", **_resume_fields(stage), "model": cfg.to_dict(), "cache": str(cache.resolve())}
@@ -186,16 +204,22 @@ def run_video_stage(init: str | Path, cache: str | Path, out_dir: str | Path, st
             raise ValueError(f"--init {init} is a video model with shading_prior={init_cfg.shading_prior}; it cannot change")
         check_same_vae(init_cfg, read_config(cache / "model"), f"video model {init}")
         sp = init_cfg.shading_prior
-        cfg = dataclasses.replace(init_cfg, residual_prior=sp and (stage.residual_prior if stage.residual_prior is not None else init_cfg.residual_prior))
+        cfg = dataclasses.replace(init_cfg, residual_prior=sp and (stage.residual_prior if stage.residual_prior is not None else init_cfg.residual_prior),
+                                  prediction=stage.prediction or init_cfg.prediction)
         unet = build_unet(cfg)
         load_into(unet, model_dir(init) / "unet.safetensors", "unet")
+        if cfg.prediction == "sample" and init_cfg.prediction != "sample":
+            zero_output_layer(unet)
+            log.info("x0 head zero-initialised on the continued video model")
     else:
         img_cfg, image_unet = load_image_unet(init)
         check_same_vae(img_cfg, read_config(cache / "model"), f"image model {init}")
         sp = img_cfg.shading_prior if stage.shading_prior is None else stage.shading_prior
         res = img_cfg.residual_prior if stage.residual_prior is None else stage.residual_prior
-        cfg = dataclasses.replace(img_cfg, video=True, shading_prior=sp, residual_prior=sp and res)
+        cfg = dataclasses.replace(img_cfg, video=True, shading_prior=sp, residual_prior=sp and res, prediction=stage.prediction or img_cfg.prediction)
         unet = convert_image_to_video(image_unet, cfg.hybrid, sp)
+        if cfg.prediction == "sample" and img_cfg.prediction != "sample":
+            zero_output_layer(unet)
     data = LatentData(cache, "train", cfg.latent_scales, sp)
     log.info("video UNet: %.2f M parameters, %d training frames", sum(p.numel() for p in unet.parameters()) / 1e6, data.num_rows)
     sc = {"stage": "video", **_resume_fields(stage), "model": cfg.to_dict(), "cache": str(cache.resolve()),

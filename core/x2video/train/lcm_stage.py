@@ -62,8 +62,10 @@ def x0_eps_from_v(x_t: torch.Tensor, v: torch.Tensor, a: torch.Tensor) -> tuple[
 class LCMLoss:
     """The consistency distillation loss above, with the target network as state."""
 
-    def __init__(self, student: UNet2DConditionModel, teacher: UNet2DConditionModel, target: UNet2DConditionModel, stage: LCMStageConfig) -> None:
+    def __init__(self, student: UNet2DConditionModel, teacher: UNet2DConditionModel, target: UNet2DConditionModel, stage: LCMStageConfig,
+                 prediction: str = "v") -> None:
         self.student, self.teacher, self.target, self.stage = student, teacher, target, stage
+        self.prediction = prediction  # what the UNets output (`ModelConfig.prediction`); predict() converts to v
         self.alphas = noise_scheduler().alphas_cumprod.float()  # (1000,)
         self.lcm = lcm_scheduler()
         if stage.ddim_steps != self.lcm.config.original_inference_steps:
@@ -96,12 +98,12 @@ class LCMLoss:
         x_t = a.sqrt() * b.x0 + (1 - a).sqrt() * noise  # (BN, 4, h, w)
 
         c_skip, c_out = self.scalings(tf)
-        x0_s, _ = x0_eps_from_v(x_t, predict(self.student, x_t, t, b), a)
+        x0_s, _ = x0_eps_from_v(x_t, predict(self.student, x_t, t, b, self.prediction), a)
         pred = c_skip * x_t + c_out * x0_s
         with torch.no_grad():
-            x0_T, eps_T = x0_eps_from_v(x_t, predict(self.teacher, x_t, t, b), a)
+            x0_T, eps_T = x0_eps_from_v(x_t, predict(self.teacher, x_t, t, b, self.prediction), a)
             x_prev = a_prev.sqrt() * x0_T + (1 - a_prev).sqrt() * eps_T  # DDIM (eta 0) step to t_prev
-            x0_tg, _ = x0_eps_from_v(x_prev, predict(self.target, x_prev, t_prev.clamp(min=0), b), a_prev)
+            x0_tg, _ = x0_eps_from_v(x_prev, predict(self.target, x_prev, t_prev.clamp(min=0), b, self.prediction), a_prev)
             cs, co = self.scalings(tpf)
             target = cs * x_prev + co * x0_tg
         c = self.stage.huber_c
@@ -125,7 +127,7 @@ def run_lcm_stage(teacher: str | Path, cache: str | Path, out_dir: str | Path, s
     target = copy.deepcopy(teacher_unet).eval().requires_grad_(False)
     _, vae = load_vae(d)
     data = LatentData(cache, "train", cfg.latent_scales, cfg.shading_prior)
-    loss = LCMLoss(student, teacher_unet, target, stage)
+    loss = LCMLoss(student, teacher_unet, target, stage, cfg.prediction)
 
     def loss_fn(b: Batch, step: int):
         dev = next(student.parameters()).device
