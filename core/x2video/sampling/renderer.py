@@ -195,12 +195,12 @@ class Renderer:
                     raise Cancelled(f"cancelled before window {index}")
                 emit(WindowStarted(index=index, frames=list(window.frames), mode=window.mode, level=window.level))
                 tw = time.perf_counter()
-                x0, conds, cond = self._run_window(index, window, settings, conditioning, latents, ref_latent, text_global, text_local, emit, cancel)
+                x0, conds, keys, cond = self._run_window(index, window, settings, conditioning, latents, ref_latent, text_global, text_local, emit, cancel)
                 x0 = model.sample_to_latents(x0, cond)  # RGB latents: later windows read them as references
                 gen_pos = list(window.generate_positions)
                 images = model.decode(x0[gen_pos])  # (G, H, W, 3)
                 if settings.detail:
-                    detail = self._detail([conds[p] for p in gen_pos], cond[gen_pos])
+                    detail = self._detail([conds[p] for p in gen_pos], [keys[p] for p in gen_pos], cond[gen_pos])
                     if detail is not None:
                         images = np.maximum(images + detail, 0)
                 for pos, f in zip(gen_pos, window.generate):
@@ -215,43 +215,39 @@ class Renderer:
                 emit(FramesReady(window=index, frames=frames, level=window.level, mode=window.mode, seconds=time.perf_counter() - tw))
         emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))
 
-    def _encode(self, conds: list[FrameConditioning]) -> torch.Tensor:
-        """(n, C_cond, h, w) conditioning latents, encoding only frames the cache lacks (one batch)."""
-        key = self.model.content_key()
-        keys = [conditioning_key(c, key) for c in conds]
+    def _cached(self, keys: list[str], compute: Callable[[list[int]], torch.Tensor]) -> torch.Tensor:
+        """Stack of the cache's tensors for `keys`; `compute(positions)` makes the missing ones (each
+        distinct key once, at its first position) and its wall time counts as encoding time."""
         found = [self.cache.get(k) for k in keys]
-        missing: dict[str, int] = {}  # key -> first window position with that content
+        missing: dict[str, int] = {}  # key -> first position with that content
         for i, v in enumerate(found):
             if v is None:
                 missing.setdefault(keys[i], i)
         if missing:
             t0 = time.perf_counter()
-            fresh = self.model.encode_frames([conds[i] for i in missing.values()])  # (m, C_cond, h, w)
+            fresh = compute(list(missing.values()))
             self.encode_seconds += time.perf_counter() - t0
-            encoded = {k: fresh[j].clone() for j, k in enumerate(missing)}
-            for k, v in encoded.items():
+            made = {k: fresh[j].clone() for j, k in enumerate(missing)}
+            for k, v in made.items():
                 self.cache.put(k, v)
-            found = [encoded[keys[i]] if v is None else v for i, v in enumerate(found)]
-        return torch.stack(found)  # (n, C_cond, h, w)
+            found = [made[keys[i]] if v is None else v for i, v in enumerate(found)]
+        return torch.stack(found)
 
-    def _detail(self, conds: list[FrameConditioning], cond: torch.Tensor) -> np.ndarray | None:
-        """(G, H, W, 3) `model.detail` of the generated frames, cached like their conditioning latents."""
+    def _encode(self, conds: list[FrameConditioning], keys: list[str]) -> torch.Tensor:
+        """(n, C_cond, h, w) conditioning latents, encoding only frames the cache lacks (one batch)."""
+        return self._cached(keys, lambda idx: self.model.encode_frames([conds[i] for i in idx]))
+
+    def _detail(self, conds: list[FrameConditioning], keys: list[str], cond: torch.Tensor) -> np.ndarray | None:
+        """(G, H, W, 3) `model.detail` of the generated frames, cached beside their conditioning latents."""
         if not self.model.residual_prior:
             return None
-        key = self.model.content_key()
-        keys = [conditioning_key(c, key) + "#detail" for c in conds]
-        found = [self.cache.get(k) for k in keys]
-        missing = [i for i, v in enumerate(found) if v is None]
-        if missing:
-            t0 = time.perf_counter()
-            fresh = self.model.detail([conds[i] for i in missing], cond[missing])
-            self.encode_seconds += time.perf_counter() - t0
-            if fresh is None:
-                return None
-            for j, i in enumerate(missing):
-                found[i] = torch.from_numpy(np.ascontiguousarray(fresh[j]))
-                self.cache.put(keys[i], found[i])
-        return torch.stack(found).numpy()  # type: ignore[arg-type]
+
+        def compute(idx: list[int]) -> torch.Tensor:
+            d = self.model.detail([conds[i] for i in idx], cond[idx])
+            assert d is not None  # residual models always have a detail
+            return torch.from_numpy(d)
+
+        return self._cached([k + "#detail" for k in keys], compute).numpy()
 
     def _run_window(
         self,
@@ -265,12 +261,14 @@ class Renderer:
         text_local: torch.Tensor,
         emit: Callable[[RenderEvent], None],
         cancel: CancelToken | None,
-    ) -> tuple[torch.Tensor, list[FrameConditioning], torch.Tensor]:
+    ) -> tuple[torch.Tensor, list[FrameConditioning], list[str], torch.Tensor]:
         """Denoise one window; returns the sampler's clean output (n, 4, h, w), the frames'
-        conditioning and their (n, C_cond, h, w) conditioning latents."""
+        conditioning, their cache keys and their (n, C_cond, h, w) conditioning latents."""
         model = self.model
         conds = [conditioning(f) for f in window.frames]
-        cond = self._encode(conds)  # (n, C_cond, h, w)
+        model_key = model.content_key()
+        keys = [conditioning_key(c, model_key) for c in conds]
+        cond = self._encode(conds, keys)  # (n, C_cond, h, w)
         n, _, h, w = cond.shape
         ref = torch.zeros(n, model.latent_channels, h, w, device=model.device, dtype=model.dtype)  # (n, 4, h, w)
         if window.user_ref:
@@ -308,4 +306,4 @@ class Renderer:
             x0 = sample_lcm(model_fn, x_T, settings.steps, callback=callback, cancel=cancel, generator=gen)
         else:
             x0 = sample_ddim(model_fn, x_T, settings.steps, callback=callback, cancel=cancel)
-        return x0, conds, cond
+        return x0, conds, keys, cond
