@@ -103,6 +103,29 @@ def test_orderings_report_what_holds():
     assert checks["(b) Mask A|M|R + Ref.: model PSNR > classical baseline PSNR"] is True
 
 
+def test_table_c_under_several_conditions_pairs_each_schemes_rows():
+    from x2video.eval.config import EvalConfig
+    from x2video.eval.tables import table_rows
+
+    rows = table_rows(EvalConfig(tables=("c",), long_conditions=("full", "drop_irradiance")))["c"]
+    assert [(r.label, r.scheme, r.condition.kind, r.data) for r in rows] == [
+        ("Sequential", "sequential", "full", "long"), ("Recursive", "recursive", "full", "long"),
+        ("Sequential, Drop irradiance", "sequential", "drop_irradiance", "long"),
+        ("Recursive, Drop irradiance", "recursive", "drop_irradiance", "long"),
+    ]
+    with pytest.raises(ValueError, match="long_conditions.*choose from"):
+        EvalConfig(long_conditions=("no_albedo",))
+    c = {"title": "C", "rows": [_row("Sequential", 25.0, tc=3.0), _row("Recursive", 24.0, tc=2.0),
+                                _row("Sequential, Drop irradiance", 14.0, tc=5.0), _row("Recursive, Drop irradiance", 15.0, tc=4.0)]}
+    for r in c["rows"]:
+        r["settings"]["scheme"] = "recursive" if r["label"].startswith("Recursive") else "sequential"
+    checks = {x["claim"]: x["holds"] for x in orderings({"tables": {"c": c}})}
+    assert checks["(c) recursive PSNR > sequential PSNR"] is False
+    assert checks["(c) recursive TC < sequential TC"] is True
+    assert checks["(c) recursive PSNR > sequential PSNR, Drop irradiance"] is True
+    assert checks["(c) recursive TC < sequential TC, Drop irradiance"] is True
+
+
 def test_markdown_rows_escape_bars_and_show_missing_models():
     line = row_line(_row("Mask A|M|R", 19.0))
     assert line.startswith("| Mask A\\|M\\|R |")

@@ -21,6 +21,16 @@ def _size(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(str(e)) from e
 
 
+def _kinds(text: str) -> tuple[str, ...]:
+    from x2video.eval.conditions import KINDS
+
+    kinds = tuple(k.strip() for k in text.split(",") if k.strip())
+    bad = [k for k in kinds if k not in KINDS]
+    if bad or not kinds:
+        raise argparse.ArgumentTypeError(f"{text!r}: choose from {','.join(KINDS)}")
+    return kinds
+
+
 def _tables(text: str) -> tuple[str, ...]:
     from x2video.eval.config import TABLES
 
@@ -58,6 +68,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--frames", type=int, default=d.frames, help=f"first T frames per shot for tables a, b, d (default {d.frames}; 0 = all)")
     g.add_argument("--long-data", type=Path, help="data set with long shots for table (c) (make it with --frames 65; default: --data)")
     g.add_argument("--long-frames", type=int, default=d.long_frames, help=f"frames per long shot (default {d.long_frames})")
+    g.add_argument("--long-conditions", type=_kinds, default=d.long_conditions,
+                   help="conditions table (c) compares recursive and sequential under: comma-separated full, mask_amr, "
+                   f"drop_irradiance (default {','.join(d.long_conditions)})")
     g.add_argument("--size", type=_size, help="evaluate at WxH (default: the model's training size when recorded, else the data's)")
     g = p.add_argument_group("what to measure")
     g.add_argument("--tables", type=_tables, default=d.tables, help="comma-separated subset of a,b,c,d (default all)")
@@ -203,7 +216,7 @@ def run(a: argparse.Namespace) -> int:
 
         torch.set_num_threads(a.threads)
     frames = None if a.frames == 0 else a.frames
-    config = EvalConfig(tables=a.tables, split=a.split, rooms=a.rooms, frames=frames, long_frames=a.long_frames, size=a.size,
+    config = EvalConfig(tables=a.tables, split=a.split, rooms=a.rooms, frames=frames, long_frames=a.long_frames, long_conditions=a.long_conditions, size=a.size,
                         steps=a.steps, lcm_steps=a.lcm_steps, seed=a.seed, window=a.window, masks=a.masks, fid=not a.no_fid,
                         tc=not a.no_tc)
     if a.renders and "a" not in config.tables:

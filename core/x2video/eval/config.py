@@ -20,6 +20,9 @@ class EvalConfig:
     """first T frames of each shot for tables a, b, d (None: whole shots)"""
     long_frames: int = 65
     """frames of each long shot for table c (the paper's 65-frame shots)"""
+    long_conditions: tuple[str, ...] = ("full",)
+    """conditions table c compares the schemes under ("full", "mask_amr", "drop_irradiance"); with a shading
+    prior the full-channel render is anchored to the formula, the others make the model generate"""
     size: tuple[int, int] | None = None
     """(W, H) to evaluate at; None: the model's training size when recorded, else the data's"""
     steps: int = 20
@@ -47,6 +50,11 @@ class EvalConfig:
             raise ValueError(f"frames must be at least 2 (temporal consistency needs pairs), got {self.frames}")
         if self.long_frames < 2:
             raise ValueError(f"long_frames must be at least 2, got {self.long_frames}")
+        from x2video.eval.conditions import KINDS
+
+        bad = [k for k in self.long_conditions if k not in KINDS]
+        if bad or not self.long_conditions:
+            raise ValueError(f"long_conditions: {','.join(self.long_conditions)!r}; choose from {','.join(KINDS)}")
         if self.steps < 1 or self.lcm_steps < 1:
             raise ValueError(f"steps must be at least 1 (got DDIM {self.steps}, LCM {self.lcm_steps})")
         if self.masks < 1:
@@ -57,5 +65,6 @@ class EvalConfig:
     def to_dict(self) -> dict:
         d = asdict(self)
         d["tables"] = list(self.tables)
+        d["long_conditions"] = list(self.long_conditions)
         d["size"] = None if self.size is None else list(self.size)
         return d

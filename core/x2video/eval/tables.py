@@ -96,10 +96,14 @@ def table_rows(config: EvalConfig) -> dict[str, list[RowSpec]]:
                     rows.append(RowSpec("b", c.label, "video", c, "ddim", s))
             out[t] = rows
         elif t == "c":
-            out[t] = [
-                RowSpec("c", "Sequential", "video", full, "ddim", s, "sequential", "long"),
-                RowSpec("c", "Recursive", "video", full, "ddim", s, "recursive", "long"),
-            ]
+            out[t] = []
+            for kind in config.long_conditions:
+                c = Condition(kind, masks=m)
+                suffix = "" if kind == "full" else f", {c.label}"
+                out[t] += [
+                    RowSpec("c", f"Sequential{suffix}", "video", c, "ddim", s, "sequential", "long"),
+                    RowSpec("c", f"Recursive{suffix}", "video", c, "ddim", s, "recursive", "long"),
+                ]
         elif t == "d":
             ref = Condition("full", reference=True, masks=m)
             k = config.lcm_steps
