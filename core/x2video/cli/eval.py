@@ -21,28 +21,21 @@ def _size(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(str(e)) from e
 
 
-def _kinds(text: str) -> tuple[str, ...]:
-    from x2video.eval.conditions import KINDS
+def _choices(allowed: tuple[str, ...]):
+    """argparse type: a comma-separated, non-empty subset of `allowed`."""
 
-    kinds = tuple(k.strip() for k in text.split(",") if k.strip())
-    bad = [k for k in kinds if k not in KINDS]
-    if bad or not kinds:
-        raise argparse.ArgumentTypeError(f"{text!r}: choose from {','.join(KINDS)}")
-    return kinds
+    def parse(text: str) -> tuple[str, ...]:
+        picked = tuple(v.strip() for v in text.split(",") if v.strip())
+        if not picked or any(v not in allowed for v in picked):
+            raise argparse.ArgumentTypeError(f"{text!r}: choose from {','.join(allowed)}")
+        return picked
 
-
-def _tables(text: str) -> tuple[str, ...]:
-    from x2video.eval.config import TABLES
-
-    t = tuple(v.strip() for v in text.split(",") if v.strip())
-    bad = [v for v in t if v not in TABLES]
-    if bad or not t:
-        raise argparse.ArgumentTypeError(f"--tables {text!r}: choose from {','.join(TABLES)}")
-    return t
+    return parse
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from x2video.eval.config import EvalConfig
+    from x2video.eval.conditions import KINDS
+    from x2video.eval.config import TABLES, EvalConfig
 
     d = EvalConfig()
     p = subparsers.add_parser(
@@ -68,12 +61,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--frames", type=int, default=d.frames, help=f"first T frames per shot for tables a, b, d (default {d.frames}; 0 = all)")
     g.add_argument("--long-data", type=Path, help="data set with long shots for table (c) (make it with --frames 65; default: --data)")
     g.add_argument("--long-frames", type=int, default=d.long_frames, help=f"frames per long shot (default {d.long_frames})")
-    g.add_argument("--long-conditions", type=_kinds, default=d.long_conditions,
+    g.add_argument("--long-conditions", type=_choices(KINDS), default=d.long_conditions,
                    help="conditions table (c) compares recursive and sequential under: comma-separated full, mask_amr, "
                    f"drop_irradiance (default {','.join(d.long_conditions)})")
     g.add_argument("--size", type=_size, help="evaluate at WxH (default: the model's training size when recorded, else the data's)")
     g = p.add_argument_group("what to measure")
-    g.add_argument("--tables", type=_tables, default=d.tables, help="comma-separated subset of a,b,c,d (default all)")
+    g.add_argument("--tables", type=_choices(TABLES), default=d.tables, help="comma-separated subset of a,b,c,d (default all)")
     g.add_argument("--steps", type=int, default=d.steps, help=f"DDIM steps (default {d.steps})")
     g.add_argument("--lcm-steps", type=int, default=d.lcm_steps, help=f"LCM steps (default {d.lcm_steps})")
     g.add_argument("--seed", type=int, default=d.seed, help="noise and mask seed")
