@@ -295,3 +295,22 @@ def test_video_stage_continues_a_video_model(runs, tmp_path):
     with pytest.raises(ValueError, match="cannot change"):
         run_video_stage(runs["root"] / "video", runs["root"] / "cache", tmp_path / "w",
                         VideoStageConfig(batch=1, heldout_batches=0, shading_prior=False), LoopConfig(steps=1))
+
+
+def test_video_stage_moves_the_zero_initialised_alphas_at_their_own_rate(runs, tmp_path):
+    """The Hybrid Self-Attention alphas get `alpha_lr_mult` times the UNet's learning rate (Adam's
+    first step moves a parameter by at most its rate); every other weight moves at the base rate."""
+    from x2video.model.pipeline import X2VideoModel
+    from x2video.train.diffusion_stages import VideoStageConfig, run_video_stage
+
+    lr = 1e-5
+    res = run_video_stage(runs["root"] / "video", runs["root"] / "cache", tmp_path / "v",
+                          VideoStageConfig(batch=1, heldout_batches=0, alpha_lr_mult=1000.0),
+                          LoopConfig(steps=1, lr=lr, warmup=0, ema_decay=0.0))
+    got = X2VideoModel.from_pretrained(res["model"], text_encoder=FakeTextEncoder()).unet.state_dict()
+    want = X2VideoModel.from_pretrained(runs["video"]["model"], text_encoder=FakeTextEncoder()).unet.state_dict()
+    moved = {k: float((got[k].float() - want[k].float()).abs().max()) for k in want}
+    alphas = [k for k in moved if k.endswith(("alpha_r", "alpha_t"))]
+    assert len(alphas) >= 2
+    assert max(moved[k] for k in alphas) > 100 * lr
+    assert max(v for k, v in moved.items() if k not in alphas) <= 1.01 * lr

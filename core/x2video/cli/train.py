@@ -185,7 +185,7 @@ def cmd_video(a: argparse.Namespace) -> int:
     sp = None if a.shading_prior is None else a.shading_prior == "on"
     rp = None if a.residual_prior is None else a.residual_prior == "on"
     stage = VideoStageConfig(batch=a.batch, shading_prior=sp, residual_prior=rp, prediction=a.prediction, seed=a.seed, heldout_batches=a.heldout_batches, augment=_aug(a),
-                             window=_window(a))
+                             window=_window(a), alpha_lr_mult=a.alpha_lr_mult)
     _print_result(_run("video", loop.steps, lambda bar: run_video_stage(a.init, a.cache, a.out, stage, loop, bar)))
     return 0
 
@@ -267,6 +267,8 @@ def register(subparsers) -> None:
     s.add_argument("--prediction", choices=("v", "sample"), default=None,
                    help="UNet output (default: as the --init model); sample on a v model starts a zero x0 head")
     s.add_argument("--heldout-batches", type=int, default=4, help="test-room batches for the final held-out v-loss (0: skip)")
+    s.add_argument("--alpha-lr-mult", type=float, default=100.0,
+                   help="learning-rate multiplier of the zero-initialised Hybrid Self-Attention alphas (scalars; default 100)")
     _aug_args(s)
     _window_args(s)
     _loop_args(s, steps=2000, lr=5e-5)

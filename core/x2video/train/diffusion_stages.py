@@ -67,6 +67,10 @@ class VideoStageConfig:
     """None: as the --init model was trained; True continues an absolute-target model as a residual one."""
     prediction: str | None = None
     """None: as the --init model; "sample" continues a v model with a zero-initialised x0 head."""
+    alpha_lr_mult: float = 100.0
+    """Learning-rate multiplier of the Hybrid Self-Attention alphas. They start at 0 and are single
+    scalars, so at the UNet's rate Adam moves each by at most ~lr per step: after 2,458 steps at
+    <= 1e-4 they sat at 0.01-0.05 and the reference and temporal branches were nearly off."""
     seed: int = 0
     heldout_batches: int = 4
     """Batches of held-out (test) windows for the final held-out v-loss (0: skip)."""
@@ -122,7 +126,8 @@ def _heldout(unet: UNet2DConditionModel, cache: Path, cfg: ModelConfig, shading:
 
 
 def _run(unet: UNet2DConditionModel, cfg: ModelConfig, cache: Path, out_dir: Path, loop: LoopConfig, batch_size: int,
-         batches, stage_config: dict, on_step: Callable[[StepLog], None] | None, key: str, heldout=None) -> dict:
+         batches, stage_config: dict, on_step: Callable[[StepLog], None] | None, key: str, heldout=None,
+         lr_mult: Callable[[str], float] | None = None) -> dict:
     _, vae = load_vae(cache / "model")
     sched = noise_scheduler()
     unet.requires_grad_(True)
@@ -134,7 +139,7 @@ def _run(unet: UNet2DConditionModel, cfg: ModelConfig, cache: Path, out_dir: Pat
         save_checkpoint(d, cfg, {"unet": module, "vae": vae})
 
     ck = train(module=unet, loss_fn=loss_fn, batches=batches, save_fn=save, out_dir=out_dir, cfg=loop,
-               stage_config=stage_config, batch_size=batch_size, on_step=on_step)
+               stage_config=stage_config, batch_size=batch_size, on_step=on_step, lr_mult=lr_mult)
     summary = (out_dir / "summary.json").read_text() if (out_dir / "summary.json").is_file() else "{}"
     import json
 
@@ -230,4 +235,9 @@ def run_video_stage(init: str | Path, cache: str | Path, out_dir: str | Path, st
         return d.sample(rng, windows, aug, mode=mode, level=level, ref_positions=refs)
 
     return _run(unet, cfg, cache, out_dir, loop, stage.batch * stage.window.frames, batches, sc, on_step, "video",
-                lambda m: _heldout(m, cache, cfg, sp, stage.heldout_batches, draw))
+                lambda m: _heldout(m, cache, cfg, sp, stage.heldout_batches, draw), alpha_lr(stage.alpha_lr_mult))
+
+
+def alpha_lr(mult: float) -> Callable[[str], float]:
+    """Learning-rate multiplier by parameter name: `mult` for the Hybrid Self-Attention alphas, 1 otherwise."""
+    return lambda name: mult if name.rsplit(".", 1)[-1] in ("alpha_r", "alpha_t") else 1.0

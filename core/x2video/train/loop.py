@@ -100,6 +100,20 @@ def _lr_lambda(cfg: LoopConfig) -> Callable[[int], float]:
     return f
 
 
+def _param_groups(module: torch.nn.Module, params: list[torch.nn.Parameter], lr: float,
+                  lr_mult: Callable[[str], float] | None) -> list[dict[str, Any]]:
+    """AdamW groups by learning-rate multiplier, in first-seen order (checkpoints index `params` in its own order)."""
+    if lr_mult is None:
+        return [{"params": params, "lr": lr}]
+    names = {id(p): n for n, p in module.named_parameters()}
+    groups: dict[float, list[torch.nn.Parameter]] = {}
+    for p in params:
+        if id(p) not in names:
+            raise ValueError("lr_mult needs every trained parameter to belong to the module")
+        groups.setdefault(float(lr_mult(names[id(p)])), []).append(p)
+    return [{"params": ps, "lr": lr * m} for m, ps in groups.items()]
+
+
 def train(
     *,
     module: torch.nn.Module,
@@ -113,6 +127,7 @@ def train(
     params: list[torch.nn.Parameter] | None = None,
     on_step: Callable[[StepLog], None] | None = None,
     extra_state: dict[str, torch.nn.Module] | None = None,
+    lr_mult: Callable[[str], float] | None = None,
 ) -> Path:
     """Train `module` until `cfg.steps`, resuming from the newest checkpoint in `out_dir`.
 
@@ -121,6 +136,9 @@ def train(
     first ones. `extra_state` modules (e.g. LCM's target network) are saved in every
     checkpoint and restored on resume. Writes `log.json` (loss curve), `summary.json`
     (speed and the step-time split) and `step-XXXXXXXXX/` checkpoints into `out_dir`.
+
+    `lr_mult(name)` scales the learning rate of `module`'s parameter `name` (its own AdamW group;
+    the schedule applies to every group alike); None: one rate for all.
 
     Returns the directory of the final checkpoint, whose `model/` holds the EMA weights
     (or the raw weights when EMA is off) in the stage's own format.
@@ -133,7 +151,7 @@ def train(
     accel = Accelerator(mixed_precision=cfg.mixed_precision, cpu=not torch.cuda.is_available())
     set_seed(cfg.seed)
     params = [p for p in (params if params is not None else module.parameters()) if p.requires_grad]
-    opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+    opt = torch.optim.AdamW(_param_groups(module, params, cfg.lr, lr_mult), lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, _lr_lambda(cfg))
     module, opt = accel.prepare(module, opt)
     ema = [p.detach().clone().float() for p in params] if cfg.ema_decay > 0 else None
