@@ -119,6 +119,7 @@ def test_table_c_under_several_conditions_pairs_each_schemes_rows():
                                 _row("Sequential, Drop irradiance", 14.0, tc=5.0), _row("Recursive, Drop irradiance", 15.0, tc=4.0)]}
     for r in c["rows"]:
         r["settings"]["scheme"] = "recursive" if r["label"].startswith("Recursive") else "sequential"
+        r["condition"]["kind"] = "drop_irradiance" if "Drop" in r["label"] else "full"
     checks = {x["claim"]: x["holds"] for x in orderings({"tables": {"c": c}})}
     assert checks["(c) recursive PSNR > sequential PSNR"] is False
     assert checks["(c) recursive TC < sequential TC"] is True

@@ -42,12 +42,11 @@ def orderings(results: dict[str, Any]) -> list[dict[str, Any]]:
             for extra in ("Text", "Ref."):
                 r = _row(results, "b", f"{kind} + {extra}")
                 out.append(_check(f"(b) {kind} + {extra} recovers PSNR", _m(r, "psnr"), _m(base, "psnr"), ">", " dB"))
-    if "c" in tables:
-        for r in tables["c"]["rows"]:
-            if r["settings"]["scheme"] != "recursive":
-                continue
-            suffix = r["label"][len("Recursive"):]
-            seq, rec = _row(results, "c", "Sequential" + suffix), _row(results, "c", r["label"])
+    if "c" in tables:  # each condition's recursive row against the sequential row of the same condition
+        rows = [r for r in tables["c"]["rows"] if r.get("available")]
+        for rec in (r for r in rows if r["settings"]["scheme"] == "recursive"):
+            seq = next((r for r in rows if r["settings"]["scheme"] == "sequential" and r["condition"] == rec["condition"]), None)
+            suffix = rec["label"][len("Recursive"):]
             out.append(_check(f"(c) recursive PSNR > sequential PSNR{suffix}", _m(rec, "psnr"), _m(seq, "psnr"), ">", " dB"))
             out.append(_check(f"(c) recursive TC < sequential TC{suffix}", _m(rec, "tc"), _m(seq, "tc"), "<"))
     if "d" in tables:
