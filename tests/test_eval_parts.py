@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from train_fixtures import tiny_room
-from x2video.eval.checks import orderings
+from x2video.eval.checks import orderings, orderings_markdown
 from x2video.eval.conditions import Condition, build_edits, pick_objects
 from x2video.eval.data import EvalView, resize_motion, training_size
 from x2video.eval.report import results_markdown, row_line
@@ -92,7 +92,8 @@ def _results():
 
 
 def test_orderings_report_what_holds():
-    checks = {c["claim"]: c["holds"] for c in orderings(_results())}
+    res = _results()
+    checks = {c["claim"]: c["holds"] for c in orderings(res)}
     assert checks["(a) video model TC < image model per frame TC"] is True
     assert checks["(b) Mask A|M|R lowers PSNR below full channels"] is True
     assert checks["(b) Mask A|M|R + Text recovers PSNR"] is True
@@ -101,6 +102,20 @@ def test_orderings_report_what_holds():
     assert checks["(d) LCM is >= 5x faster per frame than DDIM (LCM s/frame x 5 <= DDIM s/frame)"] is True
     assert checks["(a) Video model: model PSNR >= classical baseline PSNR"] is True
     assert checks["(b) Mask A|M|R + Ref.: model PSNR > classical baseline PSNR"] is True
+    assert checks["(d) ... both with the reference frame (the paper's pair: Ref-First vs Ref-First + LCM 2-step)"] is None
+    # per-shot agreement: a mean ordering that only some shots share is flagged, not hidden
+    full, masked = res["tables"]["b"]["rows"][0], res["tables"]["b"]["rows"][1]
+    full["model"]["shots"] = {"s1": {"psnr": 23.0}, "s2": {"psnr": 21.0}, "s3": {"psnr": 22.0}}
+    masked["model"]["shots"] = {"s1": {"psnr": 18.0}, "s2": {"psnr": 21.5}, "s4": {"psnr": 1.0}}
+    masked["baseline"]["shots"] = {"s1": {"psnr": 10.0}, "s2": {"psnr": 22.0}}
+    res["tables"]["d"]["rows"] += [_row("DDIM-20 + Ref.", 22.0, spf=1.2, ref=True), _row("LCM-2 + Ref.", 21.0, spf=0.25, sampler="lcm", ref=True)]
+    by_claim = {c["claim"]: c for c in orderings(res)}
+    lower = by_claim["(b) Mask A|M|R lowers PSNR below full channels"]
+    assert lower["holds"] is True and lower["shots"] == "1/2"  # s1 lower, s2 higher; s3/s4 not in both
+    assert by_claim["(b) Mask A|M|R: model PSNR > classical baseline PSNR"]["shots"] == "1/2"
+    assert "shots" not in by_claim["(a) video model TC < image model per frame TC"]  # no per-shot numbers
+    assert by_claim["(d) ... both with the reference frame (the paper's pair: Ref-First vs Ref-First + LCM 2-step)"]["holds"] is False
+    assert "| 1/2 |" in orderings_markdown(list(by_claim.values()))
 
 
 def test_table_c_under_several_conditions_pairs_each_schemes_rows():
