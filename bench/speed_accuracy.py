@@ -132,7 +132,11 @@ def draw_chart(result: dict, path: Path) -> Path:
             label.setPos(math.log10(x), y)
             plot.addItem(label)
         xs = [math.log10(x) for _, x, _ in pts]
-        plot.setXRange(min(xs) - 0.15, max(xs) + 0.6, padding=0)
+        lo, hi = min(xs) - 0.15, max(xs) + 0.9  # room for the right-most point's label
+        plot.setXRange(lo, hi, padding=0)
+        # label 1-2-5 steps only: pyqtgraph's log axis labels every minor tick and they overlap
+        ticks = [(math.log10(m * 10.0**e), f"{m * 10.0**e:g}") for e in range(-4, 4) for m in (1, 2, 5)]
+        plot.getAxis("bottom").setTicks([[t for t in ticks if lo <= t[0] <= hi], []])
         app.processEvents()
         exporter = pyqtgraph.exporters.ImageExporter(plot.plotItem)
         exporter.parameters()["width"] = 720
