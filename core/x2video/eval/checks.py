@@ -70,8 +70,11 @@ def orderings(results: dict[str, Any]) -> list[dict[str, Any]]:
             out.append(_compare(f"(c) recursive TC < sequential TC{suffix}", rec, seq, "tc", "<"))
     if "d" in tables:
         rows = [r for r in tables["d"]["rows"] if r.get("available")]
-        ddim = next((r for r in rows if r["settings"]["sampler"] == "ddim" and not r["condition"]["reference"]), None)
-        lcm = next((r for r in rows if r["settings"]["sampler"] == "lcm" and not r["condition"]["reference"]), None)
+
+        def _find(sampler: str, reference: bool) -> dict[str, Any] | None:
+            return next((r for r in rows if r["settings"]["sampler"] == sampler and bool(r["condition"]["reference"]) == reference), None)
+
+        ddim, lcm = _find("ddim", False), _find("lcm", False)
         out.append(_check("(d) LCM is >= 5x faster per frame than DDIM (LCM s/frame x 5 <= DDIM s/frame)",
                           None if lcm is None else 5 * lcm["model"]["seconds_per_frame"], _m(ddim, "seconds_per_frame"), "<"))
 
@@ -85,8 +88,7 @@ def orderings(results: dict[str, Any]) -> list[dict[str, Any]]:
                           None if ls is None else 5 * ls, ds, "<"))
         # the paper's own pair (Table "Acceleration": Ref-First 1.20 s vs Ref-First + LCM 2-step 0.24 s; it has
         # no LCM row without a reference, and its No-Ref DDIM 1.08 s is 4.5x that LCM row)
-        ddim_r = next((r for r in rows if r["settings"]["sampler"] == "ddim" and r["condition"]["reference"]), None)
-        lcm_r = next((r for r in rows if r["settings"]["sampler"] == "lcm" and r["condition"]["reference"]), None)
+        ddim_r, lcm_r = _find("ddim", True), _find("lcm", True)
         out.append(_check("(d) ... both with the reference frame (the paper's pair: Ref-First vs Ref-First + LCM 2-step)",
                           None if lcm_r is None else 5 * lcm_r["model"]["seconds_per_frame"], _m(ddim_r, "seconds_per_frame"), "<"))
     # the classical baseline, on every row that has one
