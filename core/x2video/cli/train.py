@@ -40,6 +40,8 @@ def _loop_args(p: argparse.ArgumentParser, steps: int, lr: float, ema: float = 0
     g.add_argument("--seed", type=int, default=0)
     g.add_argument("--mixed-precision", choices=("no", "fp16", "bf16"), default="no", help="accelerate mixed precision (GPU)")
     g.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch's default; 1 is fastest on a busy machine)")
+    g.add_argument("--workers", type=int, default=0,
+                   help="processes drawing batches ahead of the optimiser (0: in the training process; a GPU wants several)")
 
 
 def _aug_args(p: argparse.ArgumentParser) -> None:
@@ -68,7 +70,7 @@ def _loop_cfg(a: argparse.Namespace):
         raise ValueError("--steps must be >= 1")
     return LoopConfig(steps=a.steps, lr=a.lr, warmup=a.warmup, lr_half_every=a.lr_half_every, ema_decay=a.ema,
                       ckpt_every=a.ckpt_every, keep_ckpts=a.keep, time_limit_s=a.time_limit * 60, seed=a.seed,
-                      mixed_precision=a.mixed_precision)
+                      mixed_precision=a.mixed_precision, workers=a.workers)
 
 
 def _aug(a: argparse.Namespace):
@@ -126,6 +128,8 @@ def cmd_vae(a: argparse.Namespace) -> int:
     from x2video.train.vae_stage import VAEStageConfig, run_vae_stage
 
     loop = _loop_cfg(a)
+    if loop.workers:
+        raise ValueError("--workers applies to the image, video and lcm stages (the VAE stage crops from frames in memory)")
     ds = open_dataset(a.data)
     stage = VAEStageConfig(preset=a.preset, vae_channels=a.vae_channels, layers_per_block=a.vae_layers, size=a.size, crop=a.crop,
                            batch=a.batch, kl_weight=a.kl_weight, pool_frames_per_room=a.pool_frames, eval_frames_per_room=a.eval_frames,

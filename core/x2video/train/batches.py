@@ -221,24 +221,54 @@ class LatentData:
         return windows, mode, k if mode == "interp" else wc.levels, refs
 
 
-def image_batches(data: LatentData, batch: int, aug: AugmentConfig, seed: int):
-    """Batch source for `train`: single frames, no reference (the XRGB-style image stage)."""
+class _Draws(torch.utils.data.IterableDataset):
+    """Endless batches from `draw(rng)` in a DataLoader worker, each worker with its own seed."""
+
+    def __init__(self, draw, seed: list[int]) -> None:
+        self.draw, self.seed = draw, seed
+
+    def __iter__(self) -> Iterator[Batch]:
+        info = torch.utils.data.get_worker_info()
+        rng = np.random.default_rng([*self.seed, info.id if info is not None else 0])
+        while True:
+            yield self.draw(rng)
+
+
+def _as_is(b: Batch) -> Batch:
+    return b
+
+
+def _one_thread(_: int) -> None:
+    torch.set_num_threads(1)  # the workers' small tensor ops; many workers share the cores
+
+
+def _stream(draw, seed: int, workers: int):
+    """`make(start)` for `train`: batches drawn here (workers=0, reproducible as before) or by
+    `workers` forked processes prefetching ahead of the optimiser (a GPU step outruns one CPU
+    drawing them). Every worker seeds from (seed, start step, process rank, worker id)."""
 
     def make(start: int) -> Iterator[Batch]:
-        rng = np.random.default_rng([seed, start, process_index()])
-        while True:
-            yield data.sample(rng, data.random_frames(rng, batch), aug)
+        if workers <= 0:
+            rng = np.random.default_rng([seed, start, process_index()])
+            return (draw(rng) for _ in iter(int, 1))
+        loader = torch.utils.data.DataLoader(
+            _Draws(draw, [seed, start, process_index()]), batch_size=None, num_workers=workers, collate_fn=_as_is,
+            worker_init_fn=_one_thread, prefetch_factor=4, multiprocessing_context="fork", pin_memory=torch.cuda.is_available())
+        return iter(loader)
 
     return make
 
 
-def video_batches(data: LatentData, batch: int, aug: AugmentConfig, wc: WindowConfig, seed: int):
+def image_batches(data: LatentData, batch: int, aug: AugmentConfig, seed: int, workers: int = 0):
+    """Batch source for `train`: single frames, no reference (the XRGB-style image stage)."""
+    return _stream(lambda rng: data.sample(rng, data.random_frames(rng, batch), aug), seed, workers)
+
+
+def video_batches(data: LatentData, batch: int, aug: AugmentConfig, wc: WindowConfig, seed: int, workers: int = 0):
     """Batch source for `train`: keyframe / interpolation windows with optional references."""
 
-    def make(start: int) -> Iterator[Batch]:
-        rng = np.random.default_rng([seed, start, process_index()])
-        while True:
-            windows, mode, level, refs = data.random_windows(rng, batch, wc)
-            yield data.sample(rng, windows, aug, mode=mode, level=level, ref_positions=refs)
+    def draw(rng: np.random.Generator) -> Batch:
+        windows, mode, level, refs = data.random_windows(rng, batch, wc)
+        return data.sample(rng, windows, aug, mode=mode, level=level, ref_positions=refs)
 
-    return make
+    return _stream(draw, seed, workers)

@@ -184,7 +184,7 @@ def run_image_stage(cache: str | Path, out_dir: str | Path, stage: ImageStageCon
     def heldout(m):
         return _heldout(m, cache, cfg, cfg.shading_prior, stage.heldout_batches, lambda d, rng, aug: d.sample(rng, d.random_frames(rng, stage.batch), aug))
 
-    return _run(unet, cfg, cache, out_dir, loop, stage.batch, image_batches(data, stage.batch, stage.augment, stage.seed), sc, on_step,
+    return _run(unet, cfg, cache, out_dir, loop, stage.batch, image_batches(data, stage.batch, stage.augment, stage.seed, loop.workers), sc, on_step,
                 "image", heldout)
 
 
@@ -229,7 +229,7 @@ def run_video_stage(init: str | Path, cache: str | Path, out_dir: str | Path, st
     log.info("video UNet: %.2f M parameters, %d training frames", sum(p.numel() for p in unet.parameters()) / 1e6, data.num_rows)
     sc = {"stage": "video", **_resume_fields(stage), "model": cfg.to_dict(), "cache": str(cache.resolve()),
           "init": str(model_dir(init).resolve())}
-    batches = video_batches(data, stage.batch, stage.augment, stage.window, stage.seed)
+    batches = video_batches(data, stage.batch, stage.augment, stage.window, stage.seed, loop.workers)
     def draw(d, rng, aug):
         windows, mode, level, refs = d.random_windows(rng, stage.batch, stage.window)
         return d.sample(rng, windows, aug, mode=mode, level=level, ref_positions=refs)

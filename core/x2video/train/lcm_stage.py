@@ -139,7 +139,7 @@ def run_lcm_stage(teacher: str | Path, cache: str | Path, out_dir: str | Path, s
         save_checkpoint(out, cfg, {"unet": teacher_unet, "vae": vae, "lcm_unet": module})
 
     sc = {"stage": "lcm", **dataclasses.asdict(stage), "model": cfg.to_dict(), "cache": str(cache.resolve()), "teacher": str(d.resolve())}
-    ck = train(module=student, loss_fn=loss_fn, batches=video_batches(data, stage.batch, stage.augment, stage.window, stage.seed),
+    ck = train(module=student, loss_fn=loss_fn, batches=video_batches(data, stage.batch, stage.augment, stage.window, stage.seed, loop.workers),
                save_fn=save, out_dir=out_dir, cfg=loop, stage_config=sc, batch_size=stage.batch * stage.window.frames,
                on_step=on_step, extra_state={"target": target})
     summary = json.loads((out_dir / "summary.json").read_text()) if (out_dir / "summary.json").is_file() else {}

@@ -51,6 +51,9 @@ class LoopConfig:
     seed: int = 0
     mixed_precision: str = "no"
     """accelerate mixed precision: "no", "fp16" or "bf16" (GPU)."""
+    workers: int = 0
+    """Processes drawing batches ahead of the optimiser (0: drawn in the training process). Not
+    part of what a run is: a run resumes with any number, with fresh batches either way."""
 
 
 @dataclass
