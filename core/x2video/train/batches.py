@@ -253,7 +253,7 @@ def _stream(draw, seed: int, workers: int):
             return (draw(rng) for _ in iter(int, 1))
         loader = torch.utils.data.DataLoader(
             _Draws(draw, [seed, start, process_index()]), batch_size=None, num_workers=workers, collate_fn=_as_is,
-            worker_init_fn=_one_thread, prefetch_factor=4, multiprocessing_context="fork", pin_memory=torch.cuda.is_available())
+            worker_init_fn=_one_thread, prefetch_factor=4, multiprocessing_context="fork")
         return iter(loader)
 
     return make
