@@ -85,11 +85,13 @@ def measure(args: argparse.Namespace) -> dict:
 def draw_chart(result: dict, path: Path) -> Path:
     """Seconds per frame (x, log) vs PSNR (y), one labelled point per row; matplotlib, else pyqtgraph offscreen."""
     from x2video.eval.machine import machine_label
+    from x2video.eval.report import labels_below
 
     pts = [(r["name"], r["seconds_per_frame"], r["psnr"]) for r in result["rows"] if r.get("psnr") is not None and r.get("seconds_per_frame")]
     if not pts:
         raise ValueError("speed/accuracy chart: no row has both seconds per frame and PSNR")
     title = f"speed vs accuracy: {machine_label(result['machine'])}"
+    below = labels_below(pts)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
     try:
@@ -99,9 +101,9 @@ def draw_chart(result: dict, path: Path) -> Path:
         import matplotlib.pyplot as plt
 
         fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
-        for name, x, y in pts:
+        for i, (name, x, y) in enumerate(pts):
             ax.scatter([x], [y], marker="s" if name == "classical shading" else "o")
-            ax.annotate(name, (x, y), textcoords="offset points", xytext=(5, 5), fontsize=8)
+            ax.annotate(name, (x, y), textcoords="offset points", xytext=(5, -12 if i in below else 5), fontsize=8)
         ax.set_xscale("log")
         ax.set_xlabel("seconds per frame (log)")
         ax.set_ylabel("PSNR (dB)")
@@ -125,10 +127,10 @@ def draw_chart(result: dict, path: Path) -> Path:
         plot.setLabel("left", "PSNR (dB)")
         import math
 
-        for name, x, y in pts:
+        for i, (name, x, y) in enumerate(pts):
             brush = (220, 120, 40) if name == "classical shading" else (40, 110, 220)
             plot.addItem(pg.ScatterPlotItem(x=[math.log10(x)], y=[y], size=10, brush=brush, symbol="s" if name == "classical shading" else "o"))
-            label = pg.TextItem(name, color=(20, 20, 20), anchor=(0, 1))
+            label = pg.TextItem(name, color=(20, 20, 20), anchor=(0, 0) if i in below else (0, 1))
             label.setPos(math.log10(x), y)
             plot.addItem(label)
         xs = [math.log10(x) for _, x, _ in pts]

@@ -219,6 +219,20 @@ def test_speed_accuracy_chart_and_editor_shape(tmp_path):
     assert [p[0] for p in pts] == ["DDIM-20", "DDIM-4", "classical shading"] and all(math.isfinite(p[2]) for p in pts)
 
 
+def test_speed_accuracy_chart_moves_touching_labels_below():
+    """LCM-2 (0.48 s, 24.75 dB) and DDIM-4 (0.65 s, 24.72 dB) of the shipped model's run: DDIM-4's
+    label, above-right of its point, would cover LCM-2's; far apart points keep theirs above."""
+    from x2video.eval.report import labels_below
+
+    pts = [("DDIM-20", 2.44, 24.94), ("DDIM-4", 0.65, 24.72), ("LCM-2", 0.479, 24.75), ("DDIM-20, no detail", 2.14, 21.37),
+           ("classical shading", 0.007, 24.54)]
+    assert labels_below(pts) == {1}  # DDIM-4
+    assert labels_below([("a", 0.1, 20.0), ("b", 1.0, 20.0), ("c", 0.12, 25.0)]) == set()
+    lin = [("a", 0.48, 24.75), ("b", 0.65, 24.72), ("c", 2.4, 24.9), ("d", 2.1, 21.4)]
+    assert labels_below(lin, log_x=False) == {1}  # 0.17 s apart on a 2.3 s linear axis
+    assert labels_below([]) == set()
+
+
 def test_resolve_size_prefers_a_smaller_training_size(tmp_path):
     import argparse
 

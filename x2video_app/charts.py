@@ -10,6 +10,7 @@ import pyqtgraph as pg
 from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QLabel, QTabWidget, QVBoxLayout, QWidget
 
+from x2video.eval.report import labels_below
 from x2video_app.timeline import level_colour
 
 log = logging.getLogger(__name__)
@@ -137,8 +138,9 @@ class Charts(QWidget):
         xs = [p[1] for p in points]
         ys = [p[2] for p in points]
         self.bench_plot.addItem(pg.ScatterPlotItem(x=xs, y=ys, size=10, brush=pg.mkBrush(64, 170, 255), pen=pg.mkPen("w")))
-        for label, x, y in points:
-            t = pg.TextItem(label, color=(230, 230, 230), anchor=(0, 1))
+        below = labels_below(points, log_x=False)  # this plot's x axis is linear
+        for i, (label, x, y) in enumerate(points):
+            t = pg.TextItem(label, color=(230, 230, 230), anchor=(0, 0) if i in below else (0, 1))
             t.setPos(x, y)
             self.bench_plot.addItem(t)
         self.bench_note.setText(f"{len(points)} settings from {results_dir}")

@@ -9,6 +9,30 @@ from x2video.eval.machine import machine_label
 _LETTERS = {"a": "(a)", "b": "(b)", "c": "(c)", "d": "(d)"}
 
 
+
+def labels_below(points: list[tuple[str, float, float]], *, log_x: bool = True) -> set[int]:
+    """Chart label placement for (label, seconds per frame, PSNR) points: the indices whose label goes
+    below its point. A label sits above-right of its point and would cover the label of a point a
+    label's width to its left (0.3 decades on a log axis, 12 % of the range on a linear one) at
+    about the same PSNR (6 % of the PSNR range)."""
+    if not points:
+        return set()
+    ys = [y for _, _, y in points]
+    near = 0.06 * max(max(ys) - min(ys), 1e-9)
+    def pos(x: float) -> float:
+        return math.log10(x) if log_x and x > 0 else x
+    xs = [pos(x) for _, x, _ in points]
+    wide = 0.3 if log_x else 0.12 * max(max(xs) - min(xs), 1e-9)
+    above: list[tuple[float, float]] = []
+    below: set[int] = set()
+    for i in sorted(range(len(points)), key=lambda i: points[i][1]):
+        x, y = pos(points[i][1]), points[i][2]
+        if any(0 <= x - ax < wide and abs(y - ay) < near for ax, ay in above):
+            below.add(i)
+        else:
+            above.append((x, y))
+    return below
+
 def fmt(v: Any, digits: int = 2) -> str:
     """A number for a table cell: fixed digits, '–' when missing or not finite."""
     if v is None or isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
