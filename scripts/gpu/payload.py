@@ -17,7 +17,10 @@ import shutil
 import sys
 from pathlib import Path
 
-from safetensors.torch import load_file, save_file
+import torch
+from safetensors.torch import load_file
+
+from x2video.model.checkpoint import PARTS, read_config, save_checkpoint
 
 sys.path.insert(0, str(Path(__file__).parent))
 from pack import pack  # noqa: E402
@@ -26,11 +29,9 @@ A_TRAIN = ("albedo", "normal", "roughness")
 
 
 def fp16_copy(src: Path, dst: Path) -> None:
-    dst.mkdir(parents=True, exist_ok=True)
-    shutil.copy(src / "config.json", dst / "config.json")
-    for f in src.glob("*.safetensors"):
-        sd = load_file(str(f))
-        save_file({k: v.half() if v.is_floating_point() else v for k, v in sd.items()}, str(dst / f.name))
+    """A model folder (config + whichever parts it has, e.g. the cache's VAE alone) in fp16."""
+    parts = {p: load_file(str(src / f"{p}.safetensors")) for p in PARTS if (src / f"{p}.safetensors").is_file()}
+    save_checkpoint(dst, read_config(src), parts, dtype=torch.float16)
 
 
 def main() -> None:

@@ -9,7 +9,6 @@ from x2video.eval.machine import machine_label
 _LETTERS = {"a": "(a)", "b": "(b)", "c": "(c)", "d": "(d)"}
 
 
-
 def labels_below(points: list[tuple[str, float, float]], *, log_x: bool = True) -> set[int]:
     """Chart label placement for (label, seconds per frame, PSNR) points: the indices whose label goes
     below its point. A label sits above-right of its point and would cover the label of a point a
@@ -19,6 +18,7 @@ def labels_below(points: list[tuple[str, float, float]], *, log_x: bool = True) 
         return set()
     ys = [y for _, _, y in points]
     near = 0.06 * max(max(ys) - min(ys), 1e-9)
+
     def pos(x: float) -> float:
         return math.log10(x) if log_x and x > 0 else x
     xs = [pos(x) for _, x, _ in points]
@@ -32,6 +32,7 @@ def labels_below(points: list[tuple[str, float, float]], *, log_x: bool = True) 
         else:
             above.append((x, y))
     return below
+
 
 def fmt(v: Any, digits: int = 2) -> str:
     """A number for a table cell: fixed digits, '–' when missing or not finite."""

@@ -222,14 +222,15 @@ class LatentData:
 
 
 class _Draws(torch.utils.data.IterableDataset):
-    """Endless batches from `draw(rng)` in a DataLoader worker, each worker with its own seed."""
+    """Endless batches from `draw(rng)`, in the training process or in DataLoader workers (each
+    worker adds its id to the seed)."""
 
     def __init__(self, draw, seed: list[int]) -> None:
         self.draw, self.seed = draw, seed
 
     def __iter__(self) -> Iterator[Batch]:
-        info = torch.utils.data.get_worker_info()
-        rng = np.random.default_rng([*self.seed, info.id if info is not None else 0])
+        info = torch.utils.data.get_worker_info()  # None in the training process itself
+        rng = np.random.default_rng(self.seed if info is None else [*self.seed, info.id])
         while True:
             yield self.draw(rng)
 
@@ -248,13 +249,11 @@ def _stream(draw, seed: int, workers: int):
     drawing them). Every worker seeds from (seed, start step, process rank, worker id)."""
 
     def make(start: int) -> Iterator[Batch]:
+        draws = _Draws(draw, [seed, start, process_index()])
         if workers <= 0:
-            rng = np.random.default_rng([seed, start, process_index()])
-            return (draw(rng) for _ in iter(int, 1))
-        loader = torch.utils.data.DataLoader(
-            _Draws(draw, [seed, start, process_index()]), batch_size=None, num_workers=workers, collate_fn=_as_is,
-            worker_init_fn=_one_thread, prefetch_factor=4, multiprocessing_context="fork")
-        return iter(loader)
+            return iter(draws)
+        return iter(torch.utils.data.DataLoader(draws, batch_size=None, num_workers=workers, collate_fn=_as_is,
+                                                worker_init_fn=_one_thread, prefetch_factor=4, multiprocessing_context="fork"))
 
     return make
 
