@@ -25,14 +25,14 @@ def _finite(v) -> bool:
 def test_eval_cli_untrained_all_tables(data, tmp_path, one_thread, capsys):
     out = tmp_path / "res"
     rc = main(["eval", "--untrained", "--data", str(data), "--frames", "3", "--long-frames", "6", "--steps", "1",
-               "--long-conditions", "full,drop_irradiance", "--no-fid", "--threads", "1", "--renders", "1", "--out", str(out)])
+               "--long-conditions", "full,drop_irradiance+ref", "--no-fid", "--threads", "1", "--renders", "1", "--out", str(out)])
     assert rc == 0, capsys.readouterr().err
     res = json.loads((out / "results.json").read_text())
     assert res["format"] == "x2video-eval" and set(res["tables"]) == {"a", "b", "c", "d"}
     labels = {k: [r["label"] for r in t["rows"]] for k, t in res["tables"].items()}
     assert labels["a"] == ["Image model (per frame)", "Video model"]
     assert labels["b"] == [f"{k}{x}" for k in ("Full channels", "Mask A|M|R", "Drop irradiance") for x in ("", " + Text", " + Ref.")]
-    assert labels["c"] == ["Sequential", "Recursive", "Sequential, Drop irradiance", "Recursive, Drop irradiance"]
+    assert labels["c"] == ["Sequential", "Recursive", "Sequential, Drop irradiance + Ref.", "Recursive, Drop irradiance + Ref."]
     assert labels["d"] == ["DDIM-1", "DDIM-1 + Ref.", "LCM-2", "LCM-2 + Ref."]
     for key, table in res["tables"].items():
         for row in table["rows"]:
@@ -57,11 +57,14 @@ def test_eval_cli_untrained_all_tables(data, tmp_path, one_thread, capsys):
     assert rows[("b", "Full channels + Text")]["model"]["ssim"] != rows[("b", "Full channels")]["model"]["ssim"]
     assert rows[("c", "Sequential")]["model"]["psnr"] != rows[("c", "Recursive")]["model"]["psnr"]
     # table (c) under a condition: the baseline without irradiance is black, the model still renders
-    assert rows[("c", "Recursive, Drop irradiance")]["baseline"]["psnr"] < rows[("c", "Recursive")]["baseline"]["psnr"]
-    assert rows[("c", "Recursive, Drop irradiance")]["model"]["psnr"] != rows[("c", "Recursive")]["model"]["psnr"]
+    rec_drop = rows[("c", "Recursive, Drop irradiance + Ref.")]
+    assert rec_drop["condition"] == {"kind": "drop_irradiance", "text": False, "reference": True}
+    assert rec_drop["baseline"]["psnr"] < rows[("c", "Recursive")]["baseline"]["psnr"]
+    assert rec_drop["model"]["psnr"] != rows[("c", "Recursive")]["model"]["psnr"]
     assert res["unavailable"]["fvd"]["reason"] and res["unavailable"]["lpips"]["reason"]
     assert res["machine"]["cpu_cores"] and res["wall_seconds"] > 0
     assert res["command"].startswith("x2video eval --untrained --data")
+    assert "--long-conditions full,drop_irradiance+ref --tables a,b,c,d" in res["command"]  # table (c) reproduces
     assert res["data"]["main"]["size"] == [64, 48]
     md = (out / "results.md").read_text()
     for head in ("### (a)", "### (b)", "### (c)", "### (d)"):

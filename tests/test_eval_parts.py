@@ -119,6 +119,7 @@ def test_orderings_report_what_holds():
 
 
 def test_table_c_under_several_conditions_pairs_each_schemes_rows():
+    from x2video.eval.conditions import Condition, parse_condition
     from x2video.eval.config import EvalConfig
     from x2video.eval.tables import table_rows
 
@@ -130,6 +131,17 @@ def test_table_c_under_several_conditions_pairs_each_schemes_rows():
     ]
     with pytest.raises(ValueError, match="long_conditions.*choose from"):
         EvalConfig(long_conditions=("no_albedo",))
+    with pytest.raises(ValueError, match="long_conditions.*\\+ref"):
+        EvalConfig(long_conditions=("full+reff",))
+    rows = table_rows(EvalConfig(tables=("c",), long_conditions=("full+ref", "mask_amr+text+ref"), masks=2))["c"]
+    assert [(r.label, r.condition) for r in rows[::2]] == [
+        ("Sequential, Full channels + Ref.", Condition("full", False, True, 2)),
+        ("Sequential, Mask A|M|R + Text + Ref.", Condition("mask_amr", True, True, 2)),
+    ]
+    assert parse_condition(" drop_irradiance+ref ").token == "drop_irradiance+ref"
+    for bad in ("ref", "full+ref+ref", "mask_amr+refs", ""):
+        with pytest.raises(ValueError, match="KIND\\[\\+text\\]\\[\\+ref\\]"):
+            parse_condition(bad)
     c = {"title": "C", "rows": [_row("Sequential", 25.0, tc=3.0), _row("Recursive", 24.0, tc=2.0),
                                 _row("Sequential, Drop irradiance", 14.0, tc=5.0), _row("Recursive, Drop irradiance", 15.0, tc=4.0)]}
     for r in c["rows"]:

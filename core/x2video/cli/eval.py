@@ -33,6 +33,19 @@ def _choices(allowed: tuple[str, ...]):
     return parse
 
 
+def _conditions(text: str) -> tuple[str, ...]:
+    """argparse type: comma-separated KIND[+text][+ref] conditions (`x2video.eval.conditions.parse_condition`)."""
+    from x2video.eval.conditions import parse_condition
+
+    picked = tuple(v.strip() for v in text.split(",") if v.strip())
+    if not picked:
+        raise argparse.ArgumentTypeError(f"{text!r}: no condition given")
+    try:
+        return tuple(parse_condition(v).token for v in picked)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from e
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     from x2video.eval.conditions import KINDS
     from x2video.eval.config import TABLES, EvalConfig
@@ -61,9 +74,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--frames", type=int, default=d.frames, help=f"first T frames per shot for tables a, b, d (default {d.frames}; 0 = all)")
     g.add_argument("--long-data", type=Path, help="data set with long shots for table (c) (make it with --frames 65; default: --data)")
     g.add_argument("--long-frames", type=int, default=d.long_frames, help=f"frames per long shot (default {d.long_frames})")
-    g.add_argument("--long-conditions", type=_choices(KINDS), default=d.long_conditions,
-                   help="conditions table (c) compares recursive and sequential under: comma-separated full, mask_amr, "
-                   f"drop_irradiance (default {','.join(d.long_conditions)})")
+    g.add_argument("--long-conditions", type=_conditions, default=d.long_conditions,
+                   help="conditions table (c) compares recursive and sequential under: comma-separated KIND[+text][+ref], "
+                   f"KIND one of {', '.join(KINDS)}; +ref gives the ground-truth frame 0 as reference, which sequential "
+                   f"sampling passes along window by window (default {','.join(d.long_conditions)})")
     g.add_argument("--size", type=_size, help="evaluate at WxH (default: the model's training size when recorded, else the data's)")
     g = p.add_argument_group("what to measure")
     g.add_argument("--tables", type=_choices(TABLES), default=d.tables, help="comma-separated subset of a,b,c,d (default all)")
@@ -95,7 +109,10 @@ def command_line(a: argparse.Namespace) -> str:
     parts += ["--split", a.split]
     if a.rooms is not None:
         parts += ["--rooms", str(a.rooms)]
-    parts += ["--frames", str(a.frames), "--long-frames", str(a.long_frames), "--tables", ",".join(a.tables)]
+    parts += ["--frames", str(a.frames), "--long-frames", str(a.long_frames)]
+    if "c" in a.tables:
+        parts += ["--long-conditions", ",".join(a.long_conditions)]
+    parts += ["--tables", ",".join(a.tables)]
     if a.size is not None:
         parts += ["--size", f"{a.size[0]}x{a.size[1]}"]
     parts += ["--steps", str(a.steps), "--lcm-steps", str(a.lcm_steps), "--seed", str(a.seed), "--window", str(a.window),

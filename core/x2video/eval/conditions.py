@@ -52,11 +52,25 @@ class Condition:
             parts.append("Ref.")
         return " + ".join(parts)
 
+    @property
+    def token(self) -> str:
+        """The condition as `parse_condition` reads it: kind[+text][+ref]."""
+        return self.kind + ("+text" if self.text else "") + ("+ref" if self.reference else "")
+
     def to_dict(self) -> dict:
         d = {"kind": self.kind, "text": self.text, "reference": self.reference}
         if self.kind == "mask_amr":
             d["masks"] = self.masks
         return d
+
+
+def parse_condition(token: str, masks: int = 3) -> Condition:
+    """A `Condition` from "kind[+text][+ref]" (e.g. "mask_amr+ref"), as `x2video eval --long-conditions` takes it."""
+    kind, *extras = [p.strip() for p in token.strip().split("+")]
+    bad = [e for e in extras if e not in ("text", "ref")]
+    if kind not in KINDS or bad or len(set(extras)) != len(extras):
+        raise ValueError(f"condition {token!r}: expected KIND[+text][+ref] with KIND one of {', '.join(KINDS)}")
+    return Condition(kind, "text" in extras, "ref" in extras, masks)
 
 
 def visible_objects(shot: Shot, samples: int = 5) -> dict[int, float]:

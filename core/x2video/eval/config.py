@@ -21,8 +21,9 @@ class EvalConfig:
     long_frames: int = 65
     """frames of each long shot for table c (the paper's 65-frame shots)"""
     long_conditions: tuple[str, ...] = ("full",)
-    """conditions table c compares the schemes under ("full", "mask_amr", "drop_irradiance"); with a shading
-    prior the full-channel render is anchored to the formula, the others make the model generate"""
+    """conditions table c compares the schemes under, each KIND[+text][+ref] with KIND one of "full", "mask_amr",
+    "drop_irradiance" (e.g. "mask_amr+ref"); with a shading prior the full-channel render is anchored to the
+    formula, the others make the model generate, and +ref gives it the ground-truth frame 0 to carry along"""
     size: tuple[int, int] | None = None
     """(W, H) to evaluate at; None: the model's training size when recorded, else the data's"""
     steps: int = 20
@@ -50,11 +51,17 @@ class EvalConfig:
             raise ValueError(f"frames must be at least 2 (temporal consistency needs pairs), got {self.frames}")
         if self.long_frames < 2:
             raise ValueError(f"long_frames must be at least 2, got {self.long_frames}")
-        from x2video.eval.conditions import KINDS
+        from x2video.eval.conditions import KINDS, parse_condition
 
-        bad = [k for k in self.long_conditions if k not in KINDS]
+        bad = []
+        for token in self.long_conditions:
+            try:
+                parse_condition(token)
+            except ValueError:
+                bad.append(token)
         if bad or not self.long_conditions:
-            raise ValueError(f"long_conditions: {','.join(self.long_conditions)!r}; choose from {','.join(KINDS)}")
+            raise ValueError(f"long_conditions: {','.join(self.long_conditions)!r}; choose from {','.join(KINDS)}, "
+                             "each optionally followed by +text and/or +ref")
         if self.steps < 1 or self.lcm_steps < 1:
             raise ValueError(f"steps must be at least 1 (got DDIM {self.steps}, LCM {self.lcm_steps})")
         if self.masks < 1:

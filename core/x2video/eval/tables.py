@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from x2video.eval.conditions import KINDS, Condition
+from x2video.eval.conditions import KINDS, Condition, parse_condition
 from x2video.eval.config import EvalConfig
 
 TITLES = {
@@ -97,9 +97,9 @@ def table_rows(config: EvalConfig) -> dict[str, list[RowSpec]]:
             out[t] = rows
         elif t == "c":
             out[t] = []
-            for kind in config.long_conditions:
-                c = Condition(kind, masks=m)
-                suffix = "" if kind == "full" else f", {c.label}"
+            for token in config.long_conditions:
+                c = parse_condition(token, m)
+                suffix = "" if c == full else f", {c.label}"
                 out[t] += [
                     RowSpec("c", f"Sequential{suffix}", "video", c, "ddim", s, "sequential", "long"),
                     RowSpec("c", f"Recursive{suffix}", "video", c, "ddim", s, "recursive", "long"),
