@@ -154,6 +154,30 @@ def test_table_c_under_several_conditions_pairs_each_schemes_rows():
     assert checks["(c) recursive TC < sequential TC, Drop irradiance"] is True
 
 
+def test_table_c_psnr_by_quarter_pairs_schemes_per_condition():
+    from x2video.eval.report import psnr_by_part, table_markdown
+
+    def row(label, scheme, ref, shots):
+        r = _row(label, 0.0, ref=ref)
+        r["settings"]["scheme"] = scheme
+        r["model"]["shots"] = {f"room_{i}": {"psnr_frames": f} for i, f in enumerate(shots)}
+        return r
+
+    flat = [20.0] * 9  # 9 frames: quarters of 3, 2, 2, 2 frames (numpy.array_split)
+    drift = [20.0, 20.0, 20.0, 19.0, 19.0, 18.0, 18.0, 16.0, 16.0]
+    rows = [row("Sequential, Full channels + Ref.", "sequential", True, [drift, drift]),
+            row("Recursive, Full channels + Ref.", "recursive", True, [flat, [22.0] * 9]),
+            row("Sequential", "sequential", False, [flat, flat]),
+            row("Recursive", "recursive", False, [flat, flat])]
+    assert psnr_by_part(rows[0]) == [20.0, 19.0, 18.0, 16.0]
+    assert psnr_by_part(rows[1]) == [21.0] * 4  # mean over shots
+    assert psnr_by_part(row("short", "recursive", False, [[20.0] * 3])) is None
+    md = table_markdown("c", {"title": "C", "rows": rows})
+    assert "| Recursive − sequential, Full channels + Ref. | +1.00 | +2.00 | +3.00 | +5.00 |" in md
+    assert "| Recursive − sequential | +0.00 | +0.00 | +0.00 | +0.00 |" in md  # paired by condition, not row order
+    assert "quarter" not in table_markdown("b", {"title": "B", "rows": rows})
+
+
 def test_markdown_rows_escape_bars_and_show_missing_models():
     line = row_line(_row("Mask A|M|R", 19.0))
     assert line.startswith("| Mask A\\|M\\|R |")

@@ -4,6 +4,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
+
 from x2video.eval.machine import machine_label
 
 _LETTERS = {"a": "(a)", "b": "(b)", "c": "(c)", "d": "(d)"}
@@ -90,6 +92,48 @@ def table_markdown(key: str, table: dict[str, Any]) -> str:
     if table.get("notes"):
         lines.append("")
     lines += [f"- {n}" for n in table.get("notes", [])]
+    if key == "c":
+        quarters = quarters_markdown(table)
+        if quarters:
+            lines += ["", quarters]
+    return "\n".join(lines)
+
+
+def psnr_by_part(row: dict[str, Any], parts: int = 4) -> list[float] | None:
+    """Mean PSNR (dB) of each of `parts` consecutive stretches of the shots' frames (numpy.array_split of the
+    frame indices; mean over frames, then over shots), from the per-frame PSNRs in the row's per-shot results.
+    None when a shot lacks them or has fewer frames than parts."""
+    shots = (row.get("model") or {}).get("shots") or {}
+    per_shot = []
+    for s in shots.values():
+        frames = s.get("psnr_frames")
+        if not frames or len(frames) < parts:
+            return None
+        per_shot.append([float(np.mean(c)) for c in np.array_split(np.asarray(frames, np.float64), parts)])
+    if not per_shot:
+        return None
+    return [float(v) for v in np.mean(per_shot, axis=0)]
+
+
+def quarters_markdown(table: dict[str, Any]) -> str:
+    """Table (c) along the shot: each row's PSNR by quarter of the long shots, and recursive minus sequential
+    per quarter for each condition. Sequential sampling that accumulates error falls behind more and more
+    towards the end of the shot (the paper's case); the content itself changes along a shot, so compare the
+    schemes quarter by quarter rather than a quarter with the first."""
+    rows = [(r, psnr_by_part(r)) for r in table["rows"] if r.get("available")]
+    rows = [(r, q) for r, q in rows if q is not None]
+    if not rows:
+        return ""
+    lines = ["PSNR by quarter of the shot (dB, mean over shots):", "",
+             "| | 1st quarter | 2nd | 3rd | 4th |", "|---|---|---|---|---|"]
+    lines += [f"| {cell(r['label'])} | " + " | ".join(fmt(v) for v in q) + " |" for r, q in rows]
+    for rec, qr in rows:
+        if rec["settings"].get("scheme") != "recursive":
+            continue
+        seq = next((q for r, q in rows if r["settings"].get("scheme") == "sequential" and r["condition"] == rec["condition"]), None)
+        if seq is not None:
+            label = "Recursive − sequential" + rec["label"][len("Recursive"):]
+            lines.append(f"| {cell(label)} | " + " | ".join(f"{a - b:+.2f}" for a, b in zip(qr, seq)) + " |")
     return "\n".join(lines)
 
 

@@ -1,0 +1,147 @@
+"""LCM-2 vs DDIM-20 speed-up measured side by side (issue 5, table (d)): the same held-out shots rendered with
+both samplers, with and without the reference frame, in alternating order, several times in one run.
+
+`x2video eval --tables d` times each row once, one row after the other, so machine noise (10-20 % on a
+shared VM) lands in the ratio. Here every repeat renders DDIM-20 and LCM-2 back to back (which goes first
+alternates between repeats), and the speed-up is reported per repeat and as the median over repeats, with
+the channel encoding (done once per shot; the editor caches it) both inside and outside the time.
+
+    python bench/lcm_speedup.py --data DATA [--weights RUN_OR_DIR] [--lcm-weights LCM_RUN] [--rooms 2]
+        [--frames 17] [--repeats 3] [--threads 1] [--out bench/results/lcm_speedup.json]
+
+Writes {"format": "x2video-lcm-speedup", "command", "machine", "weights", "data", "load_average_before_after",
+"repeats": [{"order", "rows": [{"name", "sampler", "steps", "reference", "seconds_per_frame",
+"encode_seconds_per_frame"}], "speedup", "speedup_ref", "speedup_no_encoding", "speedup_ref_no_encoding"}],
+"median": {...the four speed-ups...}, "min": {...}, "max": {...}}. No row holds a PSNR, so the editor's
+speed/accuracy chart (which plots rows with both) skips this file; accuracy is table (d)'s job.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shlex
+import statistics
+import sys
+import time
+from pathlib import Path
+
+RESULTS = Path(__file__).resolve().parent / "results" / "lcm_speedup.json"
+RATIOS = ("speedup", "speedup_ref", "speedup_no_encoding", "speedup_ref_no_encoding")
+
+
+def _ratios(rows: list[dict]) -> dict[str, float]:
+    by = {(r["sampler"], r["reference"]): r for r in rows}
+    out = {}
+    for name in RATIOS:
+        ref = "_ref" in name
+        d, lcm = by[("ddim", ref)], by[("lcm", ref)]
+        if name.endswith("no_encoding"):
+            out[name] = (d["seconds_per_frame"] - d["encode_seconds_per_frame"]) / (lcm["seconds_per_frame"] - lcm["encode_seconds_per_frame"])
+        else:
+            out[name] = d["seconds_per_frame"] / lcm["seconds_per_frame"]
+    return out
+
+
+def measure(args: argparse.Namespace) -> dict:
+    from x2video.cli.eval import load_models, resolve_size
+    from x2video.eval.conditions import Condition, build_edits
+    from x2video.eval.data import load_eval_shots
+    from x2video.eval.machine import machine_info
+    from x2video.eval.runner import MISSING_LCM, render_shot, warm_up
+    from x2video.sampling.events import RenderSettings
+    from x2video.sampling.renderer import Renderer
+
+    args.image_weights = None
+    models, weights_dir = load_models(args, with_image=False)
+    if models.lcm is None:
+        raise SystemExit(f"lcm_speedup: {MISSING_LCM}")
+    size, _ = resolve_size(args, weights_dir, models.video.downsample)
+    shots = load_eval_shots(args.data, args.split, args.rooms, args.frames, size)
+    refs = {s.name: build_edits(s.shot, s.name, Condition("full", reference=True), args.seed)[0] for s in shots}
+    renderers = {"ddim": Renderer(models.video), "lcm": Renderer(models.lcm)}
+    for sampler, r in renderers.items():
+        warm_up(r, shots[0], sampler)
+    steps = {"ddim": args.steps, "lcm": args.lcm_steps}
+    load_before = os.getloadavg()
+    repeats = []
+    for i in range(args.repeats):
+        order = ["ddim", "lcm"] if i % 2 == 0 else ["lcm", "ddim"]
+        rows = []
+        for sampler in order:
+            for reference in (False, True):
+                r = renderers[sampler]
+                settings = RenderSettings(sampler=sampler, steps=steps[sampler], seed=args.seed, window=args.window)  # type: ignore[arg-type]
+                secs = enc = 0.0
+                frames = 0
+                for s in shots:
+                    _, t = render_shot(r, s, refs[s.name] if reference else None, settings)
+                    secs, enc, frames = secs + t, enc + r.encode_seconds, frames + s.num_frames
+                name = f"{sampler.upper()}-{steps[sampler]}" + (" + Ref." if reference else "")
+                rows.append({"name": name, "sampler": sampler, "steps": steps[sampler], "reference": reference,
+                             "seconds_per_frame": secs / frames, "encode_seconds_per_frame": enc / frames})
+                print(f"repeat {i + 1}: {name:>14} {secs / frames:.3f} s/frame (encoding {enc / frames:.3f})", file=sys.stderr)
+        repeats.append({"order": order, "rows": rows, **_ratios(rows)})
+        print(f"repeat {i + 1}: " + ", ".join(f"{k} {repeats[-1][k]:.2f}x" for k in RATIOS), file=sys.stderr)
+    return {
+        "format": "x2video-lcm-speedup",
+        "command": shlex.join(["python", "bench/lcm_speedup.py", *sys.argv[1:]]),
+        "machine": machine_info(models.video.device),
+        "weights": models.info,
+        "data": {"dir": str(args.data), "split": args.split, "rooms": [s.name for s in shots], "frames": args.frames, "size": list(size)},
+        "load_average_before_after": [list(load_before), list(os.getloadavg())],
+        "repeats": repeats,
+        "median": {k: statistics.median(r[k] for r in repeats) for k in RATIOS},
+        "min": {k: min(r[k] for r in repeats) for k in RATIOS},
+        "max": {k: max(r[k] for r in repeats) for k in RATIOS},
+    }
+
+
+def _size(text: str) -> tuple[int, int]:
+    from x2video.train.data import parse_size
+
+    try:
+        return parse_size(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from e
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--data", type=Path, required=True, help="data set folder (DATA/test/room_*)")
+    p.add_argument("--split", default="test")
+    p.add_argument("--rooms", type=int, default=2, help="first K held-out rooms (default 2)")
+    p.add_argument("--frames", type=int, default=17, help="first T frames per shot (default 17)")
+    p.add_argument("--size", type=_size, help="WxH (default: the model's training size)")
+    p.add_argument("--weights", type=Path, help="video model run or folder (default: resources/)")
+    p.add_argument("--lcm-weights", type=Path, help="LCM run or folder")
+    p.add_argument("--untrained", action="store_true", help=argparse.SUPPRESS)  # load_models reads it; LCM needs weights
+    p.add_argument("--device", default=None)
+    p.add_argument("--fp16", action="store_true")
+    p.add_argument("--steps", type=int, default=20, help="DDIM steps (default 20)")
+    p.add_argument("--lcm-steps", type=int, default=2, help="LCM steps (default 2)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--window", type=int, default=5)
+    p.add_argument("--repeats", type=int, default=3, help="DDIM/LCM pairs, alternating which goes first (default 3)")
+    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
+    p.add_argument("--out", type=Path, default=RESULTS, help=f"JSON path (default {RESULTS})")
+    args = p.parse_args(argv)
+    if args.repeats < 1:
+        p.error("--repeats must be at least 1")
+    if args.threads:
+        import torch
+
+        torch.set_num_threads(args.threads)
+    from x2video.io.atomic import write_json_atomic
+
+    t0 = time.perf_counter()
+    result = measure(args)
+    result["wall_seconds"] = time.perf_counter() - t0
+    write_json_atomic(args.out, result)
+    for k in RATIOS:
+        print(f"{k:>24}: median {result['median'][k]:.2f}x (min {result['min'][k]:.2f}, max {result['max'][k]:.2f}) over {args.repeats} repeats")
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
