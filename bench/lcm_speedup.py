@@ -22,8 +22,10 @@ import os
 import shlex
 import statistics
 import sys
-import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from speed_accuracy import add_render_arguments, run_measure  # noqa: E402  (a sibling script, not a package)
 
 RESULTS = Path(__file__).resolve().parent / "results" / "lcm_speedup.json"
 RATIOS = ("speedup", "speedup_ref", "speedup_no_encoding", "speedup_ref_no_encoding")
@@ -96,47 +98,18 @@ def measure(args: argparse.Namespace) -> dict:
     }
 
 
-def _size(text: str) -> tuple[int, int]:
-    from x2video.train.data import parse_size
-
-    try:
-        return parse_size(text)
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(str(e)) from e
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--data", type=Path, required=True, help="data set folder (DATA/test/room_*)")
-    p.add_argument("--split", default="test")
-    p.add_argument("--rooms", type=int, default=2, help="first K held-out rooms (default 2)")
-    p.add_argument("--frames", type=int, default=17, help="first T frames per shot (default 17)")
-    p.add_argument("--size", type=_size, help="WxH (default: the model's training size)")
-    p.add_argument("--weights", type=Path, help="video model run or folder (default: resources/)")
-    p.add_argument("--lcm-weights", type=Path, help="LCM run or folder")
+    add_render_arguments(p)
     p.add_argument("--untrained", action="store_true", help=argparse.SUPPRESS)  # load_models reads it; LCM needs weights
-    p.add_argument("--device", default=None)
-    p.add_argument("--fp16", action="store_true")
     p.add_argument("--steps", type=int, default=20, help="DDIM steps (default 20)")
     p.add_argument("--lcm-steps", type=int, default=2, help="LCM steps (default 2)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--window", type=int, default=5)
     p.add_argument("--repeats", type=int, default=3, help="DDIM/LCM pairs, alternating which goes first (default 3)")
-    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
     p.add_argument("--out", type=Path, default=RESULTS, help=f"JSON path (default {RESULTS})")
     args = p.parse_args(argv)
     if args.repeats < 1:
         p.error("--repeats must be at least 1")
-    if args.threads:
-        import torch
-
-        torch.set_num_threads(args.threads)
-    from x2video.io.atomic import write_json_atomic
-
-    t0 = time.perf_counter()
-    result = measure(args)
-    result["wall_seconds"] = time.perf_counter() - t0
-    write_json_atomic(args.out, result)
+    result = run_measure(args, measure)
     for k in RATIOS:
         print(f"{k:>24}: median {result['median'][k]:.2f}x (min {result['min'][k]:.2f}, max {result['max'][k]:.2f}) over {args.repeats} repeats")
     print(f"wrote {args.out}")

@@ -156,8 +156,8 @@ def _size(text: str) -> tuple[int, int]:
         raise argparse.ArgumentTypeError(str(e)) from e
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+def add_render_arguments(p: argparse.ArgumentParser) -> None:
+    """Held-out data, weights, device and sampling arguments shared with bench/lcm_speedup.py."""
     p.add_argument("--data", type=Path, required=True, help="data set folder (DATA/test/room_*)")
     p.add_argument("--split", default="test")
     p.add_argument("--rooms", type=int, default=2, help="first K held-out rooms (default 2)")
@@ -165,15 +165,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--size", type=_size, help="WxH (default: the model's training size)")
     p.add_argument("--weights", type=Path, help="video model run or folder (default: resources/)")
     p.add_argument("--lcm-weights", type=Path, help="LCM run or folder")
-    p.add_argument("--untrained", action="store_true", help="untrained tiny weights (smoke test; names get '(untrained)')")
     p.add_argument("--device", default=None)
     p.add_argument("--fp16", action="store_true")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--window", type=int, default=5)
-    p.add_argument("--fid", action="store_true", help="also compute FID (slow on a CPU)")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
-    p.add_argument("--out", type=Path, default=RESULTS, help=f"JSON path (PNG beside it; default {RESULTS})")
-    args = p.parse_args(argv)
+
+
+def run_measure(args: argparse.Namespace, measure_fn) -> dict:
+    """Set torch's threads, run `measure_fn(args)`, add its wall time and write the JSON to args.out atomically."""
     if args.threads:
         import torch
 
@@ -181,9 +181,20 @@ def main(argv: list[str] | None = None) -> int:
     from x2video.io.atomic import write_json_atomic
 
     t0 = time.perf_counter()
-    result = measure(args)
+    result = measure_fn(args)
     result["wall_seconds"] = time.perf_counter() - t0
     write_json_atomic(args.out, result)
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_render_arguments(p)
+    p.add_argument("--untrained", action="store_true", help="untrained tiny weights (smoke test; names get '(untrained)')")
+    p.add_argument("--fid", action="store_true", help="also compute FID (slow on a CPU)")
+    p.add_argument("--out", type=Path, default=RESULTS, help=f"JSON path (PNG beside it; default {RESULTS})")
+    args = p.parse_args(argv)
+    result = run_measure(args, measure)
     png = draw_chart(result, args.out.with_suffix(".png"))
     for r in result["rows"]:
         print(f"{r['name']:>24}: {r['seconds_per_frame']:.3f} s/frame, PSNR {r['psnr']:.2f} dB, SSIM {r['ssim']:.4f}, TC {r['tc']}")
