@@ -287,3 +287,21 @@ def test_resolve_size_prefers_a_smaller_training_size(tmp_path):
     assert resolve_size(a, model, 8)[0] == (64, 48)
     with pytest.raises(ValueError, match="not a multiple of the model's VAE factor 8"):
         resolve_size(argparse.Namespace(data=data, split="test", size=(60, 48)), model, 8)
+
+
+def test_recursive_seams_classifies_pairs_by_the_windows_that_made_them():
+    from x2video.sampling.planner import plan
+
+    spec = importlib.util.spec_from_file_location("recursive_seams", Path(__file__).resolve().parents[1] / "bench" / "recursive_seams.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    # recursive, 17 frames, N = 5: one keyframe window (level 2) makes 0, 4, 8, 12, 16; level-1 windows the rest
+    rec = mod.pair_classes(plan("recursive", 17, 5), 17)
+    assert rec[:4] == ["seam, level 2", "same window", "same window", "seam, level 2"]
+    assert rec.count("seam, level 2") == 8 and rec.count("same window") == 8
+    # 65 frames: keyframes at stride 16 (level 3), stride-4 frames from level-2 windows
+    rec65 = mod.pair_classes(plan("recursive", 65, 5), 65)
+    assert rec65[0] == rec65[15] == "seam, level 3" and rec65[3] == rec65[4] == "seam, level 2" and rec65[1] == "same window"
+    # sequential: windows make 0-4, 5-8, 9-12, ...: a seam after every 4th frame, all level 1
+    seq = mod.pair_classes(plan("sequential", 17, 5), 17)
+    assert [i for i, c in enumerate(seq) if c != "same window"] == [4, 8, 12] and set(seq) == {"same window", "seam, level 1"}

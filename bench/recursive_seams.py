@@ -1,0 +1,119 @@
+"""Where temporal consistency is lost, recursive vs sequential sampling: TC of frame pairs produced by one window
+against pairs whose frames come from different windows (a seam), by the level of the higher window.
+
+Table (c) of `x2video eval` gives one TC per row. This renders held-out long shots with both schemes and
+splits each shot's flow-warping errors by frame pair: "same window" when one sampler call produced both
+frames, else "seam, level k" with k the higher level of the two windows that produced them (Recursive
+Sampling's keyframes come from the top level; sequential windows are all level 1). TC of a class =
+mean warping error of the prediction / that of the ground truth over the class's pairs (exact motion, as
+the eval's TC).
+
+    python bench/recursive_seams.py --data DATA [--weights RUN_OR_DIR] [--rooms 2] [--frames 65]
+        [--condition drop_irradiance+ref] [--threads 1] [--out bench/results/recursive_seams.json]
+
+Writes {"format": "x2video-recursive-seams", "command", "machine", "weights", "data", "condition",
+"schemes": {scheme: {"tc", "classes": {class: {"tc", "pairs"}}, "shots": {name: {class: {"tc", "pairs"}}}}}}.
+"""
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from speed_accuracy import add_render_arguments, run_measure  # noqa: E402  (a sibling script, not a package)
+
+RESULTS = Path(__file__).resolve().parent / "results" / "recursive_seams.json"
+SCHEMES = ("sequential", "recursive")
+
+
+def pair_classes(windows: list, num_frames: int) -> list[str]:
+    """For each pair (t, t+1): "same window" or "seam, level k" from the plan's windows."""
+    made_by = {}
+    for i, w in enumerate(windows):
+        for f in w.generate:
+            made_by[f] = (i, w.level)
+    out = []
+    for t in range(num_frames - 1):
+        (wa, la), (wb, lb) = made_by[t], made_by[t + 1]
+        out.append("same window" if wa == wb else f"seam, level {max(la, lb)}")
+    return out
+
+
+def _tc(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> dict:
+    ok = mask & np.isfinite(pred) & np.isfinite(gt)
+    return {"tc": float(pred[ok].mean() / gt[ok].mean()) if ok.any() else None, "pairs": int(ok.sum())}
+
+
+def measure(args: argparse.Namespace) -> dict:
+    from x2video.channels import tonemap
+    from x2video.cli.eval import load_models, resolve_size
+    from x2video.eval.conditions import build_edits, parse_condition
+    from x2video.eval.data import load_eval_shots
+    from x2video.eval.machine import machine_info
+    from x2video.eval.runner import render_shot
+    from x2video.metrics.temporal import ground_truth_flows, warping_errors
+    from x2video.sampling.events import RenderSettings
+    from x2video.sampling.renderer import Renderer
+
+    args.image_weights, args.untrained = None, False
+    condition = parse_condition(args.condition)
+    models, weights_dir = load_models(args, with_image=False)
+    size, _ = resolve_size(args, weights_dir, models.video.downsample)
+    shots = load_eval_shots(args.data, args.split, args.rooms, args.frames, size)
+    renderer = Renderer(models.video)
+    per: dict[str, dict] = {s: {"pred": [], "gt": [], "classes": [], "shots": {}} for s in SCHEMES}
+    for shot in shots:
+        edits, _ = build_edits(shot.shot, shot.name, condition, args.seed)
+        gt = [tonemap(g) for g in shot.gt]
+        flows, _ = ground_truth_flows(gt, shot.motion)
+        gt_err = warping_errors(gt, flows).errors
+        for scheme in SCHEMES:
+            settings = RenderSettings(sampler="ddim", steps=args.steps, seed=args.seed, window=args.window, scheme=scheme)  # type: ignore[arg-type]
+            ref = 0 if condition.reference else None
+            classes = np.array(pair_classes(renderer.plan(shot.shot, settings, ref), shot.num_frames))
+            frames, _ = render_shot(renderer, shot, edits, settings)
+            err = warping_errors([tonemap(f) for f in frames], flows).errors
+            p = per[scheme]
+            p["pred"].append(err)
+            p["gt"].append(gt_err)
+            p["classes"].append(classes)
+            p["shots"][shot.name] = {c: _tc(err, gt_err, classes == c) for c in sorted(set(classes))}
+            print(f"{shot.name} {scheme}: " + ", ".join(f"{c} TC {v['tc']:.2f} ({v['pairs']})" for c, v in p["shots"][shot.name].items()), file=sys.stderr)
+    schemes = {}
+    for scheme, p in per.items():
+        pred, gt, classes = (np.concatenate(p[k]) for k in ("pred", "gt", "classes"))
+        schemes[scheme] = {"tc": _tc(pred, gt, np.ones_like(pred, bool))["tc"],
+                           "classes": {c: _tc(pred, gt, classes == c) for c in sorted(set(classes))},
+                           "shots": p["shots"]}
+    return {
+        "format": "x2video-recursive-seams",
+        "command": shlex.join(["python", "bench/recursive_seams.py", *sys.argv[1:]]),
+        "machine": machine_info(models.video.device),
+        "weights": models.info,
+        "data": {"dir": str(args.data), "split": args.split, "rooms": [s.name for s in shots], "frames": args.frames, "size": list(size)},
+        "condition": condition.to_dict(),
+        "schemes": schemes,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_render_arguments(p)
+    p.set_defaults(frames=65)
+    p.add_argument("--condition", default="drop_irradiance+ref", help="KIND[+text][+ref] as in x2video eval --long-conditions")
+    p.add_argument("--steps", type=int, default=20, help="DDIM steps (default 20)")
+    p.add_argument("--out", type=Path, default=RESULTS, help=f"JSON path (default {RESULTS})")
+    args = p.parse_args(argv)
+    result = run_measure(args, measure)
+    for scheme, r in result["schemes"].items():
+        print(f"{scheme:>10}: TC {r['tc']:.3f}; " + "; ".join(f"{c} {v['tc']:.3f} ({v['pairs']} pairs)" for c, v in r["classes"].items()))
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
