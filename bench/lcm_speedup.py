@@ -19,13 +19,12 @@ from __future__ import annotations
 
 import argparse
 import os
-import shlex
 import statistics
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from speed_accuracy import add_render_arguments, run_measure  # noqa: E402  (a sibling script, not a package)
+from speed_accuracy import add_render_arguments, result_header, run_measure  # noqa: E402  (a sibling script, not a package)
 
 RESULTS = Path(__file__).resolve().parent / "results" / "lcm_speedup.json"
 RATIOS = ("speedup", "speedup_ref", "speedup_no_encoding", "speedup_ref_no_encoding")
@@ -48,7 +47,6 @@ def measure(args: argparse.Namespace) -> dict:
     from x2video.cli.eval import load_models, resolve_size
     from x2video.eval.conditions import Condition, build_edits
     from x2video.eval.data import load_eval_shots
-    from x2video.eval.machine import machine_info
     from x2video.eval.runner import MISSING_LCM, render_shot, warm_up
     from x2video.sampling.events import RenderSettings
     from x2video.sampling.renderer import Renderer
@@ -85,11 +83,7 @@ def measure(args: argparse.Namespace) -> dict:
         repeats.append({"order": order, "rows": rows, **_ratios(rows)})
         print(f"repeat {i + 1}: " + ", ".join(f"{k} {repeats[-1][k]:.2f}x" for k in RATIOS), file=sys.stderr)
     return {
-        "format": "x2video-lcm-speedup",
-        "command": shlex.join(["python", "bench/lcm_speedup.py", *sys.argv[1:]]),
-        "machine": machine_info(models.video.device),
-        "weights": models.info,
-        "data": {"dir": str(args.data), "split": args.split, "rooms": [s.name for s in shots], "frames": args.frames, "size": list(size)},
+        **result_header("lcm-speedup", "lcm_speedup.py", args, models, shots, size),
         "load_average_before_after": [list(load_before), list(os.getloadavg())],
         "repeats": repeats,
         "median": {k: statistics.median(r[k] for r in repeats) for k in RATIOS},

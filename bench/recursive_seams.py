@@ -17,14 +17,13 @@ Writes {"format": "x2video-recursive-seams", "command", "machine", "weights", "d
 from __future__ import annotations
 
 import argparse
-import shlex
 import sys
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from speed_accuracy import add_render_arguments, run_measure  # noqa: E402  (a sibling script, not a package)
+from speed_accuracy import add_render_arguments, result_header, run_measure  # noqa: E402  (a sibling script, not a package)
 
 RESULTS = Path(__file__).resolve().parent / "results" / "recursive_seams.json"
 SCHEMES = ("sequential", "recursive")
@@ -53,7 +52,6 @@ def measure(args: argparse.Namespace) -> dict:
     from x2video.cli.eval import load_models, resolve_size
     from x2video.eval.conditions import build_edits, parse_condition
     from x2video.eval.data import load_eval_shots
-    from x2video.eval.machine import machine_info
     from x2video.eval.runner import render_shot
     from x2video.metrics.temporal import ground_truth_flows, warping_errors
     from x2video.sampling.events import RenderSettings
@@ -90,11 +88,7 @@ def measure(args: argparse.Namespace) -> dict:
                            "classes": {c: _tc(pred, gt, classes == c) for c in sorted(set(classes))},
                            "shots": p["shots"]}
     return {
-        "format": "x2video-recursive-seams",
-        "command": shlex.join(["python", "bench/recursive_seams.py", *sys.argv[1:]]),
-        "machine": machine_info(models.video.device),
-        "weights": models.info,
-        "data": {"dir": str(args.data), "split": args.split, "rooms": [s.name for s in shots], "frames": args.frames, "size": list(size)},
+        **result_header("recursive-seams", "recursive_seams.py", args, models, shots, size),
         "condition": condition.to_dict(),
         "schemes": schemes,
     }

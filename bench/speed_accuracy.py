@@ -33,7 +33,6 @@ def measure(args: argparse.Namespace) -> dict:
     from x2video.cli.eval import load_models, resolve_size
     from x2video.eval.baseline import classical_frames
     from x2video.eval.data import load_eval_shots
-    from x2video.eval.machine import machine_info
     from x2video.eval.runner import MISSING_LCM, render_shot, warm_up
     from x2video.eval.scoring import Scorer
     from x2video.sampling.events import RenderSettings
@@ -70,15 +69,25 @@ def measure(args: argparse.Namespace) -> dict:
     m = scorer.score(frames, secs)
     rows.append({"name": "classical shading", "sampler": "none", "steps": 0,
                  **{k: m[k] for k in ("seconds_per_frame", "psnr", "ssim", "tc", "fid", "frames")}})
+    head = result_header("speed-accuracy", "speed_accuracy.py", args, models, shots, size)
+    head["data"]["size_note"] = size_note
     return {
-        "format": "x2video-speed-accuracy",
-        "command": shlex.join(["python", "bench/speed_accuracy.py", *sys.argv[1:]]),
-        "machine": machine_info(models.video.device),
-        "weights": models.info,
-        "data": {"dir": str(args.data), "split": args.split, "rooms": [s.name for s in shots], "frames": args.frames,
-                 "size": list(size), "size_note": size_note},
+        **head,
         "rows": rows,
         "unavailable": unavailable,
+    }
+
+
+def result_header(kind: str, script: str, args: argparse.Namespace, models, shots: list, size: tuple[int, int]) -> dict:
+    """The fields every bench JSON here starts with: format, the command that reproduces it, machine, weights, data."""
+    from x2video.eval.machine import machine_info
+
+    return {
+        "format": f"x2video-{kind}",
+        "command": shlex.join(["python", f"bench/{script}", *sys.argv[1:]]),
+        "machine": machine_info(models.video.device),
+        "weights": models.info,
+        "data": {"dir": str(args.data), "split": args.split, "rooms": [s.name for s in shots], "frames": args.frames, "size": list(size)},
     }
 
 
