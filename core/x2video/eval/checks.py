@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from x2video.eval.report import cell
+from x2video.eval.report import cell, scheme_pairs
 
 
 def _row(results: dict[str, Any], table: str, label: str) -> dict[str, Any] | None:
@@ -62,9 +62,7 @@ def orderings(results: dict[str, Any]) -> list[dict[str, Any]]:
                 r = _row(results, "b", f"{kind} + {extra}")
                 out.append(_compare(f"(b) {kind} + {extra} recovers PSNR", r, base, "psnr", ">", " dB"))
     if "c" in tables:  # each condition's recursive row against the sequential row of the same condition
-        rows = [r for r in tables["c"]["rows"] if r.get("available")]
-        for rec in (r for r in rows if r["settings"]["scheme"] == "recursive"):
-            seq = next((r for r in rows if r["settings"]["scheme"] == "sequential" and r["condition"] == rec["condition"]), None)
+        for rec, seq in scheme_pairs([r for r in tables["c"]["rows"] if r.get("available")]):
             suffix = rec["label"][len("Recursive"):]
             out.append(_compare(f"(c) recursive PSNR > sequential PSNR{suffix}", rec, seq, "psnr", ">", " dB"))
             out.append(_compare(f"(c) recursive TC < sequential TC{suffix}", rec, seq, "tc", "<"))

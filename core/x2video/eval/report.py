@@ -127,14 +127,19 @@ def quarters_markdown(table: dict[str, Any]) -> str:
     lines = ["PSNR by quarter of the shot (dB, mean over shots):", "",
              "| | 1st quarter | 2nd | 3rd | 4th |", "|---|---|---|---|---|"]
     lines += [f"| {cell(r['label'])} | " + " | ".join(fmt(v) for v in q) + " |" for r, q in rows]
-    for rec, qr in rows:
-        if rec["settings"].get("scheme") != "recursive":
+    parts = {id(r): q for r, q in rows}
+    for rec, seq in scheme_pairs([r for r, _ in rows]):
+        if seq is None:
             continue
-        seq = next((q for r, q in rows if r["settings"].get("scheme") == "sequential" and r["condition"] == rec["condition"]), None)
-        if seq is not None:
-            label = "Recursive − sequential" + rec["label"][len("Recursive"):]
-            lines.append(f"| {cell(label)} | " + " | ".join(f"{a - b:+.2f}" for a, b in zip(qr, seq)) + " |")
+        label = "Recursive − sequential" + rec["label"][len("Recursive"):]
+        lines.append(f"| {cell(label)} | " + " | ".join(f"{a - b:+.2f}" for a, b in zip(parts[id(rec)], parts[id(seq)])) + " |")
     return "\n".join(lines)
+
+
+def scheme_pairs(rows: list[dict[str, Any]]) -> list[tuple[dict[str, Any], dict[str, Any] | None]]:
+    """Table (c): each recursive row with the sequential row of the same condition (None when there is none)."""
+    return [(rec, next((r for r in rows if r["settings"].get("scheme") == "sequential" and r["condition"] == rec["condition"]), None))
+            for rec in rows if rec["settings"].get("scheme") == "recursive"]
 
 
 def results_markdown(results: dict[str, Any], *, heading: str | None = "X2Video evaluation") -> str:
