@@ -49,6 +49,7 @@ def _tc(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> dict:
 
 def measure(args: argparse.Namespace) -> dict:
     from x2video.channels import tonemap
+    from x2video.edits import resolve_reference
     from x2video.cli.eval import load_models, resolve_size
     from x2video.eval.conditions import build_edits, parse_condition
     from x2video.eval.data import load_eval_shots
@@ -69,10 +70,10 @@ def measure(args: argparse.Namespace) -> dict:
         gt = [tonemap(g) for g in shot.gt]
         flows, _ = ground_truth_flows(gt, shot.motion)
         gt_err = warping_errors(gt, flows).errors
+        ref = resolve_reference(shot.shot, edits) if edits is not None else None  # where the Renderer anchors the plan
         for scheme in SCHEMES:
             settings = RenderSettings(sampler="ddim", steps=args.steps, seed=args.seed, window=args.window, scheme=scheme)  # type: ignore[arg-type]
-            ref = 0 if condition.reference else None
-            classes = np.array(pair_classes(renderer.plan(shot.shot, settings, ref), shot.num_frames))
+            classes = np.array(pair_classes(renderer.plan(shot.shot, settings, None if ref is None else ref[0]), shot.num_frames))
             frames, _ = render_shot(renderer, shot, edits, settings)
             err = warping_errors([tonemap(f) for f in frames], flows).errors
             p = per[scheme]
