@@ -24,17 +24,13 @@ from x2video.procedural.camera import camera_path
 from x2video.procedural.renderer import ProceduralRenderer
 from x2video.procedural.scene import generate_scene
 from x2video.procedural.shotgen import render_frames, write_procedural_shot
-
-
-def _size(s: str) -> tuple[int, int]:
-    w, h = s.lower().split("x")
-    return int(w), int(h)
+from x2video.train.data import parse_size
 
 
 def speed(args: argparse.Namespace) -> dict:
     results = {}
     for size in args.sizes:
-        w, h = _size(size)
+        w, h = parse_size(size)
         r = ProceduralRenderer(w, h)
         with tempfile.TemporaryDirectory() as tmp:
             wall0, cpu0, n = time.perf_counter(), time.process_time(), 0
@@ -63,7 +59,7 @@ def speed(args: argparse.Namespace) -> dict:
 
 
 def flow(args: argparse.Namespace) -> dict:
-    w, h = _size(args.size)
+    w, h = parse_size(args.size)
     r = ProceduralRenderer(w, h)
     means = []
     for i in range(args.rooms):

@@ -24,6 +24,8 @@ import sys
 import time
 from pathlib import Path
 
+from x2video.cli.args import size_arg
+
 RESULTS = Path(__file__).resolve().parent / "results" / "speed_accuracy.json"
 #: (sampler, steps, add the shading detail); the no-detail row is measured for residual-prior models only
 PRESETS = [("ddim", 20, True), ("ddim", 4, True), ("lcm", 2, True), ("ddim", 20, False)]
@@ -156,22 +158,13 @@ def draw_chart(result: dict, path: Path) -> Path:
     return path
 
 
-def _size(text: str) -> tuple[int, int]:
-    from x2video.train.data import parse_size
-
-    try:
-        return parse_size(text)
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(str(e)) from e
-
-
 def add_render_arguments(p: argparse.ArgumentParser) -> None:
     """Held-out data, weights, device and sampling arguments shared with bench/lcm_speedup.py."""
     p.add_argument("--data", type=Path, required=True, help="data set folder (DATA/test/room_*)")
     p.add_argument("--split", default="test")
     p.add_argument("--rooms", type=int, default=2, help="first K held-out rooms (default 2)")
     p.add_argument("--frames", type=int, default=17, help="first T frames per shot (default 17)")
-    p.add_argument("--size", type=_size, help="WxH (default: the model's training size)")
+    p.add_argument("--size", type=size_arg, help="WxH (default: the model's training size)")
     p.add_argument("--weights", type=Path, help="video model run or folder (default: resources/)")
     p.add_argument("--lcm-weights", type=Path, help="LCM run or folder")
     p.add_argument("--device", default=None)

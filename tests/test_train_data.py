@@ -1,9 +1,13 @@
 """Training data helpers: data set discovery and resizing channels to the training size."""
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
 import pytest
 
+from x2video.cli.args import size_arg
+from x2video.cli.dataset import parse_size as dataset_size
 from x2video.train.data import parse_size, resize_channel, shot_dirs
 
 
@@ -26,6 +30,12 @@ def test_parse_size_and_dataset_errors(tmp_path):
     assert parse_size("160x112") == (160, 112)
     with pytest.raises(ValueError, match="WIDTHxHEIGHT"):
         parse_size("160")
+    # the one argparse type every command and bench takes --size with, and the data set's minimum
+    assert size_arg("96X64") == (96, 64)
+    with pytest.raises(argparse.ArgumentTypeError, match="'96x-4' must be positive"):
+        size_arg("96x-4")
+    with pytest.raises(ValueError, match="at least 8"):
+        dataset_size("320x4")
     with pytest.raises(FileNotFoundError):
         shot_dirs(tmp_path / "missing", "train")
     (tmp_path / "train" / "room_a").mkdir(parents=True)

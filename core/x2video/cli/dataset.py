@@ -16,11 +16,10 @@ DEMO = {"seed": 7, "frames": 33, "width": 320, "height": 224}
 
 
 def parse_size(text: str) -> tuple[int, int]:
-    """'320x224' -> (320, 224)."""
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise ValueError(f"--size must look like 320x224, got {text!r}") from None
+    """'320x224' -> (320, 224), at least 8 pixels each way."""
+    from x2video.train.data import parse_size as parse
+
+    w, h = parse(text)
     if w < 8 or h < 8:
         raise ValueError(f"--size {text}: width and height must be at least 8")
     return w, h

@@ -9,16 +9,9 @@ import time
 from pathlib import Path
 from typing import Any
 
+from x2video.cli.args import size_arg
+
 log = logging.getLogger(__name__)
-
-
-def _size(text: str) -> tuple[int, int]:
-    from x2video.train.data import parse_size
-
-    try:
-        return parse_size(text)
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(str(e)) from e
 
 
 def _choices(allowed: tuple[str, ...]):
@@ -78,7 +71,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="conditions table (c) compares recursive and sequential under: comma-separated KIND[+text][+ref], "
                    f"KIND one of {', '.join(KINDS)}; +ref gives the ground-truth frame 0 as reference, which sequential "
                    f"sampling passes along window by window (default {','.join(d.long_conditions)})")
-    g.add_argument("--size", type=_size, help="evaluate at WxH (default: the model's training size when recorded, else the data's)")
+    g.add_argument("--size", type=size_arg, help="evaluate at WxH (default: the model's training size when recorded, else the data's)")
     g = p.add_argument_group("what to measure")
     g.add_argument("--tables", type=_choices(TABLES), default=d.tables, help="comma-separated subset of a,b,c,d (default all)")
     g.add_argument("--steps", type=int, default=d.steps, help=f"DDIM steps (default {d.steps})")

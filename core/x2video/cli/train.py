@@ -8,6 +8,8 @@ import time
 from pathlib import Path
 from typing import Callable
 
+from x2video.cli.args import size_arg
+
 log = logging.getLogger(__name__)
 
 
@@ -16,15 +18,6 @@ def _ints(text: str) -> tuple[int, ...]:
         return tuple(int(v) for v in text.split(","))
     except ValueError as e:
         raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of integers") from e
-
-
-def _size(text: str) -> tuple[int, int]:
-    from x2video.train.data import parse_size
-
-    try:
-        return parse_size(text)
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(str(e)) from e
 
 
 def _loop_args(p: argparse.ArgumentParser, steps: int, lr: float, ema: float = 0.999) -> None:
@@ -224,7 +217,7 @@ def register(subparsers) -> None:
     s.add_argument("--preset", default="tiny", help="model preset giving the default VAE sizes (tiny, small, sd21)")
     s.add_argument("--vae-channels", type=_ints, default=None, help="VAE block widths, e.g. 32,64,128 (f = 2^(n-1) = 4)")
     s.add_argument("--vae-layers", type=int, default=None, help="ResNet layers per VAE block")
-    s.add_argument("--size", type=_size, default=None, help="resize frames to WxH first (the diffusion size, e.g. 160x112)")
+    s.add_argument("--size", type=size_arg, default=None, help="resize frames to WxH first (the diffusion size, e.g. 160x112)")
     s.add_argument("--crop", type=int, default=64, help="square crop side")
     s.add_argument("--batch", type=int, default=16, help="crops per batch")
     s.add_argument("--kl-weight", type=float, default=1e-6, help="KL weight per pixel")
@@ -236,7 +229,7 @@ def register(subparsers) -> None:
     s = sub.add_parser("cache", help="encode every frame of the data set once with the frozen VAE")
     s.add_argument("--data", type=Path, required=True, help="data set folder with train/ (and test/) rooms")
     s.add_argument("--vae", type=Path, required=True, help="VAE run folder (newest checkpoint) or model folder")
-    s.add_argument("--size", type=_size, default=None, help="encode frames resized to WxH (e.g. 160x112); default native")
+    s.add_argument("--size", type=size_arg, default=None, help="encode frames resized to WxH (e.g. 160x112); default native")
     s.add_argument("--out", type=Path, required=True, help="cache folder")
     s.add_argument("--batch", type=int, default=8, help="frames per VAE call")
     s.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
@@ -296,7 +289,7 @@ def register(subparsers) -> None:
     s.add_argument("--model", type=Path, required=True, help="lcm or video run (newest checkpoint) or model folder")
     s.add_argument("--image", type=Path, default=None, help="image run shipped beside it in OUT/image (eval table a)")
     s.add_argument("--out", type=Path, required=True, help="e.g. resources/x2video-tiny")
-    s.add_argument("--size", type=_size, default=None, help="training size WxH (default: read from the run's latent cache)")
+    s.add_argument("--size", type=size_arg, default=None, help="training size WxH (default: read from the run's latent cache)")
     s.add_argument("--run", type=Path, action="append", default=[], help="training run folder whose summary/results go into training.json (repeatable)")
     s.add_argument("--overwrite", action="store_true", help="replace an existing OUT")
     s.set_defaults(func=cmd_ship)
