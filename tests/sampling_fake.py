@@ -35,6 +35,7 @@ class FakeModel:
         self.encoded_prompts: list[str] = []
         self.predict_calls = 0
         self.windows: list[WindowInputs] = []  # one per predict_v call
+        self.x_t: list[tuple[int, torch.Tensor]] = []  # (t, noisy sample) per predict_v call
         self.decoded: list[torch.Tensor] = []  # (G, 4, h, w) per decode call
         self.on_predict = None  # optional hook(call_number)
 
@@ -67,6 +68,7 @@ class FakeModel:
     def predict_v(self, x_t: torch.Tensor, t: torch.Tensor, window: WindowInputs, *, lcm: bool = False) -> torch.Tensor:
         self.predict_calls += 1
         self.windows.append(window)
+        self.x_t.append((int(t), x_t.clone()))
         if self.on_predict is not None:
             self.on_predict(self.predict_calls)
         target = window.cond * 2 - 1 + window.text_global.mean()  # (N, 4, h, w)

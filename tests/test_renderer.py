@@ -123,6 +123,42 @@ def test_interpolation_windows_read_the_produced_end_latents() -> None:
     assert renderer.peak_latents == 5
 
 
+class _ResidualFake(FakeModel):
+    """A residual model: the sample is the RGB latent minus an offset from the conditioning."""
+
+    residual_prior = True
+
+    def sample_to_latents(self, x0: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
+        return x0 + 0.5 * cond
+
+
+@pytest.mark.parametrize("model_cls", [FakeModel, _ResidualFake])
+def test_replace_refs_holds_reference_positions_at_the_noised_reference(model_cls) -> None:
+    """With replace_refs, every step after the first sees each produced reference at its latent
+    (in sample space: minus the residual offset) noised with the window's own initial noise."""
+    from x2video.sampling.samplers import alphas_cumprod
+
+    ac = alphas_cumprod().float()
+    shot = make_shot(17)
+    for replace in (False, True):
+        model = model_cls()
+        events = run(Renderer(model), shot, RenderSettings(steps=4, window=5, replace_refs=replace, detail=False))
+        order = [f for e in events if isinstance(e, FramesReady) for f in e.frames]
+        produced = dict(zip(order, torch.cat(model.decoded)))  # frame -> its RGB latent
+        starts = [e for e in events if isinstance(e, WindowStarted)]
+        interp = [i for i, w in enumerate(starts) if w.mode == "interp"]
+        assert interp
+        matched = []
+        for i in interp:
+            w, calls, inputs = starts[i], model.x_t[4 * i : 4 * i + 4], model.windows[4 * i]
+            pos = [0, len(w.frames) - 1]
+            eps = calls[0][1][pos]  # t = 999: the initial noise itself
+            rgb = torch.stack([produced[w.frames[p]] for p in pos])
+            x0 = rgb - (0.5 * inputs.cond[pos] if model.residual_prior else 0)
+            matched.append(all(torch.allclose(x[pos], ac[t].sqrt() * x0 + (1 - ac[t]).sqrt() * eps, atol=1e-5) for t, x in calls[1:]))
+        assert all(matched) if replace else not any(matched)
+
+
 def test_long_render_holds_few_latents() -> None:
     shot = make_shot(65, height=8, width=8)
     renderer = Renderer(FakeModel())

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from x2video.sampling.events import CancelToken, Cancelled
-from x2video.sampling.samplers import alphas_cumprod, ddim_scheduler, lcm_scheduler, sample_ddim, sample_lcm
+from x2video.sampling.samplers import Known, alphas_cumprod, ddim_scheduler, lcm_scheduler, sample_ddim, sample_lcm
 
 
 def _oracle(x0: torch.Tensor, seen: list | None = None):
@@ -103,3 +103,25 @@ def test_cancel_stops_within_one_step(sampler, cancel_at: int) -> None:
 def test_bad_step_count() -> None:
     with pytest.raises(ValueError, match="at least 1 step"):
         sample_ddim(lambda x, t: x, torch.zeros(1, 4, 2, 2), 0)
+
+
+@pytest.mark.parametrize("sampler", [sample_ddim, sample_lcm])
+def test_known_positions_follow_the_noised_reference(sampler) -> None:
+    """Between steps the known positions hold sqrt(a) x0 + sqrt(1 - a) eps at the next step's level;
+    the other positions are the sampler's own, and the last step is not overwritten."""
+    x0, eps = _data()
+    ref = torch.randn(2, 4, 6, 8, generator=torch.Generator().manual_seed(5))
+    model = _oracle(x0 + 0.3)  # a wrong model: left alone, position 0 and 2 drift towards x0 + 0.3
+    kwargs = {"generator": torch.Generator().manual_seed(1)} if sampler is sample_lcm else {}
+    seen: list = []
+    known = Known((0, 2), ref, eps[[0, 2]])
+    out = sampler(lambda x, t: (seen.append((int(t), x.clone())), model(x, t))[1], eps, 4, known=known, **kwargs)
+    ac = alphas_cumprod().float()
+    for t, x in seen[1:]:
+        assert torch.allclose(x[[0, 2]], ac[t].sqrt() * ref + (1 - ac[t]).sqrt() * eps[[0, 2]], atol=1e-5), t
+    plain: list = []
+    kwargs = {"generator": torch.Generator().manual_seed(1)} if sampler is sample_lcm else {}
+    sampler(lambda x, t: (plain.append(x.clone()), model(x, t))[1], eps, 4, **kwargs)
+    assert not torch.allclose(plain[1][[0, 2]], seen[1][1][[0, 2]], atol=1e-3)  # replacement changed them
+    # the returned sample is the model's estimate everywhere (the caller keeps the generated positions)
+    assert out.shape == eps.shape and not torch.allclose(out[[0, 2]], ref, atol=1e-2)

@@ -38,7 +38,7 @@ from x2video.sampling.events import (
     WindowStarted,
 )
 from x2video.sampling.planner import Window, last_use, plan, shift
-from x2video.sampling.samplers import alphas_cumprod, sample_ddim, sample_lcm
+from x2video.sampling.samplers import Known, alphas_cumprod, sample_ddim, sample_lcm
 from x2video.shot import Shot
 
 log = logging.getLogger(__name__)
@@ -295,6 +295,14 @@ class Renderer:
         noise = torch.randn(n, model.latent_channels, h, w, generator=gen)  # (n, 4, h, w), CPU so devices agree
         x_T = noise.to(model.device, model.dtype)
         lcm = settings.sampler == "lcm"
+        known = None
+        if settings.replace_refs and window.refs:
+            pos = tuple(window.frames.index(f) for f in window.refs)
+            rgb = ref[list(pos)]  # (r, 4, h, w) the references' RGB latents
+            # in sample space: sample_to_latents adds a fixed offset (the shading prior's latent
+            # for residual models, else 0), which a zero sample reveals
+            offset = model.sample_to_latents(torch.zeros_like(rgb), cond[list(pos)])
+            known = Known(pos, rgb - offset, x_T[list(pos)])
 
         def model_fn(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
             return model.predict_v(x, t, inputs, lcm=lcm)
@@ -303,7 +311,7 @@ class Renderer:
             emit(StepDone(window=index, step=info["i"] + 1, steps=info["steps"]))
 
         if lcm:
-            x0 = sample_lcm(model_fn, x_T, settings.steps, callback=callback, cancel=cancel, generator=gen)
+            x0 = sample_lcm(model_fn, x_T, settings.steps, callback=callback, cancel=cancel, generator=gen, known=known)
         else:
-            x0 = sample_ddim(model_fn, x_T, settings.steps, callback=callback, cancel=cancel)
+            x0 = sample_ddim(model_fn, x_T, settings.steps, callback=callback, cancel=cancel, known=known)
         return x0, conds, keys, cond

@@ -9,10 +9,13 @@ signal and v-prediction gives x0 = -v there (epsilon-prediction would divide by 
 `model_fn(x_t, t) -> v` gets x_t (N, C, h, w) and the timestep as a 0-d long tensor.
 Every sampler reports each step through `callback({'x', 'i', 't', 'denoised', 'steps'})`
 ('x' is the sample after step i, 'denoised' the model's x0 estimate at step i) and checks
-the cancel token before every step, raising `Cancelled`.
+the cancel token before every step, raising `Cancelled`. Both take an optional `Known`:
+reference positions held at the noised reference latent between steps
+(`RenderSettings.replace_refs`).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import torch
@@ -22,6 +25,29 @@ from x2video.sampling.events import CancelToken, Cancelled
 
 ModelFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 StepCallback = Callable[[dict[str, Any]], None]
+
+
+@dataclass(frozen=True)
+class Known:
+    """Window positions whose clean latent is known (reference frames produced by earlier windows).
+
+    After every step but the last, the sample at `positions` is replaced by `x0` noised to the
+    next step's level with the fixed noise `eps`, sqrt(a) x0 + sqrt(1 - a) eps: what the
+    network saw at reference positions in training (the noised ground truth of that frame),
+    instead of its own drifting estimate of a frame it does not produce.
+    """
+
+    positions: tuple[int, ...]
+    x0: torch.Tensor  # (len(positions), C, h, w)
+    eps: torch.Tensor  # (len(positions), C, h, w)
+
+    def apply(self, x: torch.Tensor, alpha_cumprod: torch.Tensor) -> torch.Tensor:
+        if not self.positions:
+            return x
+        a = alpha_cumprod.to(x.device, torch.float32)
+        x = x.clone()
+        x[list(self.positions)] = (a.sqrt() * self.x0.float() + (1 - a).sqrt() * self.eps.float()).to(x.dtype)
+        return x
 
 #: The diffusion schedule the model is trained with (DESIGN.md: SD 2.1 betas, zero-terminal SNR).
 SCHEDULE: dict[str, Any] = dict(
@@ -67,6 +93,7 @@ def sample_ddim(
     callback: StepCallback | None = None,
     cancel: CancelToken | None = None,
     scheduler: DDIMScheduler | None = None,
+    known: Known | None = None,
 ) -> torch.Tensor:
     """DDIM (Song et al. 2021, eta = 0) with v-prediction, zero-terminal-SNR, trailing spacing.
 
@@ -84,6 +111,8 @@ def sample_ddim(
         v = model_fn(x, t)  # (N, C, h, w)
         out = sched.step(v, t, x)
         x = out.prev_sample if i < steps - 1 else out.pred_original_sample
+        if known is not None and i < steps - 1:
+            x = known.apply(x, sched.alphas_cumprod[int(sched.timesteps[i + 1])])
         if callback is not None:
             callback({"x": x, "i": i, "t": int(t), "denoised": out.pred_original_sample, "steps": steps})
     return x
@@ -99,6 +128,7 @@ def sample_lcm(
     cancel: CancelToken | None = None,
     generator: torch.Generator | None = None,
     scheduler: LCMScheduler | None = None,
+    known: Known | None = None,
 ) -> torch.Tensor:
     """Latent Consistency Model multistep sampling (Luo et al. 2023, Alg. 1) with v-prediction.
 
@@ -114,6 +144,8 @@ def sample_lcm(
         v = model_fn(x, t)  # (N, C, h, w)
         out = sched.step(v, t, x, generator=generator)
         x = out.prev_sample
+        if known is not None and i < steps - 1:
+            x = known.apply(x, sched.alphas_cumprod[int(sched.timesteps[i + 1])])
         if callback is not None:
             callback({"x": x, "i": i, "t": int(t), "denoised": out.denoised, "steps": steps})
     return x
