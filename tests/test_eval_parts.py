@@ -305,3 +305,17 @@ def test_recursive_seams_classifies_pairs_by_the_windows_that_made_them():
     # sequential: windows make 0-4, 5-8, 9-12, ...: a seam after every 4th frame, all level 1
     seq = mod.pair_classes(plan("sequential", 17, 5), 17)
     assert [i for i, c in enumerate(seq) if c != "same window"] == [4, 8, 12] and set(seq) == {"same window", "seam, level 1"}
+
+
+def test_eval_command_line_reproduces_every_setting():
+    """The results' Reproduce command carries the sampler options that change the renders."""
+    from x2video.cli import build_parser
+    from x2video.cli.eval import command_line
+
+    base = ["eval", "--data", "d", "--out", "o", "--tables", "c", "--long-conditions", "full+ref"]
+    a = build_parser().parse_args(base + ["--replace-refs"])
+    assert a.replace_refs and "--replace-refs" in command_line(a)
+    assert "--long-conditions full+ref --tables c" in command_line(a)
+    assert "--replace-refs" not in command_line(build_parser().parse_args(base))
+    assert "--threads" not in command_line(a) and "--threads 1 --out o" in command_line(build_parser().parse_args(base + ["--threads", "1"]))
+    assert command_line(build_parser().parse_args(command_line(a).split()[1:])) == command_line(a)  # a fixed point

@@ -79,6 +79,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--seed", type=int, default=d.seed, help="noise and mask seed")
     g.add_argument("--window", type=int, default=d.window, help=f"frames per window N (default {d.window})")
     g.add_argument("--masks", type=int, default=d.masks, help=f"objects masked in Mask A|M|R (default {d.masks})")
+    g.add_argument("--replace-refs", action="store_true", help="hold each window's reference frames at their noised latents "
+                                                               "between denoising steps (as in training; default off)")
     g.add_argument("--no-fid", action="store_true", help="skip FID (Inception features of every frame)")
     g.add_argument("--no-tc", action="store_true", help="skip temporal consistency")
     g.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch's default)")
@@ -110,11 +112,13 @@ def command_line(a: argparse.Namespace) -> str:
         parts += ["--size", f"{a.size[0]}x{a.size[1]}"]
     parts += ["--steps", str(a.steps), "--lcm-steps", str(a.lcm_steps), "--seed", str(a.seed), "--window", str(a.window),
               "--masks", str(a.masks)]
-    for flag, on in (("--no-fid", a.no_fid), ("--no-tc", a.no_tc), ("--fp16", a.fp16)):
+    for flag, on in (("--replace-refs", a.replace_refs), ("--no-fid", a.no_fid), ("--no-tc", a.no_tc), ("--fp16", a.fp16)):
         if on:
             parts.append(flag)
     if a.device:
         parts += ["--device", a.device]
+    if a.threads:  # seconds per frame depend on it (the UNet and the VAE scale differently with threads)
+        parts += ["--threads", str(a.threads)]
     parts += ["--out", str(a.out)]
     return shlex.join(parts)
 
@@ -221,7 +225,7 @@ def run(a: argparse.Namespace) -> int:
     frames = None if a.frames == 0 else a.frames
     config = EvalConfig(tables=a.tables, split=a.split, rooms=a.rooms, frames=frames, long_frames=a.long_frames, long_conditions=a.long_conditions, size=a.size,
                         steps=a.steps, lcm_steps=a.lcm_steps, seed=a.seed, window=a.window, masks=a.masks, fid=not a.no_fid,
-                        tc=not a.no_tc)
+                        tc=not a.no_tc, replace_refs=a.replace_refs)
     if a.renders and "a" not in config.tables:
         raise ValueError("--renders uses table (a)'s renders; add a to --tables")
     for flag, path in (("--data", a.data), ("--long-data", a.long_data)):
