@@ -116,6 +116,11 @@ def test_orderings_report_what_holds():
     assert "shots" not in by_claim["(a) video model TC < image model per frame TC"]  # no per-shot numbers
     assert by_claim["(d) ... both with the reference frame (the paper's pair: Ref-First vs Ref-First + LCM 2-step)"]["holds"] is False
     assert "| 1/2 |" in orderings_markdown(list(by_claim.values()))
+    # (d): each shot's own speed-up (5 x LCM s/frame < DDIM s/frame)
+    ddim, lcm = res["tables"]["d"]["rows"][0], res["tables"]["d"]["rows"][1]
+    ddim["model"]["shots"] = {"s1": {"seconds_per_frame": 1.0}, "s2": {"seconds_per_frame": 1.0}, "s3": {"seconds_per_frame": 1.0}}
+    lcm["model"]["shots"] = {"s1": {"seconds_per_frame": 0.15}, "s2": {"seconds_per_frame": 0.21}, "s3": {"seconds_per_frame": 0.19}}
+    assert next(c for c in orderings(res) if c["claim"].startswith("(d) LCM is"))["shots"] == "2/3"
 
 
 def test_table_c_under_several_conditions_pairs_each_schemes_rows():
@@ -222,6 +227,45 @@ def test_model_card_from_results_and_runs(tmp_path, capsys):
     bad.mkdir()
     (bad / "results.json").write_text(json.dumps({"vae": {}}))
     assert card.main([str(bad)]) == 2 and "not an `x2video eval` results file" in capsys.readouterr().err
+
+
+def _speedup_bench(ratios: list[tuple[float, float, float]], threads: int = 2) -> dict:
+    """A bench/lcm_speedup.py result whose repeats have these (speedup, speedup_ref, speedup_no_encoding)."""
+    import statistics
+
+    names = ("DDIM-20", "DDIM-20 + Ref.", "LCM-2", "LCM-2 + Ref.")
+    reps = [{"order": ["ddim", "lcm"], "speedup": a, "speedup_ref": b, "speedup_no_encoding": c, "speedup_ref_no_encoding": c,
+             "rows": [{"name": n, "seconds_per_frame": 1.0, "encode_seconds_per_frame": 0.1} for n in names]} for a, b, c in ratios]
+    keys = ("speedup", "speedup_ref", "speedup_no_encoding", "speedup_ref_no_encoding")
+    return {"format": "x2video-lcm-speedup", "command": "python bench/lcm_speedup.py --data D", "wall_seconds": 10.0,
+            "machine": {"cpu": "cpu", "cpu_cores": 2, "torch_threads": threads}, "data": {"rooms": ["a", "b"], "frames": 17},
+            "repeats": reps, "median": {k: statistics.median(r[k] for r in reps) for k in keys}}
+
+
+def test_speedup_ordering_from_back_to_back_repeats(tmp_path, capsys):
+    """(d) from bench/lcm_speedup.py: holds on the median ratio, and says in how many repeats it holds."""
+    from x2video.eval import card
+    from x2video.eval.checks import speedup_checks
+
+    checks = {c["claim"]: c for c in speedup_checks(_speedup_bench([(4.9, 5.6, 8.0), (5.4, 5.5, 8.5), (6.1, 4.8, 9.8)]))}
+    plain = checks["(d) LCM is >= 5x faster per frame than DDIM, back to back"]
+    assert plain["holds"] is True and plain["shots"] == "2/3 repeats" and "median 5.40x (min 4.90, max 6.10)" in plain["values"]
+    ref = checks["(d) ... both with the reference frame (the paper's pair), back to back"]
+    assert ref["holds"] is True and ref["shots"] == "2/3 repeats"
+    low = speedup_checks(_speedup_bench([(4.2, 4.8, 7.0), (4.6, 5.0, 7.5)]))
+    assert [c["holds"] for c in low] == [False, True, False]  # median 4.4, 7.25, 4.9
+    res = tmp_path / "eval"
+    res.mkdir()
+    (res / "results.json").write_text(json.dumps(dict(_results(), command="x2video eval --data D --out eval")))
+    bench = tmp_path / "lcm_speedup.json"
+    bench.write_text(json.dumps(_speedup_bench([(5.4, 5.5, 8.5)], threads=1)))
+    out = tmp_path / "card.md"
+    assert card.main([str(res), "--speedup", str(bench), "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "## LCM-2 vs DDIM-20 back to back, 1 torch thread\n" in text and "| 1 | ddim then lcm | 1.000 (0.100) |" in text
+    assert "| (d) LCM is >= 5x faster per frame than DDIM, back to back | yes | median 5.40x" in text
+    bench.write_text(json.dumps({"format": "x2video-eval"}))
+    assert card.main([str(res), "--speedup", str(bench)]) == 2 and "not a `bench/lcm_speedup.py` result" in capsys.readouterr().err
 
 
 def test_contact_sheet_and_mp4(tmp_path):

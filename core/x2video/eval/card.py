@@ -1,6 +1,7 @@
 """Composes resources/MODEL_CARD.md from `x2video eval` results folders and training run folders (issue 5, "Done means").
 
-    python -m x2video.eval.card RESULTS_DIR [RESULTS_DIR ...] [--run RUN_DIR ...] [--renders DIR] [--out resources/MODEL_CARD.md]
+    python -m x2video.eval.card RESULTS_DIR [RESULTS_DIR ...] [--run RUN_DIR ...] [--speedup LCM_SPEEDUP_JSON ...]
+        [--renders DIR] [--out resources/MODEL_CARD.md]
 
 Every number in the card is read from a results.json (with the exact command that produced
 it) or from a training run's state.json / summary.json / log.json / results.json; nothing is
@@ -16,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from x2video.eval.checks import orderings, orderings_markdown
+from x2video.eval.checks import orderings, orderings_markdown, speedup_checks
 from x2video.eval.report import results_markdown
 
 
@@ -37,6 +38,38 @@ def load_results(path: str | Path) -> dict[str, Any]:
     if not isinstance(doc, dict) or doc.get("format") != "x2video-eval":
         raise ValueError(f"{f}: not an `x2video eval` results file (format {doc.get('format') if isinstance(doc, dict) else None!r})")
     return doc
+
+
+def load_speedup(path: str | Path) -> dict[str, Any]:
+    """A `bench/lcm_speedup.py` result file; checks its format."""
+    f = Path(path)
+    if not f.is_file():
+        raise FileNotFoundError(f"{f}: no such file (run `python bench/lcm_speedup.py ... --out {f}` first)")
+    doc = _read(f)
+    if not isinstance(doc, dict) or doc.get("format") != "x2video-lcm-speedup" or not doc.get("repeats"):
+        raise ValueError(f"{f}: not a `bench/lcm_speedup.py` result (format {doc.get('format') if isinstance(doc, dict) else None!r})")
+    return doc
+
+
+def speedup_markdown(bench: dict[str, Any], heading: str) -> str:
+    """One back-to-back speed measurement: how it ran, seconds per frame per repeat, the (d) ordering."""
+    m = bench.get("machine", {})
+    rooms = bench.get("data", {}).get("rooms", [])
+    lines = [f"## {heading}", "",
+             f"`{bench.get('command')}` — {m.get('cpu')} ({m.get('cpu_cores')} cores, {m.get('torch_threads')} torch "
+             f"threads, torch {m.get('torch')}, device {m.get('device')}, commit {m.get('git_commit')}); "
+             f"{len(rooms)} held-out shots of {bench.get('data', {}).get('frames')} frames, "
+             f"{bench.get('wall_seconds', 0):.0f} s. DDIM-20 and LCM-2 rendered back to back, which goes first alternating.", ""]
+    names = [r["name"] for r in bench["repeats"][0]["rows"]]
+    lines += ["| repeat | order | " + " | ".join(f"{n} s/frame (encoding)" for n in names) + " | speed-up | + Ref. | no encoding |",
+              "|---|---|" + "---|" * (len(names) + 3)]
+    for i, rep in enumerate(bench["repeats"]):
+        by = {r["name"]: r for r in rep["rows"]}
+        cells = [f"{by[n]['seconds_per_frame']:.3f} ({by[n]['encode_seconds_per_frame']:.3f})" for n in names]
+        lines.append(f"| {i + 1} | {' then '.join(rep['order'])} | " + " | ".join(cells)
+                     + f" | {rep['speedup']:.2f}x | {rep['speedup_ref']:.2f}x | {rep['speedup_no_encoding']:.2f}x |")
+    lines += ["", orderings_markdown(speedup_checks(bench)), ""]
+    return "\n".join(lines)
 
 
 def run_facts(run: str | Path) -> dict[str, Any]:
@@ -100,7 +133,7 @@ def training_markdown(runs: list[dict[str, Any]]) -> str:
 
 
 def card_markdown(results: list[dict[str, Any]], runs: list[dict[str, Any]], renders: Path | None = None,
-                  command: str | None = None, preface: str | None = None) -> str:
+                  command: str | None = None, preface: str | None = None, speedups: list[dict[str, Any]] | None = None) -> str:
     """The whole model card."""
     out = ["# X2Video model card", ""]
     out.append(f"Generated {_dt.date.today().isoformat()}" + (f" by `{command}`" if command else "") + ". Every figure below "
@@ -115,6 +148,9 @@ def card_markdown(results: list[dict[str, Any]], runs: list[dict[str, Any]], ren
     for i, r in enumerate(results):
         out.append(results_markdown(r, heading=f"Evaluation {i + 1}" if len(results) > 1 else "Evaluation"))
         out += ["### Orderings the paper reports, on these numbers", "", orderings_markdown(orderings(r)), ""]
+    for b in speedups or []:
+        threads = b.get("machine", {}).get("torch_threads")
+        out.append(speedup_markdown(b, f"LCM-2 vs DDIM-20 back to back, {threads} torch thread{'s' if threads != 1 else ''}"))
     if renders is not None:
         pngs = sorted(Path(renders).glob("*.png"))
         if pngs:
@@ -130,6 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m x2video.eval.card", description=__doc__.split("\n\n")[0])
     p.add_argument("results", nargs="+", type=Path, help="`x2video eval` results folders (or results.json files)")
     p.add_argument("--run", action="append", type=Path, default=[], help="training run folder (repeat: vae, image, video, lcm)")
+    p.add_argument("--speedup", action="append", type=Path, default=[],
+                   help="bench/lcm_speedup.py result JSON (repeat): table (d)'s speed-up timed back to back over repeats")
     p.add_argument("--renders", type=Path, help="folder of contact sheets / MP4s (x2video eval --renders N --renders-out DIR)")
     p.add_argument("--preface", type=Path, help="Markdown placed after the header (data recipe, how to read the card)")
     p.add_argument("--out", type=Path, help="write the card here (atomically) instead of stdout")
@@ -137,12 +175,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         results = [load_results(r) for r in a.results]
         runs = [run_facts(r) for r in a.run]
+        speedups = [load_speedup(f) for f in a.speedup]
     except (ValueError, FileNotFoundError) as e:
         print(f"model card: error: {e}", file=sys.stderr)
         return 2
     argv_ = sys.argv[1:] if argv is None else argv
     preface = a.preface.read_text(encoding="utf-8") if a.preface is not None else None
-    text = card_markdown(results, runs, a.renders, shlex.join(["python", "-m", "x2video.eval.card", *map(str, argv_)]), preface)
+    text = card_markdown(results, runs, a.renders, shlex.join(["python", "-m", "x2video.eval.card", *map(str, argv_)]), preface,
+                         speedups)
     if a.out is None:
         sys.stdout.write(text)
     else:
