@@ -70,7 +70,8 @@ def measure(args: argparse.Namespace) -> dict:
         for sampler in order:
             for reference in (False, True):
                 r = renderers[sampler]
-                settings = RenderSettings(sampler=sampler, steps=steps[sampler], seed=args.seed, window=args.window)  # type: ignore[arg-type]
+                settings = RenderSettings(sampler=sampler, steps=steps[sampler], seed=args.seed, window=args.window,  # type: ignore[arg-type]
+                                          replace_refs=args.replace_refs)
                 secs = enc = 0.0
                 frames = 0
                 for s in shots:

@@ -58,7 +58,8 @@ def measure(args: argparse.Namespace) -> dict:
         renderer = Renderer(model)
         warm_up(renderer, shots[0], sampler)  # untimed: first-call costs stay out of the first preset
         renderer.cache.clear()  # every preset pays its own encoding, as in `x2video eval`
-        settings = RenderSettings(sampler=sampler, steps=steps, seed=args.seed, window=args.window, detail=detail)  # type: ignore[arg-type]
+        settings = RenderSettings(sampler=sampler, steps=steps, seed=args.seed, window=args.window, detail=detail,  # type: ignore[arg-type]
+                                  replace_refs=args.replace_refs)
         preds, secs = {}, {}
         for s in shots:
             preds[s.name], secs[s.name] = render_shot(renderer, s, None, settings)
@@ -171,6 +172,7 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fp16", action="store_true")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--window", type=int, default=5)
+    p.add_argument("--replace-refs", action="store_true", help="hold reference frames at their noised latents between steps")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
 
 
