@@ -191,7 +191,8 @@ def test_markdown_rows_escape_bars_and_show_missing_models():
     missing = row_line({"label": "LCM-2", "available": False, "reason": "no LCM weights"})
     assert "n/a: no LCM weights" in missing and len(missing.split("|")) - 2 == 13
     md = results_markdown(_results())
-    assert "### (a) A" in md and "### (d) D" in md
+    assert "### (a) A" in md and "### (d) D" in md and "--replace-refs" not in md
+    assert "held at their noised latents between steps (`--replace-refs`)" in results_markdown(dict(_results(), settings={"replace_refs": True}))
 
 
 def test_model_card_from_results_and_runs(tmp_path, capsys):

@@ -152,6 +152,8 @@ def results_markdown(results: dict[str, Any], *, heading: str | None = "X2Video 
     data = results.get("data", {})
     for key, d in data.items():
         out.append(f"- Data ({key}): {d.get('description', '')}")
+    if results.get("settings", {}).get("replace_refs"):
+        out.append("- Sampling: reference frames held at their noised latents between steps (`--replace-refs`)")
     if data:
         out.append("")
     for key, table in results["tables"].items():
