@@ -41,10 +41,12 @@ class Known:
     x0: torch.Tensor  # (len(positions), C, h, w)
     eps: torch.Tensor  # (len(positions), C, h, w)
 
-    def apply(self, x: torch.Tensor, alpha_cumprod: torch.Tensor) -> torch.Tensor:
-        if not self.positions:
+    def after_step(self, x: torch.Tensor, sched: DDIMScheduler | LCMScheduler, i: int) -> torch.Tensor:
+        """`x` after step `i` of `sched`'s timesteps, with the known positions reset to the next
+        step's level; the last step's output is returned as is."""
+        if not self.positions or i >= len(sched.timesteps) - 1:
             return x
-        a = alpha_cumprod.to(x.device, torch.float32)
+        a = sched.alphas_cumprod[int(sched.timesteps[i + 1])].to(x.device, torch.float32)
         x = x.clone()
         x[list(self.positions)] = (a.sqrt() * self.x0.float() + (1 - a).sqrt() * self.eps.float()).to(x.dtype)
         return x
@@ -111,8 +113,8 @@ def sample_ddim(
         v = model_fn(x, t)  # (N, C, h, w)
         out = sched.step(v, t, x)
         x = out.prev_sample if i < steps - 1 else out.pred_original_sample
-        if known is not None and i < steps - 1:
-            x = known.apply(x, sched.alphas_cumprod[int(sched.timesteps[i + 1])])
+        if known is not None:
+            x = known.after_step(x, sched, i)
         if callback is not None:
             callback({"x": x, "i": i, "t": int(t), "denoised": out.pred_original_sample, "steps": steps})
     return x
@@ -144,8 +146,8 @@ def sample_lcm(
         v = model_fn(x, t)  # (N, C, h, w)
         out = sched.step(v, t, x, generator=generator)
         x = out.prev_sample
-        if known is not None and i < steps - 1:
-            x = known.apply(x, sched.alphas_cumprod[int(sched.timesteps[i + 1])])
+        if known is not None:
+            x = known.after_step(x, sched, i)
         if callback is not None:
             callback({"x": x, "i": i, "t": int(t), "denoised": out.denoised, "steps": steps})
     return x
