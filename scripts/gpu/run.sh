@@ -5,7 +5,8 @@
 #      on a probe cache made of the test rooms, timing batch sizes and precisions.
 #   B: stash payload B, rebuild the full latent cache, train the video stage (-> held-out v-loss),
 #      distil LCM, ship fp16 into $OUT.
-# Payloads are read from $PAYLOAD/A and $PAYLOAD/B (default .gpu, ignored by git).
+# Payloads are read from $PAYLOAD/A and $PAYLOAD/B (default .gpu, ignored by git). B: TAG names the runs
+# (video_$TAG, lcm_$TAG; default g); VIDEO_ARGS is added to the video stage's command (e.g. --ref-p 0.75).
 set -u -o pipefail
 PART=$1
 P=${PAYLOAD:-.gpu}
@@ -61,7 +62,7 @@ import glob, json
 best = max((json.load(open(f))['samples_per_s'], f) for f in glob.glob('/tmp/probe_v_*/summary.json'))
 b, mp = best[1].split('/')[2].split('_')[2:4]; print(b, mp)")"
 fi
-B=$BATCH; MP=${MP:-no}; TL=${TL:-1.5}; LR=${LR:-1e-4}
+B=$BATCH; MP=${MP:-no}; TAG=${TAG:-g}; TL=${TL:-1.5}; LR=${LR:-1e-4}
 # BUDGET: seconds this command may run; video gets what the rest (unpack, start-ups, held-out, LCM, ship) leaves
 TV=${TV:-$(python3 -c "print(round(max(1.0, (${BUDGET:-560} - 150 - $TL * 60) / 60), 2))")}
 HALF=${HALF:-$(python3 -c "
@@ -71,19 +72,19 @@ print(max(500, int(sps * $TV * 60 / 3)))")}
 el "batch $B mixed precision $MP lr $LR (halved every $HALF steps) video $TV min, lcm $TL min"
 python3 $HERE/unpack.py $ST /tmp/cache train test || exit 6
 el "cache rebuilt"
-$X train video --init $ST/init --cache /tmp/cache --out /tmp/video_g --batch $B --workers $W --mixed-precision $MP --steps 1000000 \
-   --lr $LR --warmup 50 --lr-half-every $HALF --ema 0.999 --alpha-lr-mult 100 --ckpt-every 2000 --time-limit $TV --heldout-batches 4 \
-   > $OUT/video_g.log 2>&1; rc=$?
-tail -c 3000 $OUT/video_g.log | tr '\r' '\n' | grep -v "step/s\]" | tail -25
+$X train video --init $ST/init --cache /tmp/cache --out /tmp/video_$TAG --batch $B --workers $W --mixed-precision $MP --steps 1000000 \
+   --lr $LR --warmup 50 --lr-half-every $HALF --ema 0.999 --alpha-lr-mult 100 --ckpt-every 2000 --time-limit $TV --heldout-batches 4 ${VIDEO_ARGS:-} \
+   > $OUT/video_$TAG.log 2>&1; rc=$?
+tail -c 3000 $OUT/video_$TAG.log | tr '\r' '\n' | grep -v "step/s\]" | tail -25
 el "video done rc=$rc"
 [ $rc = 0 ] || exit 10
-$X train lcm --teacher /tmp/video_g --cache /tmp/cache --out /tmp/lcm_g --batch $B --workers $W --mixed-precision $MP --steps 1000000 \
-   --lr 5e-5 --warmup 20 --ema 0.99 --ckpt-every 2000 --time-limit $TL > $OUT/lcm_g.log 2>&1; rc=$?
-tail -c 1500 $OUT/lcm_g.log | tr '\r' '\n' | grep -v "step/s\]" | tail -12
+$X train lcm --teacher /tmp/video_$TAG --cache /tmp/cache --out /tmp/lcm_$TAG --batch $B --workers $W --mixed-precision $MP --steps 1000000 \
+   --lr 5e-5 --warmup 20 --ema 0.99 --ckpt-every 2000 --time-limit $TL > $OUT/lcm_$TAG.log 2>&1; rc=$?
+tail -c 1500 $OUT/lcm_$TAG.log | tr '\r' '\n' | grep -v "step/s\]" | tail -12
 el "lcm done rc=$rc"
-SHIPFROM=/tmp/lcm_g; [ $rc = 0 ] || SHIPFROM=/tmp/video_g
-$X train ship --model $SHIPFROM --out $OUT/ship --size 160x112 --run /tmp/video_g --run /tmp/lcm_g --overwrite 2>&1 | tail -3
-mkdir -p /tmp/runs_back && for r in video_g lcm_g; do mkdir -p /tmp/runs_back/$r; cp /tmp/$r/*.json /tmp/runs_back/$r/ 2>/dev/null; cp /tmp/$r/step-*/state.json /tmp/runs_back/$r/ 2>/dev/null; done
-tar -C /tmp/runs_back -czf $OUT/runs.tgz . ; gzip -f $OUT/video_g.log $OUT/lcm_g.log
+SHIPFROM=/tmp/lcm_$TAG; [ $rc = 0 ] || SHIPFROM=/tmp/video_$TAG
+$X train ship --model $SHIPFROM --out $OUT/ship --size 160x112 --run /tmp/video_$TAG --run /tmp/lcm_$TAG --overwrite 2>&1 | tail -3
+mkdir -p /tmp/runs_back && for r in video_$TAG lcm_$TAG; do mkdir -p /tmp/runs_back/$r; cp /tmp/$r/*.json /tmp/runs_back/$r/ 2>/dev/null; cp /tmp/$r/step-*/state.json /tmp/runs_back/$r/ 2>/dev/null; done
+tar -C /tmp/runs_back -czf $OUT/runs.tgz . ; gzip -f $OUT/video_$TAG.log $OUT/lcm_$TAG.log
 ls -la $OUT $OUT/ship
 el "PART B DONE"
