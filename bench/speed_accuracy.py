@@ -172,7 +172,8 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fp16", action="store_true")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--window", type=int, default=5)
-    p.add_argument("--replace-refs", action="store_true", help="hold reference frames at their noised latents between steps")
+    p.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=True,
+                   help="hold reference frames at their noised latents between steps (default on, as x2video render)")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
 
 

@@ -191,7 +191,7 @@ def test_markdown_rows_escape_bars_and_show_missing_models():
     missing = row_line({"label": "LCM-2", "available": False, "reason": "no LCM weights"})
     assert "n/a: no LCM weights" in missing and len(missing.split("|")) - 2 == 13
     md = results_markdown(_results())
-    assert "### (a) A" in md and "### (d) D" in md and "--replace-refs" not in md
+    assert "### (a) A" in md and "### (d) D" in md and "re-estimates its reference frames (`--no-replace-refs`)" in md  # results without the setting
     assert "held at their noised latents between steps (`--replace-refs`)" in results_markdown(dict(_results(), settings={"replace_refs": True}))
 
 
@@ -358,9 +358,11 @@ def test_eval_command_line_reproduces_every_setting():
     from x2video.cli.eval import command_line
 
     base = ["eval", "--data", "d", "--out", "o", "--tables", "c", "--long-conditions", "full+ref"]
-    a = build_parser().parse_args(base + ["--replace-refs"])
-    assert a.replace_refs and "--replace-refs" in command_line(a)
+    a = build_parser().parse_args(base)  # on by default, and written out: the default changed once
+    assert a.replace_refs and " --replace-refs" in command_line(a)
     assert "--long-conditions full+ref --tables c" in command_line(a)
-    assert "--replace-refs" not in command_line(build_parser().parse_args(base))
+    off = build_parser().parse_args(base + ["--no-replace-refs"])
+    assert not off.replace_refs and "--no-replace-refs" in command_line(off) and " --replace-refs" not in command_line(off)
+    assert command_line(build_parser().parse_args(command_line(off).split()[1:])) == command_line(off)
     assert "--threads" not in command_line(a) and "--threads 1 --out o" in command_line(build_parser().parse_args(base + ["--threads", "1"]))
     assert command_line(build_parser().parse_args(command_line(a).split()[1:])) == command_line(a)  # a fixed point

@@ -41,14 +41,14 @@ def test_render_untrained_to_mp4_and_exr(shot_dir, tmp_path, capsys) -> None:
     save_project(proj, Project(shot=str(shot_dir), edits=Edits(global_prompt="warm evening", dropped={"normal"})))
     exr = tmp_path / "exr"
     args = ["render", "--project", str(proj), "--out", str(exr), "--untrained", "--preset", "fast", "--frames", "2:5", "--scheme", "sequential",
-            "--replace-refs"]
+            "--no-replace-refs"]
     from x2video.sampling.renderer import Renderer
 
     seen, render = [], Renderer.render
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(Renderer, "render", lambda self, shot, edits, settings, *a, **k: (seen.append(settings), render(self, shot, edits, settings, *a, **k))[1])
         assert main(args) == 0
-    assert [s.replace_refs for s in seen] == [True]
+    assert [s.replace_refs for s in seen] == [False]  # on by default (RenderSettings); the flag turns it off
     assert sorted(p.name for p in exr.iterdir()) == ["000002.exr", "000003.exr", "000004.exr"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["exr", "out.mp4", "p"]  # no staging left behind
 

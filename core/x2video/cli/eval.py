@@ -79,8 +79,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--seed", type=int, default=d.seed, help="noise and mask seed")
     g.add_argument("--window", type=int, default=d.window, help=f"frames per window N (default {d.window})")
     g.add_argument("--masks", type=int, default=d.masks, help=f"objects masked in Mask A|M|R (default {d.masks})")
-    g.add_argument("--replace-refs", action="store_true", help="hold each window's reference frames at their noised latents "
-                                                               "between denoising steps (as in training; default off)")
+    g.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=d.replace_refs,
+                   help="hold each window's reference frames at their noised latents between denoising steps (as in "
+                        "training; default on)")
     g.add_argument("--no-fid", action="store_true", help="skip FID (Inception features of every frame)")
     g.add_argument("--no-tc", action="store_true", help="skip temporal consistency")
     g.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch's default)")
@@ -112,7 +113,8 @@ def command_line(a: argparse.Namespace) -> str:
         parts += ["--size", f"{a.size[0]}x{a.size[1]}"]
     parts += ["--steps", str(a.steps), "--lcm-steps", str(a.lcm_steps), "--seed", str(a.seed), "--window", str(a.window),
               "--masks", str(a.masks)]
-    for flag, on in (("--replace-refs", a.replace_refs), ("--no-fid", a.no_fid), ("--no-tc", a.no_tc), ("--fp16", a.fp16)):
+    parts.append("--replace-refs" if a.replace_refs else "--no-replace-refs")  # explicit: the default changed once
+    for flag, on in (("--no-fid", a.no_fid), ("--no-tc", a.no_tc), ("--fp16", a.fp16)):
         if on:
             parts.append(flag)
     if a.device:

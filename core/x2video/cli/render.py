@@ -43,8 +43,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=_frame_range, help="render only frames START:STOP of the shot")
     p.add_argument("--no-detail", dest="detail", action="store_false",
                    help="residual models: do not add back the classical shading's fine detail the VAE loses (an ablation)")
-    p.add_argument("--replace-refs", action="store_true",
-                   help="hold each window's reference frames at their noised latents between denoising steps, as in training")
+    p.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=d.replace_refs,
+                   help="hold each window's reference frames at their noised latents between denoising steps, as in "
+                        "training (default on; --no-replace-refs lets each window re-estimate them)")
     p.add_argument("--weights", type=Path, help="model checkpoint folder (default: the weights shipped in resources/)")
     p.add_argument("--untrained", action="store_true", help="use untrained tiny weights (smoke test: the output is noise)")
     p.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")

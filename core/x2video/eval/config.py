@@ -34,7 +34,7 @@ class EvalConfig:
     """seed of the initial noise and of the random object masks"""
     window: int = 5
     """frames per window N (the paper's N = 5)"""
-    replace_refs: bool = False
+    replace_refs: bool = True
     """hold the windows' reference frames at their noised latents between steps (`RenderSettings.replace_refs`)"""
     image_window: int = 32
     """the image model renders frames independently; it runs this many per UNet call"""

@@ -154,6 +154,8 @@ def results_markdown(results: dict[str, Any], *, heading: str | None = "X2Video 
         out.append(f"- Data ({key}): {d.get('description', '')}")
     if results.get("settings", {}).get("replace_refs"):
         out.append("- Sampling: reference frames held at their noised latents between steps (`--replace-refs`)")
+    else:  # results from before the option existed hold no setting: they re-estimated the references
+        out.append("- Sampling: each window re-estimates its reference frames (`--no-replace-refs`)")
     if data:
         out.append("")
     for key, table in results["tables"].items():
