@@ -29,8 +29,8 @@ class RenderSettings:
     replace_refs: bool = True
     """Between denoising steps, hold each window's reference frames (those earlier windows
     produced) at their latent noised to the step's level, as in training, instead of letting the
-    window re-estimate them (`x2video.sampling.samplers.Known`). On by default since the
-    evaluation of the ship_h weights; False (`--no-replace-refs`) is the ablation."""
+    window re-estimate them (`x2video.sampling.samplers.Known`). On by default (the editor, the
+    CLI and the model card's evaluations); False (`--no-replace-refs`) is the ablation."""
     preset: Literal["fast", "quality"] | None = None
     """Overrides sampler and steps when set: 'fast' = LCM-2 if distilled weights are loaded, else
     DDIM-4; 'quality' = DDIM-20 (`x2video.sampling.renderer.select_steps`)."""
