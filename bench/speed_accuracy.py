@@ -172,8 +172,10 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fp16", action="store_true")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--window", type=int, default=5)
-    p.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=True,
-                   help="hold reference frames at their noised latents between steps (default on, as x2video render)")
+    from x2video.sampling.events import RenderSettings  # light (no torch); keeps the benches on the Renderer's default
+
+    p.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=RenderSettings.replace_refs,
+                   help="hold reference frames at their noised latents between steps (default: as x2video render)")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
 
 

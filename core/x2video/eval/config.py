@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+from x2video.sampling.events import RenderSettings
+
 TABLES = ("a", "b", "c", "d")
 
 
@@ -34,7 +36,7 @@ class EvalConfig:
     """seed of the initial noise and of the random object masks"""
     window: int = 5
     """frames per window N (the paper's N = 5)"""
-    replace_refs: bool = True
+    replace_refs: bool = RenderSettings.replace_refs
     """hold the windows' reference frames at their noised latents between steps (`RenderSettings.replace_refs`)"""
     image_window: int = 32
     """the image model renders frames independently; it runs this many per UNet call"""
