@@ -59,7 +59,7 @@ def measure(args: argparse.Namespace) -> dict:
         warm_up(renderer, shots[0], sampler)  # untimed: first-call costs stay out of the first preset
         renderer.cache.clear()  # every preset pays its own encoding, as in `x2video eval`
         settings = RenderSettings(sampler=sampler, steps=steps, seed=args.seed, window=args.window, detail=detail,  # type: ignore[arg-type]
-                                  replace_refs=args.replace_refs)
+                                  replace_refs=args.replace_refs, seams=args.seams)
         preds, secs = {}, {}
         for s in shots:
             preds[s.name], secs[s.name] = render_shot(renderer, s, None, settings)
@@ -170,12 +170,15 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lcm-weights", type=Path, help="LCM run or folder")
     p.add_argument("--device", default=None)
     p.add_argument("--fp16", action="store_true")
+    p.add_argument("--bf16-encoder", action="store_true", help="run the VAE encoder (the channel encoding, a per-frame cost every sampler pays) in bfloat16, the rest in float32: faster on CPUs with native bf16 (AVX512-BF16, AMX), slower on others")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--window", type=int, default=5)
     from x2video.sampling.events import RenderSettings  # light (no torch); keeps the benches on the Renderer's default
 
     p.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=RenderSettings.replace_refs,
                    help="hold reference frames at their noised latents between steps (default: as x2video render)")
+    p.add_argument("--seams", action=argparse.BooleanOptionalAction, default=RenderSettings.seams,
+                   help="recursive scheme: the seam pass re-generates keyframes with their neighbours (default: as x2video render)")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
 
 

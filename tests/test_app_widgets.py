@@ -114,3 +114,16 @@ def test_render_state_tracks_levels_keyframes_and_eta():
     assert st.status == "finished" and st.time_to_first_keyframe() is not None
     assert [a[2] for a in st.arrivals] == ["key"] * 3 + ["interp"] * 3
     assert len(seen) == 7
+
+
+def test_render_state_seam_pass_replaces_keyframes():
+    """The seam pass makes keyframe 4 again in an interpolation window, and frame 0 in a lower-level
+    keyframe-mode window: neither is a keyframe any more, and the viewer shows the new frames."""
+    st = RenderState()
+    st.begin(steps_per_window=1)
+    st.apply(RenderStarted(num_frames=9, num_windows=3, levels=[3, 2]))
+    old, new = np.zeros((2, 2, 3), np.float32), np.ones((2, 2, 3), np.float32)
+    st.apply(FramesReady(window=0, frames={0: old, 4: old, 8: old}, level=3, mode="key", seconds=0.1))
+    st.apply(FramesReady(window=1, frames={2: new, 4: new, 6: new}, level=2, mode="interp", seconds=0.1, replaces=(4,)))
+    st.apply(FramesReady(window=2, frames={1: new, 0: new}, level=2, mode="key", seconds=0.1, replaces=(0,)))
+    assert st.keyframes == {8} and st.levels[4] == 2 and float(st.frames[4].max()) == 1.0

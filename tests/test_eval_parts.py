@@ -350,6 +350,9 @@ def test_recursive_seams_classifies_pairs_by_the_windows_that_made_them():
     # sequential: windows make 0-4, 5-8, 9-12, ...: a seam after every 4th frame, all level 1
     seq = mod.pair_classes(plan("sequential", 17, 5), 17)
     assert [i for i, c in enumerate(seq) if c != "same window"] == [4, 8, 12] and set(seq) == {"same window", "seam, level 1"}
+    # the seam pass: the level-2 windows that make the keyframes again become their makers (the last window wins)
+    seams = mod.pair_classes(plan("recursive", 65, 5, seams=True), 65)
+    assert "seam, level 3" not in seams and seams[15] == seams[16] == "seam, level 2" and seams[13] == "same window"
 
 
 def test_eval_command_line_reproduces_every_setting():
@@ -366,3 +369,7 @@ def test_eval_command_line_reproduces_every_setting():
     assert command_line(build_parser().parse_args(command_line(off).split()[1:])) == command_line(off)
     assert "--threads" not in command_line(a) and "--threads 1 --out o" in command_line(build_parser().parse_args(base + ["--threads", "1"]))
     assert command_line(build_parser().parse_args(command_line(a).split()[1:])) == command_line(a)  # a fixed point
+    assert " --no-seams" in command_line(a) and "--bf16-encoder" not in command_line(a)
+    on = build_parser().parse_args(base + ["--seams", "--bf16-encoder"])
+    assert on.seams and on.bf16_encoder and " --seams" in command_line(on) and " --bf16-encoder" in command_line(on)
+    assert command_line(build_parser().parse_args(command_line(on).split()[1:])) == command_line(on)

@@ -288,3 +288,20 @@ def test_residual_prior_needs_the_shading_prior():
     m = X2VideoModel.untrained("tiny", seed=1, residual_prior=True, shading_prior=False)
     assert not m.residual_prior  # the flag alone does nothing without the prior's latent
     assert m.detail([_frame(0)], m.encode_frames([_frame(0)])) is None
+
+
+def test_bf16_encoder_changes_only_the_encoder(model, tmp_path):
+    """`encoder_dtype=bfloat16`: the channel latents come back in float32, within bf16 rounding of the
+    float32 encoder's; decoding is float32 as before; the conditioning cache key tells the two apart."""
+    model.save_pretrained(tmp_path / "m")
+    fp32 = X2VideoModel.from_pretrained(tmp_path / "m", text_encoder=model.text_encoder)
+    bf16 = X2VideoModel.from_pretrained(tmp_path / "m", text_encoder=model.text_encoder, encoder_dtype=torch.bfloat16)
+    assert bf16.vae.encoder.conv_in.weight.dtype == torch.bfloat16 and bf16.vae.decoder.conv_in.weight.dtype == torch.float32
+    frames = [_frame(i) for i in range(2)]
+    a, b = fp32.encode_frames(frames), bf16.encode_frames(frames)
+    assert b.dtype == torch.float32
+    err = float((a - b).norm() / a.norm())
+    assert 0 < err < 0.02, err  # bf16 keeps 8 bits of mantissa: off, but by little
+    z = torch.randn(2, 4, H // 8, W // 8)
+    assert np.array_equal(fp32.decode(z), bf16.decode(z))
+    assert fp32.content_key() != bf16.content_key()

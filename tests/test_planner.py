@@ -97,3 +97,57 @@ def test_last_use_and_shift() -> None:
 def test_bad_arguments(args: tuple[int, ...]) -> None:
     with pytest.raises(ValueError, match="frame|window"):
         plan_recursive(*args)
+
+
+def check_seams(length: int, window: int, ref: int | None) -> None:
+    """The seam plan is the plain plan with windows inserted that only re-make frames already made."""
+    base, plan = plan_recursive(length, window, ref), plan_recursive(length, window, ref, seams=True)
+    extra = [w for w in plan if w not in base]
+    assert [w for w in plan if w in base] == base
+    produced: set[int] = set()
+    for w in plan:
+        assert set(w.refs) <= produced, (length, window, ref, w)
+        if w in extra:
+            assert set(w.generate) <= produced and w.level == num_levels(length - 1 if ref is None else max(ref, length - 1 - ref), window) - 1
+            assert not set(w.generate) & set(w.refs) and 2 <= len(w.frames) <= window
+            steps = {abs(b - a) for a, b in zip(w.frames, w.frames[1:])}
+            assert steps == {(window - 1) ** (w.level - 1)}, w  # the level's exact stride, no uneven tails
+            if w.user_ref:
+                assert w.frames[0] == ref and w.mode == "interp" and w.ref_positions == (0, len(w.frames) - 1)
+        produced |= set(w.generate)
+    assert produced == set(range(length))
+    made = [f for w in extra for f in w.generate]
+    assert len(made) == len(set(made)), "a seam window makes each frame at most once more"
+
+
+def test_seam_pass_exhaustive() -> None:
+    for window in range(2, 10):
+        for length in range(1, 150):
+            for ref in {None, 0, length // 2, length - 1}:
+                check_seams(length, window, ref)
+
+
+def test_seam_pass_65_frames() -> None:
+    plan = plan_recursive(65, 5, seams=True)
+    base = plan_recursive(65, 5)
+    extra = [w for w in plan if w not in base]
+    assert [plan.index(w) for w in extra] == list(range(5, 10)), "right after level 2, before level 1"
+    assert extra == [
+        Window((8, 4, 0), (4, 0), (8,), "key", 2),
+        Window((8, 12, 16, 20, 24), (12, 16, 20), (8, 24), "interp", 2),
+        Window((24, 28, 32, 36, 40), (28, 32, 36), (24, 40), "interp", 2),
+        Window((40, 44, 48, 52, 56), (44, 48, 52), (40, 56), "interp", 2),
+        Window((56, 60, 64), (60, 64), (56,), "key", 2),
+    ]
+    # with the user's reference at frame 0, frame 0 keeps it: an interpolation window from the reference
+    first = [w for w in plan_recursive(65, 5, 0, seams=True) if w not in plan_recursive(65, 5, 0)][0]
+    assert first == Window((0, 4, 8), (0, 4), (8,), "interp", 2, user_ref=True)
+    # two levels: the seam pass runs at level 1, after everything else
+    short = [w for w in plan_recursive(17, 5, seams=True) if w not in plan_recursive(17, 5)]
+    assert short == [
+        Window((2, 1, 0), (1, 0), (2,), "key", 1),
+        Window((2, 3, 4, 5, 6), (3, 4, 5), (2, 6), "interp", 1),
+        Window((6, 7, 8, 9, 10), (7, 8, 9), (6, 10), "interp", 1),
+        Window((10, 11, 12, 13, 14), (11, 12, 13), (10, 14), "interp", 1),
+        Window((14, 15, 16), (15, 16), (14,), "key", 1),
+    ]

@@ -296,3 +296,40 @@ def test_reference_frame_conditions_the_keyframe_window() -> None:
     first = model.windows[0]
     assert first.ref_positions == (0,) and torch.equal(first.ref[0], model.encode_image(rgb[4]))
     assert sorted(frames_of(events)) == list(range(9))
+
+
+@pytest.mark.parametrize("name", ["out.mp4", "frames"])
+def test_seam_pass_replaces_frames_and_the_sink_keeps_the_last(tmp_path, name: str) -> None:
+    shot = make_shot(17, height=16, width=24)
+    out = tmp_path / name
+    sink = FrameSink(out, fps=12, expected=list(range(17)))
+    settings = RenderSettings(steps=1, window=5, seams=True)
+    renderer = Renderer(FakeModel())
+    events = run(renderer, shot, settings, extra=sink)
+    assert events[0].num_frames == 17 and events[-1].num_frames == 17
+    assert events[0].num_windows == len(renderer.plan(shot, settings)) == len(renderer.plan(shot, dataclasses.replace(settings, seams=False))) + 5
+    last: dict[int, np.ndarray] = {}
+    first: dict[int, np.ndarray] = {}
+    seen: set[int] = set()
+    for e in (e for e in events if isinstance(e, FramesReady)):
+        first.update({f: v for f, v in e.frames.items() if f not in first})
+        assert set(e.replaces) == set(e.frames) & seen, "replaces names exactly the frames that came before"
+        seen |= set(e.frames)
+        last.update(e.frames)
+    assert {f for e in events if isinstance(e, FramesReady) for f in e.replaces} == {0, 1, 3, 4, 5, 7, 8, 9, 11, 12, 13, 15, 16}
+    assert sink.result == out
+    assert np.abs(first[8] - last[8]).max() > 0.01  # the seam window made frame 8 anew
+    if name == "frames":
+        import OpenImageIO as oiio
+
+        np.testing.assert_allclose(oiio.ImageBuf(str(out / "000008.exr")).get_pixels(oiio.FLOAT), last[8], atol=2e-3)
+
+
+def test_sink_refuses_a_replacement_of_nothing(tmp_path) -> None:
+    sink = FrameSink(tmp_path / "a.mp4")
+    with pytest.raises(ValueError, match="frame 3 arrived as a replacement"):
+        sink.add(3, np.zeros((4, 4, 3), np.float32), replace=True)
+    sink.add(2, np.zeros((4, 4, 3), np.float32))
+    with pytest.raises(ValueError, match="frame 2 arrived twice"):
+        sink.add(2, np.zeros((4, 4, 3), np.float32))
+    sink.abort()

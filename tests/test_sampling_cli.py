@@ -28,7 +28,7 @@ def shot_dir(tmp_path_factory):
 
 def test_render_untrained_to_mp4_and_exr(shot_dir, tmp_path, capsys) -> None:
     out = tmp_path / "out.mp4"
-    assert main(["render", str(shot_dir), "--out", str(out), "--untrained", "--steps", "1", "--window", "3", "--device", "cpu"]) == 0
+    assert main(["render", str(shot_dir), "--out", str(out), "--untrained", "--steps", "1", "--window", "3", "--device", "cpu", "--seams"]) == 0
     with av.open(str(out)) as c:
         frames = [f for f in c.decode(video=0)]
     assert len(frames) == 6 and (frames[0].width, frames[0].height) == (48, 32)

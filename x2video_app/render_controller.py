@@ -126,7 +126,7 @@ class RenderController(QObject):
         try:
             from x2video.sampling.planner import plan
 
-            for w in plan(settings.scheme, self.doc.num_frames, settings.window, None):
+            for w in plan(settings.scheme, self.doc.num_frames, settings.window, None, settings.seams):
                 per_level[w.level] = per_level.get(w.level, 0) + 1
         except Exception as e:  # a plan we cannot show must not stop the render; the Renderer reports the error
             log.warning("could not plan for the progress bars: %s", e)

@@ -104,8 +104,10 @@ class RenderState:
             for t, img in ev.frames.items():
                 self.frames[t] = np.asarray(img, dtype=np.float16)
                 self.levels[t] = ev.level
-                if ev.mode == "key":
+                if ev.mode == "key" and ev.level == self.top_level:
                     self.keyframes.add(t)
+                else:  # the seam pass makes keyframes again in interpolation windows
+                    self.keyframes.discard(t)
                 self.arrivals.append((t, ev.level, ev.mode))
             if self.first_frame_at is None:
                 self.first_frame_at = now

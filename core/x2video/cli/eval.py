@@ -60,6 +60,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--untrained", action="store_true", help="untrained tiny video + image models (smoke test: numbers mean nothing)")
     g.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
     g.add_argument("--fp16", action="store_true", help="half precision (GPU)")
+    g.add_argument("--bf16-encoder", action="store_true", help="run the VAE encoder (the channel encoding, a per-frame cost every sampler pays) in bfloat16, the rest in float32: faster on CPUs with native bf16 (AVX512-BF16, AMX), slower on others")
     g = p.add_argument_group("data")
     g.add_argument("--data", type=Path, required=True, help="data set folder from `x2video dataset make` (DATA/test/room_*)")
     g.add_argument("--split", default=d.split, help=f"split of held-out rooms (default {d.split})")
@@ -82,6 +83,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=d.replace_refs,
                    help="hold each window's reference frames at their noised latents between denoising steps (as in "
                         "training; default on)")
+    g.add_argument("--seams", action=argparse.BooleanOptionalAction, default=d.seams,
+                   help="recursive rows: re-generate the keyframes with their neighbours after the first interpolation "
+                        "level (the seam pass, `RenderSettings.seams`)")
     g.add_argument("--no-fid", action="store_true", help="skip FID (Inception features of every frame)")
     g.add_argument("--no-tc", action="store_true", help="skip temporal consistency")
     g.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch's default)")
@@ -114,7 +118,8 @@ def command_line(a: argparse.Namespace) -> str:
     parts += ["--steps", str(a.steps), "--lcm-steps", str(a.lcm_steps), "--seed", str(a.seed), "--window", str(a.window),
               "--masks", str(a.masks)]
     parts.append("--replace-refs" if a.replace_refs else "--no-replace-refs")  # explicit: the default changed once
-    for flag, on in (("--no-fid", a.no_fid), ("--no-tc", a.no_tc), ("--fp16", a.fp16)):
+    parts.append("--seams" if a.seams else "--no-seams")
+    for flag, on in (("--no-fid", a.no_fid), ("--no-tc", a.no_tc), ("--fp16", a.fp16), ("--bf16-encoder", getattr(a, "bf16_encoder", False))):
         if on:
             parts.append(flag)
     if a.device:
@@ -142,6 +147,7 @@ def load_models(a: argparse.Namespace, *, with_image: bool = True) -> Any:
 
     dev = a.device or ("cuda" if torch.cuda.is_available() else "cpu")
     dtype = torch.float16 if a.fp16 else torch.float32
+    encoder_dtype = torch.bfloat16 if getattr(a, "bf16_encoder", False) else None
     if a.untrained:
         if a.weights or a.image_weights or a.lcm_weights:
             raise ValueError("--untrained excludes --weights, --image-weights and --lcm-weights")
@@ -164,7 +170,7 @@ def load_models(a: argparse.Namespace, *, with_image: bool = True) -> Any:
         for part in ("unet.safetensors", "vae.safetensors"):
             if not (d / part).is_file():
                 raise FileNotFoundError(f"--{role}: {d} has no {part}")
-        model = X2VideoModel.from_pretrained(d, device=dev, dtype=dtype)
+        model = X2VideoModel.from_pretrained(d, device=dev, dtype=dtype, encoder_dtype=encoder_dtype)
         if model.config.video != want_video:
             kind = "video" if model.config.video else "image"
             raise ValueError(f"--{role}: {d} holds an {kind} model; expected {'a video' if want_video else 'an image'} model")
@@ -172,6 +178,8 @@ def load_models(a: argparse.Namespace, *, with_image: bool = True) -> Any:
             raise ValueError(f"--{role}: {d} has no lcm_unet.safetensors (distil one with `x2video train lcm`)")
         info = {"path": str(d), "config": model.config.name, "video": model.config.video, "shading_prior": model.config.shading_prior,
                 "lcm": model.has_lcm, "step": _step(d), "untrained": False}
+        if encoder_dtype is not None:
+            info["encoder_dtype"] = str(encoder_dtype).removeprefix("torch.")
         return model, info, d
 
     video, vinfo, vdir = load(weights, "weights", True)
@@ -227,7 +235,7 @@ def run(a: argparse.Namespace) -> int:
     frames = None if a.frames == 0 else a.frames
     config = EvalConfig(tables=a.tables, split=a.split, rooms=a.rooms, frames=frames, long_frames=a.long_frames, long_conditions=a.long_conditions, size=a.size,
                         steps=a.steps, lcm_steps=a.lcm_steps, seed=a.seed, window=a.window, masks=a.masks, fid=not a.no_fid,
-                        tc=not a.no_tc, replace_refs=a.replace_refs)
+                        tc=not a.no_tc, replace_refs=a.replace_refs, seams=a.seams)
     if a.renders and "a" not in config.tables:
         raise ValueError("--renders uses table (a)'s renders; add a to --tables")
     for flag, path in (("--data", a.data), ("--long-data", a.long_data)):

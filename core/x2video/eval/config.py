@@ -38,6 +38,8 @@ class EvalConfig:
     """frames per window N (the paper's N = 5)"""
     replace_refs: bool = RenderSettings.replace_refs
     """hold the windows' reference frames at their noised latents between steps (`RenderSettings.replace_refs`)"""
+    seams: bool = RenderSettings.seams
+    """recursive rows: the seam pass that re-generates keyframes with their neighbours (`RenderSettings.seams`)"""
     image_window: int = 32
     """the image model renders frames independently; it runs this many per UNet call"""
     masks: int = 3

@@ -156,6 +156,8 @@ def results_markdown(results: dict[str, Any], *, heading: str | None = "X2Video 
         out.append("- Sampling: reference frames held at their noised latents between steps (`--replace-refs`)")
     else:  # results from before the option existed hold no setting: they re-estimated the references
         out.append("- Sampling: each window re-estimates its reference frames (`--no-replace-refs`)")
+    if results.get("settings", {}).get("seams"):
+        out.append("- Recursive rows: keyframes re-generated with their neighbours after the first interpolation level (`--seams`)")
     if data:
         out.append("")
     for key, table in results["tables"].items():
@@ -192,4 +194,6 @@ def _model_text(d: dict) -> str:
         bits.append(f"preset {d['config']}")
     if d.get("step") is not None:
         bits.append(f"step {d['step']}")
+    if d.get("encoder_dtype"):
+        bits.append(f"VAE encoder in {d['encoder_dtype']} (`--bf16-encoder`)")
     return "(" + ", ".join(bits) + ")"

@@ -31,6 +31,12 @@ class RenderSettings:
     produced) at their latent noised to the step's level, as in training, instead of letting the
     window re-estimate them (`x2video.sampling.samplers.Known`). On by default (the editor, the
     CLI and the model card's evaluations); False (`--no-replace-refs`) is the ablation."""
+    seams: bool = False
+    """Recursive scheme only: after the first interpolation level, re-generate each keyframe with
+    its neighbours in an interpolation window (`x2video.sampling.planner.seam_windows`), so the
+    finer levels interpolate between frames that agree. Costs one window per
+    keyframe at a shot end or away from the others; the frames it covers arrive twice
+    (`FramesReady.replaces`)."""
     preset: Literal["fast", "quality"] | None = None
     """Overrides sampler and steps when set: 'fast' = LCM-2 if distilled weights are loaded, else
     DDIM-4; 'quality' = DDIM-20 (`x2video.sampling.renderer.select_steps`)."""
@@ -85,6 +91,8 @@ class FramesReady:
     level: int
     mode: str
     seconds: float  # wall time of the window that produced them
+    replaces: tuple[int, ...] = ()
+    """Frames among `frames` that an earlier event already delivered and these replace (the seam pass)."""
 
 
 @dataclass

@@ -19,7 +19,9 @@ Uneven tails: the grid is never stretched; where L-1 is not a multiple of the st
 last position of a window sits closer than the stride to its neighbour (positions are not
 evenly spaced there) and such tail windows have fewer than N frames. Every other position
 keeps the exact stride of its level, which is what the level's temporal LoRA was trained on.
-No frame is generated twice.
+No frame is generated twice, unless the seam pass is asked for (`seams=True`, our addition, not
+the paper's): right after the first interpolation level, each keyframe is made again with its
+neighbours by an interpolation window of that level (`seam_windows`).
 
 With a user reference frame at index r, the grid is anchored at r: the first keyframe window
 [r, r+S, ...] holds the reference at position 0 (and also produces frame r); frames before r
@@ -112,8 +114,63 @@ def _validate(length: int, window: int, ref_frame: int | None) -> int:
     return 0 if ref_frame is None else ref_frame
 
 
-def plan_recursive(length: int, window: int, ref_frame: int | None = None) -> list[Window]:
-    """Recursive Sampling: keyframe window(s) at the widest stride, then interpolation level by level."""
+def seam_windows(keyframes: list[int], produced: list[int], length: int, window: int, stride: int, level: int,
+                 anchor: int | None = None) -> list[Window]:
+    """The seam pass: windows at `level` (stride `stride`, the first interpolation level) that
+    re-generate each keyframe with its neighbours, before the finer levels read them.
+
+    A keyframe comes from the top-level window, whose positions are N-1 times further apart than
+    any interpolation window's, and the frames around it disagree with it more than with any other
+    frame (`bench/recursive_seams.py`). For each keyframe f the pass adds one interpolation window
+    (f-h*s, ..., f, ..., f+h*s), h = (N-1)//2, between two frames this level produced, which makes
+    f and its neighbours again; the finer levels then interpolate between frames that all come
+    from interpolation windows. At the shot's ends the window is one-sided: (f+h*s, ..., f) in
+    keyframe mode, read backwards, for the first frame; (f-h*s, ..., f) for the last. A keyframe
+    where the user's reference frame sits (`anchor`) keeps the reference: at a shot end its window
+    is an interpolation window from the reference (position 0, also generated, as in the keyframe
+    window) to f±h*s; elsewhere it is left as it is.
+
+    Every frame of a seam window is one of `produced` (the frames made so far): the pass makes
+    frames again, never early. Keyframes too close to another (their windows would make a frame
+    twice) or to a shot end are left as they are.
+    """
+    h, s = (window - 1) // 2, stride
+    have = set(produced)
+    out: list[Window] = []
+    taken: set[int] = set()
+    for f in sorted(keyframes):
+        lo, hi = f - h * s, f + h * s
+        if h < 1:
+            break
+        if f == anchor and f == 0 and hi <= length - 1:
+            frames = tuple(range(0, hi + 1, s))
+            win = Window(frames, frames[:-1], (hi,), "interp", level, user_ref=True)
+        elif f == anchor and f == length - 1 and lo >= 0:
+            frames = tuple(range(f, lo - 1, -s))
+            win = Window(frames, frames[:-1], (lo,), "interp", level, user_ref=True)
+        elif f == anchor:
+            continue
+        elif lo >= 0 and hi <= length - 1:
+            frames = tuple(range(lo, hi + 1, s))
+            win = Window(frames, frames[1:-1], (lo, hi), "interp", level)
+        elif f == 0 and hi <= length - 1:  # first frame: backwards from f+h*s
+            frames = tuple(range(hi, -1, -s))
+            win = Window(frames, frames[1:], (hi,), "key", level)
+        elif f == length - 1 and lo >= 0:  # last frame
+            frames = tuple(range(lo, length, s))
+            win = Window(frames, frames[1:], (lo,), "key", level)
+        else:
+            continue
+        if taken & set(win.generate) or not set(win.frames) <= have:
+            continue
+        out.append(win)
+        taken |= set(win.generate)
+    return out
+
+
+def plan_recursive(length: int, window: int, ref_frame: int | None = None, seams: bool = False) -> list[Window]:
+    """Recursive Sampling: keyframe window(s) at the widest stride, then interpolation level by level;
+    with `seams`, the seam pass (`seam_windows`) right after the first interpolation level."""
     anchor = _validate(length, window, ref_frame)
     levels = num_levels(max(anchor, length - 1 - anchor), window)
     stride = (window - 1) ** (levels - 1)
@@ -121,6 +178,7 @@ def plan_recursive(length: int, window: int, ref_frame: int | None = None) -> li
     if anchor > 0:
         plan += _chain(_grid(anchor, 0, stride), window, "key", levels, True, False)
     produced = sorted({f for w in plan for f in w.generate})
+    keys = list(produced)
     for level in range(levels - 1, 0, -1):
         s = (window - 1) ** (level - 1)
         new: list[int] = []
@@ -131,6 +189,8 @@ def plan_recursive(length: int, window: int, ref_frame: int | None = None) -> li
             plan.append(Window((a, *inner, b), inner, (a, b), "interp", level))
             new.extend(inner)
         produced = sorted(produced + new)
+        if seams and level == levels - 1:
+            plan += seam_windows(keys, produced, length, window, s, level, None if ref_frame is None else anchor)
     return plan
 
 
@@ -143,10 +203,10 @@ def plan_sequential(length: int, window: int, ref_frame: int | None = None) -> l
     return plan
 
 
-def plan(scheme: str, length: int, window: int, ref_frame: int | None = None) -> list[Window]:
-    """`plan_recursive` or `plan_sequential` by name."""
+def plan(scheme: str, length: int, window: int, ref_frame: int | None = None, seams: bool = False) -> list[Window]:
+    """`plan_recursive` or `plan_sequential` by name (`seams`: the recursive plan's seam pass)."""
     if scheme == "recursive":
-        return plan_recursive(length, window, ref_frame)
+        return plan_recursive(length, window, ref_frame, seams)
     if scheme == "sequential":
         return plan_sequential(length, window, ref_frame)
     raise ValueError(f"unknown sampling scheme {scheme!r} (use 'recursive' or 'sequential')")

@@ -105,7 +105,7 @@ class Renderer:
         start, stop = self._range(shot, settings)
         if ref_frame is not None:
             ref_frame = min(max(ref_frame, start), stop - 1) - start
-        return shift(plan(settings.scheme, stop - start, settings.window, ref_frame), start)
+        return shift(plan(settings.scheme, stop - start, settings.window, ref_frame, settings.seams), start)
 
     # -- the render ------------------------------------------------------------------
     def render(
@@ -187,7 +187,7 @@ class Renderer:
             text_local = model.encode_prompts(list(prompts.local))  # (P, L, D)
             ref_latent = None if reference is None else model.encode_image(reference[1])  # (4, h, w)
             levels = sorted({w.level for w in windows}, reverse=True)
-            emit(RenderStarted(num_frames=sum(len(w.generate) for w in windows), num_windows=len(windows), levels=levels))
+            emit(RenderStarted(num_frames=len({f for w in windows for f in w.generate}), num_windows=len(windows), levels=levels))
             latents: dict[int, torch.Tensor] = {}  # frame -> (4, h, w), only while a later window reads it
             self.peak_latents = 0
             for index, window in enumerate(windows):
@@ -211,8 +211,10 @@ class Renderer:
                     if keep_until.get(f) == index:
                         latents.pop(f, None)
                 frames = {f: np.asarray(images[i], dtype=np.float32) for i, f in enumerate(window.generate)}
-                done.extend(window.generate)
-                emit(FramesReady(window=index, frames=frames, level=window.level, mode=window.mode, seconds=time.perf_counter() - tw))
+                again = tuple(f for f in window.generate if f in done)  # the seam pass makes frames a second time
+                done.extend(f for f in window.generate if f not in again)
+                emit(FramesReady(window=index, frames=frames, level=window.level, mode=window.mode, seconds=time.perf_counter() - tw,
+                                 replaces=again))
         emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))
 
     def _cached(self, keys: list[str], compute: Callable[[list[int]], torch.Tensor]) -> torch.Tensor:

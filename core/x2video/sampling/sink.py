@@ -90,18 +90,20 @@ class FrameSink:
     def __call__(self, event: RenderEvent) -> None:
         if isinstance(event, FramesReady):
             for index, rgb in event.frames.items():
-                self.add(index, rgb)
+                self.add(index, rgb, replace=index in event.replaces)
         elif isinstance(event, RenderFinished):
             self.finish()
         elif isinstance(event, (RenderCancelled, RenderFailed)):
             self.abort()
 
-    def add(self, index: int, rgb: np.ndarray) -> None:
-        """Stage one linear RGB (H, W, 3) frame."""
+    def add(self, index: int, rgb: np.ndarray, *, replace: bool = False) -> None:
+        """Stage one linear RGB (H, W, 3) frame; `replace` allows (and requires) an earlier frame `index`."""
         if self._staging is None:
             raise RuntimeError(f"frame sink for {self.out} is already closed")
-        if index in self._frames:
+        if index in self._frames and not replace:
             raise ValueError(f"frame {index} arrived twice")
+        if replace and index not in self._frames:
+            raise ValueError(f"frame {index} arrived as a replacement of a frame that never arrived")
         if self.mp4:
             np.save(self._frame_path(index), np.asarray(rgb, dtype=np.float16))
         else:
