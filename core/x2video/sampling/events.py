@@ -32,8 +32,8 @@ class RenderSettings:
     window re-estimate them (`x2video.sampling.samplers.Known`). On by default (the editor, the
     CLI and the model card's evaluations); False (`--no-replace-refs`) is the ablation."""
     seams: bool = False
-    """Recursive scheme only: after the first interpolation level, re-generate each keyframe with
-    its neighbours in an interpolation window (`x2video.sampling.planner.seam_windows`), so the
+    """Recursive scheme with three levels or more (18 frames or more at N = 5): after the first
+    interpolation level, re-generate each keyframe with its neighbours in an interpolation window (`x2video.sampling.planner.seam_windows`), so the
     finer levels interpolate between frames that agree. Costs one window per
     keyframe at a shot end or away from the others; the frames it covers arrive twice
     (`FramesReady.replaces`)."""

@@ -20,8 +20,8 @@ last position of a window sits closer than the stride to its neighbour (position
 evenly spaced there) and such tail windows have fewer than N frames. Every other position
 keeps the exact stride of its level, which is what the level's temporal LoRA was trained on.
 No frame is generated twice, unless the seam pass is asked for (`seams=True`, our addition, not
-the paper's): right after the first interpolation level, each keyframe is made again with its
-neighbours by an interpolation window of that level (`seam_windows`).
+the paper's): with three levels or more, right after the first interpolation level, each keyframe
+is made again with its neighbours by an interpolation window of that level (`seam_windows`).
 
 With a user reference frame at index r, the grid is anchored at r: the first keyframe window
 [r, r+S, ...] holds the reference at position 0 (and also produces frame r); frames before r
@@ -170,7 +170,9 @@ def seam_windows(keyframes: list[int], produced: list[int], length: int, window:
 
 def plan_recursive(length: int, window: int, ref_frame: int | None = None, seams: bool = False) -> list[Window]:
     """Recursive Sampling: keyframe window(s) at the widest stride, then interpolation level by level;
-    with `seams`, the seam pass (`seam_windows`) right after the first interpolation level."""
+    with `seams`, the seam pass (`seam_windows`) right after the first interpolation level when there
+    are three levels or more (18 frames or more at N = 5). With two, the first interpolation level is
+    the last, and the pass would double its windows to re-make keyframes only N-1 frames apart."""
     anchor = _validate(length, window, ref_frame)
     levels = num_levels(max(anchor, length - 1 - anchor), window)
     stride = (window - 1) ** (levels - 1)
@@ -189,7 +191,7 @@ def plan_recursive(length: int, window: int, ref_frame: int | None = None, seams
             plan.append(Window((a, *inner, b), inner, (a, b), "interp", level))
             new.extend(inner)
         produced = sorted(produced + new)
-        if seams and level == levels - 1:
+        if seams and levels >= 3 and level == levels - 1:
             plan += seam_windows(keys, produced, length, window, s, level, None if ref_frame is None else anchor)
     return plan
 
