@@ -265,6 +265,11 @@ def test_speedup_ordering_from_back_to_back_repeats(tmp_path, capsys):
     text = out.read_text()
     assert "## LCM-2 vs DDIM-20 back to back, 1 torch thread\n" in text and "| 1 | ddim then lcm | 1.000 (0.100) |" in text
     assert "| (d) LCM is >= 5x faster per frame than DDIM, back to back | yes | median 5.40x" in text
+    bf16 = dict(_speedup_bench([(5.6, 5.7, 8.5)], threads=2), weights={"video": {"encoder_dtype": "bfloat16"}})
+    bench2 = tmp_path / "lcm_speedup_bf16.json"
+    bench2.write_text(json.dumps(bf16))
+    assert card.main([str(res), "--speedup", str(bench), "--speedup", str(bench2), "--out", str(out)]) == 0
+    assert "## LCM-2 vs DDIM-20 back to back, 2 torch threads, VAE encoder in bfloat16\n" in out.read_text()
     bench.write_text(json.dumps({"format": "x2video-eval"}))
     assert card.main([str(res), "--speedup", str(bench)]) == 2 and "not a `bench/lcm_speedup.py` result" in capsys.readouterr().err
 

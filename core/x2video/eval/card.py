@@ -150,7 +150,9 @@ def card_markdown(results: list[dict[str, Any]], runs: list[dict[str, Any]], ren
         out += ["### Orderings the paper reports, on these numbers", "", orderings_markdown(orderings(r)), ""]
     for b in speedups or []:
         threads = b.get("machine", {}).get("torch_threads")
-        out.append(speedup_markdown(b, f"LCM-2 vs DDIM-20 back to back, {threads} torch thread{'s' if threads != 1 else ''}"))
+        enc = b.get("weights", {}).get("video", {}).get("encoder_dtype")
+        out.append(speedup_markdown(b, f"LCM-2 vs DDIM-20 back to back, {threads} torch thread{'s' if threads != 1 else ''}"
+                                       + (f", VAE encoder in {enc}" if enc else "")))
     if renders is not None:
         pngs = sorted(Path(renders).glob("*.png"))
         if pngs:
