@@ -274,6 +274,32 @@ def test_speedup_ordering_from_back_to_back_repeats(tmp_path, capsys):
     assert card.main([str(res), "--speedup", str(bench)]) == 2 and "not a `bench/lcm_speedup.py` result" in capsys.readouterr().err
 
 
+def test_card_append_keeps_the_card_and_numbers_on(tmp_path, capsys):
+    """--append: new evaluations after the last one, before the renders; the preface replaced; the rest kept."""
+    from x2video.eval import card
+
+    res = tmp_path / "eval"
+    res.mkdir()
+    (res / "results.json").write_text(json.dumps(dict(_results(), command="x2video eval --data D --out eval")))
+    bench = tmp_path / "b.json"
+    bench.write_text(json.dumps(dict(_speedup_bench([(5.6, 5.7, 8.5)], threads=2), weights={"video": {"encoder_dtype": "bfloat16"}})))
+    old = ("# X2Video model card\n\nGenerated 2026-01-01 by `x`. Every figure ...\n\nOLD PREFACE\n\n## Training\n\nTRAINING TABLE\n\n"
+           "## Evaluation 1\n\nE1\n\n## Evaluation 2\n\nE2\n\n## Renders of held-out shots (ground truth | image model | video model)\n\nPNG\n")
+    path = tmp_path / "MODEL_CARD.md"
+    path.write_text(old)
+    pre = tmp_path / "pre.md"
+    pre.write_text("NEW PREFACE\n")
+    assert card.main([str(res), "--speedup", str(bench), "--preface", str(pre), "--append", str(path)]) == 0
+    text = path.read_text()
+    assert "OLD PREFACE" not in text and "NEW PREFACE" in text and "TRAINING TABLE" in text and "E1" in text and "E2" in text
+    order = [text.index(k) for k in ("Generated 2026-01-01", "Sections appended", "NEW PREFACE", "## Training", "## Evaluation 2",
+                                     "## Evaluation 3", "back to back, 2 torch threads, VAE encoder in bfloat16", "## Renders")]
+    assert order == sorted(order) and "## Evaluation 4" not in text
+    assert "--append" in text.splitlines()[3]  # the appending command is named
+    path.write_text("# Something else\n")
+    assert card.main([str(res), "--append", str(path)]) == 2 and "not a model card" in capsys.readouterr().err
+
+
 def test_contact_sheet_and_mp4(tmp_path):
     from x2video.eval.contact import contact_sheet, pick_frames, write_comparison
 

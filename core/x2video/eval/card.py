@@ -2,10 +2,16 @@
 
     python -m x2video.eval.card RESULTS_DIR [RESULTS_DIR ...] [--run RUN_DIR ...] [--speedup LCM_SPEEDUP_JSON ...]
         [--renders DIR] [--out resources/MODEL_CARD.md]
+    python -m x2video.eval.card RESULTS_DIR [...] [--speedup JSON ...] [--preface MD] --append resources/MODEL_CARD.md
 
 Every number in the card is read from a results.json (with the exact command that produced
 it) or from a training run's state.json / summary.json / log.json / results.json; nothing is
 typed in by hand. Without --out the card goes to stdout.
+
+`--append CARD` adds evaluations and speed-up sections to an existing card instead, numbered on
+from its last "Evaluation k" and placed before its renders, and (with --preface) replaces its
+preface; the rest of the card, built from results and runs a later session may no longer have,
+is kept as it is. The card's header then names both commands.
 """
 from __future__ import annotations
 
@@ -149,10 +155,7 @@ def card_markdown(results: list[dict[str, Any]], runs: list[dict[str, Any]], ren
         out.append(results_markdown(r, heading=f"Evaluation {i + 1}" if len(results) > 1 else "Evaluation"))
         out += ["### Orderings the paper reports, on these numbers", "", orderings_markdown(orderings(r)), ""]
     for b in speedups or []:
-        threads = b.get("machine", {}).get("torch_threads")
-        enc = b.get("weights", {}).get("video", {}).get("encoder_dtype")
-        out.append(speedup_markdown(b, f"LCM-2 vs DDIM-20 back to back, {threads} torch thread{'s' if threads != 1 else ''}"
-                                       + (f", VAE encoder in {enc}" if enc else "")))
+        out.append(speedup_markdown(b, _speedup_heading(b)))
     if renders is not None:
         pngs = sorted(Path(renders).glob("*.png"))
         if pngs:
@@ -164,6 +167,46 @@ def card_markdown(results: list[dict[str, Any]], runs: list[dict[str, Any]], ren
     return "\n".join(out) + "\n"
 
 
+RENDERS_HEADING = "## Renders of held-out shots"
+
+
+def append_to_card(card: str, results: list[dict[str, Any]], speedups: list[dict[str, Any]], command: str,
+                   preface: str | None = None) -> str:
+    """`card` with `results` and `speedups` appended as `card_markdown` would write them (see the module docstring)."""
+    lines = card.splitlines()
+    if not lines or lines[0] != "# X2Video model card":
+        raise ValueError("not a model card written by x2video.eval.card (its first line is not '# X2Video model card')")
+    gen = next((i for i, ln in enumerate(lines) if ln.startswith("Generated ")), None)
+    if gen is None:
+        raise ValueError("the model card has no 'Generated ...' line")
+    numbers = [int(ln.split()[-1]) for ln in lines if ln.startswith("## Evaluation ") and ln.split()[-1].isdigit()]
+    first = max(numbers, default=1 if any(ln == "## Evaluation" for ln in lines) else 0) + 1
+    new: list[str] = []
+    for i, r in enumerate(results):
+        new.append(results_markdown(r, heading=f"Evaluation {first + i}"))
+        new += ["### Orderings the paper reports, on these numbers", "", orderings_markdown(orderings(r)), ""]
+    for b in speedups:
+        new.append(speedup_markdown(b, _speedup_heading(b)))
+    at = next((i for i, ln in enumerate(lines) if ln.startswith(RENDERS_HEADING)), len(lines))
+    lines = lines[:at] + "\n".join(new).splitlines() + [""] * bool(new) + lines[at:]
+    lines.insert(gen + 1, f"Sections appended {_dt.date.today().isoformat()} by `{command}`.")
+    if preface is not None:
+        start = gen + 2
+        while start < len(lines) and lines[start].startswith("Sections appended "):
+            start += 1
+        end = next((i for i, ln in enumerate(lines) if i > start and (ln == "## Training" or ln.startswith("## Evaluation"))), None)
+        if end is None:
+            raise ValueError("the model card has no '## Training' or '## Evaluation' section to keep after the preface")
+        lines = lines[:start] + ["", *preface.strip().splitlines(), ""] + lines[end:]
+    return "\n".join(lines) + "\n"
+
+
+def _speedup_heading(b: dict[str, Any]) -> str:
+    threads = b.get("machine", {}).get("torch_threads")
+    enc = b.get("weights", {}).get("video", {}).get("encoder_dtype")
+    return f"LCM-2 vs DDIM-20 back to back, {threads} torch thread{'s' if threads != 1 else ''}" + (f", VAE encoder in {enc}" if enc else "")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m x2video.eval.card", description=__doc__.split("\n\n")[0])
     p.add_argument("results", nargs="+", type=Path, help="`x2video eval` results folders (or results.json files)")
@@ -173,7 +216,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--renders", type=Path, help="folder of contact sheets / MP4s (x2video eval --renders N --renders-out DIR)")
     p.add_argument("--preface", type=Path, help="Markdown placed after the header (data recipe, how to read the card)")
     p.add_argument("--out", type=Path, help="write the card here (atomically) instead of stdout")
+    p.add_argument("--append", type=Path, metavar="CARD",
+                   help="add these evaluations and speed-ups to the existing card CARD (rewritten in place unless --out)")
     a = p.parse_args(argv)
+    if a.append is not None and (a.run or a.renders):
+        p.error("--append adds evaluations and speed-ups only; --run and --renders need a whole new card")
     try:
         results = [load_results(r) for r in a.results]
         runs = [run_facts(r) for r in a.run]
@@ -183,8 +230,16 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     argv_ = sys.argv[1:] if argv is None else argv
     preface = a.preface.read_text(encoding="utf-8") if a.preface is not None else None
-    text = card_markdown(results, runs, a.renders, shlex.join(["python", "-m", "x2video.eval.card", *map(str, argv_)]), preface,
-                         speedups)
+    command = shlex.join(["python", "-m", "x2video.eval.card", *map(str, argv_)])
+    if a.append is not None:
+        try:
+            text = append_to_card(a.append.read_text(encoding="utf-8"), results, speedups, command, preface)
+        except (ValueError, FileNotFoundError) as e:
+            print(f"model card: error: {a.append}: {e}", file=sys.stderr)
+            return 2
+        a.out = a.out or a.append
+    else:
+        text = card_markdown(results, runs, a.renders, command, preface, speedups)
     if a.out is None:
         sys.stdout.write(text)
     else:
