@@ -127,3 +127,20 @@ def test_render_state_seam_pass_replaces_keyframes():
     st.apply(FramesReady(window=1, frames={2: new, 4: new, 6: new}, level=2, mode="interp", seconds=0.1, replaces=(4,)))
     st.apply(FramesReady(window=2, frames={1: new, 0: new}, level=2, mode="key", seconds=0.1, replaces=(0,)))
     assert st.keyframes == {8} and st.levels[4] == 2 and float(st.frames[4].max()) == 1.0
+
+
+def test_render_panel_seam_pass_only_with_the_recursive_scheme(qtbot):
+    from x2video_app.render_controller import RenderController
+    from x2video_app.render_panel import RenderPanel
+
+    panel = RenderPanel()
+    qtbot.addWidget(panel)
+    changed = []
+    panel.sigSettingsChanged.connect(lambda: changed.append(1))
+    assert panel.values()["seams"] is False and panel.seams.isEnabled()
+    panel.seams.setChecked(True)
+    assert panel.values()["seams"] is True and changed
+    settings = RenderController.settings(None, **panel.values())  # type: ignore[arg-type]  (does not touch self)
+    assert settings.seams and settings.scheme == "recursive"
+    panel.scheme.setCurrentIndex(panel.scheme.findData("sequential"))
+    assert not panel.seams.isEnabled() and panel.values()["seams"] is False
