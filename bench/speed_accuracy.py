@@ -24,7 +24,7 @@ import sys
 import time
 from pathlib import Path
 
-from x2video.cli.args import size_arg
+from x2video.cli.args import BF16_ENCODER_HELP, SEAMS_HELP, size_arg
 
 RESULTS = Path(__file__).resolve().parent / "results" / "speed_accuracy.json"
 #: (sampler, steps, add the shading detail); the no-detail row is measured for residual-prior models only
@@ -170,15 +170,14 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lcm-weights", type=Path, help="LCM run or folder")
     p.add_argument("--device", default=None)
     p.add_argument("--fp16", action="store_true")
-    p.add_argument("--bf16-encoder", action="store_true", help="run the VAE encoder (the channel encoding, a per-frame cost every sampler pays) in bfloat16, the rest in float32: faster on CPUs with native bf16 (AVX512-BF16, AMX), slower on others")
+    p.add_argument("--bf16-encoder", action="store_true", help=BF16_ENCODER_HELP)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--window", type=int, default=5)
     from x2video.sampling.events import RenderSettings  # light (no torch); keeps the benches on the Renderer's default
 
     p.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=RenderSettings.replace_refs,
                    help="hold reference frames at their noised latents between steps (default: as x2video render)")
-    p.add_argument("--seams", action=argparse.BooleanOptionalAction, default=RenderSettings.seams,
-                   help="recursive scheme: the seam pass re-generates keyframes with their neighbours (default: as x2video render)")
+    p.add_argument("--seams", action=argparse.BooleanOptionalAction, default=RenderSettings.seams, help=SEAMS_HELP)
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
 
 

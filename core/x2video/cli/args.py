@@ -13,3 +13,11 @@ def size_arg(text: str) -> tuple[int, int]:
         return parse_size(text)
     except ValueError as e:
         raise argparse.ArgumentTypeError(str(e)) from e
+
+
+#: help of `--bf16-encoder` (x2video render, x2video eval, the benches)
+BF16_ENCODER_HELP = ("run the VAE encoder (the channel encoding, a per-frame cost every sampler pays) in bfloat16 and the "
+                     "rest in float32: faster on CPUs with native bf16 (AVX512-BF16, AMX), slower on others")
+#: help of `--seams/--no-seams` (x2video render, x2video eval, the benches)
+SEAMS_HELP = ("recursive scheme, 18 frames or more at N = 5: after the first interpolation level, make each keyframe again "
+              "with its neighbours in an interpolation window (the seam pass, `RenderSettings.seams`)")

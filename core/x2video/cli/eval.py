@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from x2video.cli.args import size_arg
+from x2video.cli.args import BF16_ENCODER_HELP, SEAMS_HELP, size_arg
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +60,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--untrained", action="store_true", help="untrained tiny video + image models (smoke test: numbers mean nothing)")
     g.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
     g.add_argument("--fp16", action="store_true", help="half precision (GPU)")
-    g.add_argument("--bf16-encoder", action="store_true", help="run the VAE encoder (the channel encoding, a per-frame cost every sampler pays) in bfloat16, the rest in float32: faster on CPUs with native bf16 (AVX512-BF16, AMX), slower on others")
+    g.add_argument("--bf16-encoder", action="store_true", help=BF16_ENCODER_HELP)
     g = p.add_argument_group("data")
     g.add_argument("--data", type=Path, required=True, help="data set folder from `x2video dataset make` (DATA/test/room_*)")
     g.add_argument("--split", default=d.split, help=f"split of held-out rooms (default {d.split})")
@@ -83,9 +83,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=d.replace_refs,
                    help="hold each window's reference frames at their noised latents between denoising steps (as in "
                         "training; default on)")
-    g.add_argument("--seams", action=argparse.BooleanOptionalAction, default=d.seams,
-                   help="recursive rows: re-generate the keyframes with their neighbours after the first interpolation "
-                        "level (the seam pass, `RenderSettings.seams`)")
+    g.add_argument("--seams", action=argparse.BooleanOptionalAction, default=d.seams, help=SEAMS_HELP)
     g.add_argument("--no-fid", action="store_true", help="skip FID (Inception features of every frame)")
     g.add_argument("--no-tc", action="store_true", help="skip temporal consistency")
     g.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch's default)")

@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from x2video.cli.args import BF16_ENCODER_HELP, SEAMS_HELP
 from x2video.sampling.events import (
     FramesReady,
     RenderEvent,
@@ -46,16 +47,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=d.replace_refs,
                    help="hold each window's reference frames at their noised latents between denoising steps, as in "
                         "training (default on; --no-replace-refs lets each window re-estimate them)")
-    p.add_argument("--seams", action=argparse.BooleanOptionalAction, default=d.seams,
-                   help="recursive scheme: after the first interpolation level, make each keyframe again with its "
-                        "neighbours in an interpolation window (one more window per keyframe)")
+    p.add_argument("--seams", action=argparse.BooleanOptionalAction, default=d.seams, help=SEAMS_HELP)
     p.add_argument("--weights", type=Path, help="model checkpoint folder (default: the weights shipped in resources/)")
     p.add_argument("--untrained", action="store_true", help="use untrained tiny weights (smoke test: the output is noise)")
     p.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
     p.add_argument("--fp16", action="store_true", help="half precision (GPU)")
-    p.add_argument("--bf16-encoder", action="store_true",
-                   help="run the VAE encoder (the channel encoding) in bfloat16, the rest in float32: faster per frame "
-                        "on CPUs with native bf16 (AVX512-BF16, AMX), slower on others")
+    p.add_argument("--bf16-encoder", action="store_true", help=BF16_ENCODER_HELP)
     p.add_argument("--fps", type=float, help="MP4 frame rate (default: the shot's)")
     p.set_defaults(func=run)
 
