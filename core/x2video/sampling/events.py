@@ -32,11 +32,12 @@ class RenderSettings:
     window re-estimate them (`x2video.sampling.samplers.Known`). On by default (the editor, the
     CLI and the model card's evaluations); False (`--no-replace-refs`) is the ablation."""
     seams: bool = False
-    """Recursive scheme with three levels or more (18 frames or more at N = 5): after the first
-    interpolation level, re-generate each keyframe with its neighbours in an interpolation window (`x2video.sampling.planner.seam_windows`), so the
-    finer levels interpolate between frames that agree. Costs one window per
-    keyframe at a shot end or away from the others; the frames it covers arrive twice
-    (`FramesReady.replaces`)."""
+    """The seam pass, for the recursive scheme with three levels or more (18 frames or more at
+    N = 5): after the first interpolation level, make each keyframe again with its neighbours in a
+    window of that level (`x2video.sampling.planner.seam_windows`), so the finer levels
+    interpolate between frames that agree. One more window per keyframe; the frames it makes
+    again arrive twice (`FramesReady.replaces`). Off by default: on `ship_h` it lowered TC where
+    the model generates but cost PSNR with a reference frame (model card, Evaluations 7-8)."""
     preset: Literal["fast", "quality"] | None = None
     """Overrides sampler and steps when set: 'fast' = LCM-2 if distilled weights are loaded, else
     DDIM-4; 'quality' = DDIM-20 (`x2video.sampling.renderer.select_steps`)."""

@@ -135,13 +135,13 @@ def seam_windows(keyframes: list[int], produced: list[int], length: int, window:
     twice) or to a shot end are left as they are.
     """
     h, s = (window - 1) // 2, stride
+    if h < 1:  # N = 2: a window has no room for a frame between its ends
+        return []
     have = set(produced)
     out: list[Window] = []
     taken: set[int] = set()
     for f in sorted(keyframes):
         lo, hi = f - h * s, f + h * s
-        if h < 1:
-            break
         if f == anchor and f == 0 and hi <= length - 1:
             frames = tuple(range(0, hi + 1, s))
             win = Window(frames, frames[:-1], (hi,), "interp", level, user_ref=True)
