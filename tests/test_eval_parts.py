@@ -296,6 +296,15 @@ def test_card_append_keeps_the_card_and_numbers_on(tmp_path, capsys):
                                      "## Evaluation 3", "back to back, 2 torch threads, VAE encoder in bfloat16", "## Renders")]
     assert order == sorted(order) and "## Evaluation 4" not in text
     assert "--append" in text.splitlines()[3]  # the appending command is named
+    pre.write_text("NEWER PREFACE\n")
+    assert card.main(["--preface", str(pre), "--append", str(path)]) == 0  # the preface alone
+    again = path.read_text()
+    assert "NEWER PREFACE" in again and "NEW PREFACE\n" not in again and again.count("## Evaluation 3") == 1
+    assert "Preface replaced" in again.splitlines()[3] and "Sections appended" in again.splitlines()[4]
+    assert card.main(["--preface", str(pre), "--append", str(path)]) == 0
+    assert path.read_text().count("Preface replaced") == 1  # the line names the last replacement only
+    with pytest.raises(SystemExit):  # no results and no --append: nothing to build a card from
+        card.main([])
     path.write_text("# Something else\n")
     assert card.main([str(res), "--append", str(path)]) == 2 and "not a model card" in capsys.readouterr().err
 

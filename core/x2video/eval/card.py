@@ -189,10 +189,12 @@ def append_to_card(card: str, results: list[dict[str, Any]], speedups: list[dict
         new.append(speedup_markdown(b, _speedup_heading(b)))
     at = next((i for i, ln in enumerate(lines) if ln.startswith(RENDERS_HEADING)), len(lines))
     lines = lines[:at] + "\n".join(new).splitlines() + [""] * bool(new) + lines[at:]
-    lines.insert(gen + 1, f"Sections appended {_dt.date.today().isoformat()} by `{command}`.")
+    if not new:  # one line says who wrote the current preface
+        lines = [ln for ln in lines if not ln.startswith("Preface replaced ")]
+    lines.insert(gen + 1, f"{'Sections appended' if new else 'Preface replaced'} {_dt.date.today().isoformat()} by `{command}`.")
     if preface is not None:
         start = gen + 2
-        while start < len(lines) and lines[start].startswith("Sections appended "):
+        while start < len(lines) and lines[start].startswith(("Sections appended ", "Preface replaced ")):
             start += 1
         end = next((i for i, ln in enumerate(lines) if i > start and (ln == "## Training" or ln.startswith("## Evaluation"))), None)
         if end is None:
@@ -209,7 +211,8 @@ def _speedup_heading(b: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m x2video.eval.card", description=__doc__.split("\n\n")[0])
-    p.add_argument("results", nargs="+", type=Path, help="`x2video eval` results folders (or results.json files)")
+    p.add_argument("results", nargs="*", type=Path, help="`x2video eval` results folders (or results.json files); none only "
+                                                          "with --append (e.g. to replace the preface)")
     p.add_argument("--run", action="append", type=Path, default=[], help="training run folder (repeat: vae, image, video, lcm)")
     p.add_argument("--speedup", action="append", type=Path, default=[],
                    help="bench/lcm_speedup.py result JSON (repeat): table (d)'s speed-up timed back to back over repeats")
@@ -221,6 +224,8 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.append is not None and (a.run or a.renders):
         p.error("--append adds evaluations and speed-ups only; --run and --renders need a whole new card")
+    if not a.results and a.append is None:
+        p.error("give at least one results folder")
     try:
         results = [load_results(r) for r in a.results]
         runs = [run_facts(r) for r in a.run]
