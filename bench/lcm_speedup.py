@@ -45,10 +45,8 @@ def _ratios(rows: list[dict]) -> dict[str, float]:
 
 def measure(args: argparse.Namespace) -> dict:
     from x2video.cli.eval import load_models, resolve_size
-    from x2video.eval.conditions import Condition, build_edits
     from x2video.eval.data import load_eval_shots
-    from x2video.eval.runner import MISSING_LCM, render_shot, warm_up
-    from x2video.sampling.events import RenderSettings
+    from x2video.eval.runner import MISSING_LCM
     from x2video.sampling.renderer import Renderer
 
     args.image_weights = None
@@ -57,8 +55,23 @@ def measure(args: argparse.Namespace) -> dict:
         raise SystemExit(f"lcm_speedup: {MISSING_LCM}")
     size, _ = resolve_size(args, weights_dir, models.video.downsample)
     shots = load_eval_shots(args.data, args.split, args.rooms, args.frames, size)
+    return {
+        **result_header("lcm-speedup", "lcm_speedup.py", args, models, shots, size),
+        **back_to_back({"ddim": Renderer(models.video), "lcm": Renderer(models.lcm)}, shots, args),
+    }
+
+
+def back_to_back(renderers: dict, shots: list, args: argparse.Namespace) -> dict:
+    """The timed part: `args.repeats` rounds of DDIM (args.steps) and LCM (args.lcm_steps), with and without the
+    ground-truth frame 0 as reference, over `shots` (EvalShots), alternating which sampler goes first.
+    On a GPU the wall times are complete (every window's frames are copied to host memory before the
+    render returns); the encoding share is not (its clock stops before the GPU finishes). Returns
+    "load_average_before_after", "repeats", "median", "min", "max" of the result file."""
+    from x2video.eval.conditions import Condition, build_edits
+    from x2video.eval.runner import render_shot, warm_up
+    from x2video.sampling.events import RenderSettings
+
     refs = {s.name: build_edits(s.shot, s.name, Condition("full", reference=True), args.seed)[0] for s in shots}
-    renderers = {"ddim": Renderer(models.video), "lcm": Renderer(models.lcm)}
     for sampler, r in renderers.items():
         warm_up(r, shots[0], sampler)
     steps = {"ddim": args.steps, "lcm": args.lcm_steps}
@@ -84,7 +97,6 @@ def measure(args: argparse.Namespace) -> dict:
         repeats.append({"order": order, "rows": rows, **_ratios(rows)})
         print(f"repeat {i + 1}: " + ", ".join(f"{k} {repeats[-1][k]:.2f}x" for k in RATIOS), file=sys.stderr)
     return {
-        **result_header("lcm-speedup", "lcm_speedup.py", args, models, shots, size),
         "load_average_before_after": [list(load_before), list(os.getloadavg())],
         "repeats": repeats,
         "median": {k: statistics.median(r[k] for r in repeats) for k in RATIOS},

@@ -270,6 +270,11 @@ def test_speedup_ordering_from_back_to_back_repeats(tmp_path, capsys):
     bench2.write_text(json.dumps(bf16))
     assert card.main([str(res), "--speedup", str(bench), "--speedup", str(bench2), "--out", str(out)]) == 0
     assert "## LCM-2 vs DDIM-20 back to back, 2 torch threads, VAE encoder in bfloat16\n" in out.read_text()
+    gpu = _speedup_bench([(6.1, 6.0, 9.0)], threads=16)
+    gpu["machine"].update(device="cuda", cuda="NVIDIA H200")
+    bench2.write_text(json.dumps(gpu))
+    assert card.main([str(res), "--speedup", str(bench2), "--out", str(out)]) == 0
+    assert "## LCM-2 vs DDIM-20 back to back, on NVIDIA H200\n" in out.read_text()
     bench.write_text(json.dumps({"format": "x2video-eval"}))
     assert card.main([str(res), "--speedup", str(bench)]) == 2 and "not a `bench/lcm_speedup.py` result" in capsys.readouterr().err
 

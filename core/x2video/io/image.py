@@ -12,9 +12,26 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 import numpy as np
-import OpenImageIO as oiio
 
 from x2video.io.atomic import atomic_path
+
+
+class _Missing:
+    """Stands in for a module that is not installed: importing x2video still works (a lent GPU image has
+    no OpenImageIO), and the first image read or write says what is missing."""
+
+    def __init__(self, name: str, error: ImportError) -> None:
+        self._name, self._error = name, error
+
+    def __getattr__(self, attr: str) -> Any:
+        raise ImportError(f"{self._name} is not installed ({self._error}); reading and writing images needs it "
+                          "(`pip install OpenImageIO`, as scripts/setup.sh does)")
+
+
+try:
+    import OpenImageIO as oiio
+except ImportError as _e:
+    oiio = _Missing("OpenImageIO", _e)
 
 IMAGE_EXTENSIONS = (".exr", ".png", ".jpg", ".jpeg", ".tif", ".tiff")
 _RAW_INT = ("uint", "int", "uint32", "int32")
