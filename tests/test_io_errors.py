@@ -184,3 +184,14 @@ def test_clamped_to_range(tmp_path):
     write_exr(r / "albedo" / "000000.exr", {c: np.full((H, W), v, np.float32) for c, v in zip("RGB", (1.5, -0.2, 0.3))})
     shot = load_shot(r)
     np.testing.assert_allclose(shot.channel("albedo", 0)[0, 0], [1.0, 0.0, 0.3], atol=1e-3)
+
+
+def test_missing_openimageio_fails_at_the_first_read_and_says_so(tmp_path, monkeypatch):
+    """Without OpenImageIO (a lent GPU image) x2video still imports; reading an image names what is missing."""
+    import x2video.io.image as image
+
+    path = tmp_path / "a.exr"
+    write_exr(path, {"R": np.zeros((4, 4), np.float32)})
+    monkeypatch.setattr(image, "oiio", image._Missing("OpenImageIO", ImportError("No module named 'OpenImageIO'")))
+    with pytest.raises(ImportError, match="OpenImageIO is not installed.*reading and writing images needs it"):
+        image.read_image(path)
