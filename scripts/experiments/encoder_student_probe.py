@@ -63,13 +63,12 @@ def images(data: Path, split: str, rooms: int, frames: int, size: tuple[int, int
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["eval"]:
-        e = argparse.ArgumentParser(prog="encoder_student_probe.py eval")
+        e = argparse.ArgumentParser(prog="encoder_student_probe.py eval", epilog="then -- and the arguments of x2video eval")
         e.add_argument("student", type=Path)
         e.add_argument("--width", type=int, default=64)
         e.add_argument("--depth", type=int, default=3)
-        e.add_argument("eval_args", nargs=argparse.REMAINDER, help="-- then the arguments of x2video eval")
-        ea = e.parse_args(argv[1:])
-        rest = ea.eval_args[1:] if ea.eval_args[:1] == ["--"] else ea.eval_args
+        own, rest = (argv[1:argv.index("--")], argv[argv.index("--") + 1:]) if "--" in argv else (argv[1:], [])
+        ea = e.parse_args(own)
         return evaluate_with_student(ea.student, ea.width, ea.depth, rest)
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--data", type=Path, required=True)
