@@ -81,13 +81,15 @@ def measure(args: argparse.Namespace) -> dict:
     }
 
 
-def result_header(kind: str, script: str, args: argparse.Namespace, models, shots: list, size: tuple[int, int]) -> dict:
-    """The fields every bench JSON here starts with: format, the command that reproduces it, machine, weights, data."""
+def result_header(kind: str, script: str, args: argparse.Namespace, models, shots: list, size: tuple[int, int],
+                  argv: list[str] | None = None) -> dict:
+    """The fields every bench JSON here starts with: format, the command that reproduces it (`script` in bench/,
+    or a repository path; `argv`, default sys.argv[1:]), machine, weights, data."""
     from x2video.eval.machine import machine_info
 
     return {
         "format": f"x2video-{kind}",
-        "command": shlex.join(["python", f"bench/{script}", *sys.argv[1:]]),
+        "command": shlex.join(["python", script if "/" in script else f"bench/{script}", *(sys.argv[1:] if argv is None else argv)]),
         "machine": machine_info(models.video.device),
         "weights": models.info,
         "data": {"dir": str(args.data), "split": args.split, "rooms": [s.name for s in shots], "frames": args.frames, "size": list(size)},

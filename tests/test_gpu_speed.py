@@ -28,6 +28,7 @@ def test_speed_payload_runs_without_openimageio(tmp_path):
     assert run.returncode == 0, run.stderr[-2000:]
     result = json.loads(out.read_text())
     assert result["format"] == "x2video-lcm-speedup" and result["data"]["rooms"] == ["room_00001"]
+    assert result["command"].startswith("python scripts/gpu/speed.py --payload") and result["data"]["payload"] == str(payload)
     rows = {r["name"] for r in result["repeats"][0]["rows"]}
     assert rows == {"DDIM-20", "DDIM-20 + Ref.", "LCM-2", "LCM-2 + Ref."}
     assert result["median"]["speedup"] > 1  # 20 denoising steps against 2, same model, same frames

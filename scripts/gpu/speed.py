@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import sys
 from pathlib import Path
 
@@ -22,7 +21,10 @@ import torch
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "bench"))
-from lcm_speedup import back_to_back  # noqa: E402  (a sibling script, not a package)
+from lcm_speedup import back_to_back  # noqa: E402  (bench scripts, not a package)
+from speed_accuracy import result_header  # noqa: E402
+
+from x2video.sampling.events import RenderSettings  # noqa: E402  (light: no torch)
 
 
 class PayloadPrompts:
@@ -64,10 +66,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--lcm-steps", type=int, default=2)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--window", type=int, default=5)
-    p.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=True)
+    p.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=RenderSettings.replace_refs)
     p.add_argument("--out", type=Path, required=True)
     a = p.parse_args(argv)
-    from x2video.eval.machine import machine_info
+    from x2video.eval.runner import EvalModels
     from x2video.io.atomic import write_json_atomic
     from x2video.model.pipeline import X2VideoModel
     from x2video.sampling.renderer import Renderer
@@ -81,15 +83,10 @@ def main(argv: list[str] | None = None) -> int:
     timed = back_to_back({"ddim": Renderer(model), "lcm": Renderer(model)}, shots, a)
     info = {"path": str(a.weights), "config": model.config.name, "video": True, "lcm": True, "untrained": False,
             "note": "lcm_unet.safetensors of --weights"}
-    result = {
-        "format": "x2video-lcm-speedup",
-        "command": shlex.join(["python", "scripts/gpu/speed.py", *(sys.argv[1:] if argv is None else argv)]),
-        "machine": machine_info(model.device),
-        "weights": {"video": info, "lcm": info},
-        "data": {"dir": meta["data"], "split": "test", "rooms": meta["rooms"], "frames": meta["frames"], "size": meta["size"],
-                 "payload": str(a.payload)},
-        **timed,
-    }
+    a.data, a.split, a.frames = meta["data"], "test", meta["frames"]  # what result_header records of the data
+    result = {**result_header("lcm-speedup", "scripts/gpu/speed.py", a, EvalModels(model, None, model, {"video": info, "lcm": info}),
+                              shots, tuple(meta["size"]), argv), **timed}
+    result["data"]["payload"] = str(a.payload)
     write_json_atomic(a.out, result)
     for k in ("speedup", "speedup_ref", "speedup_no_encoding"):
         print(f"{k:>20}: median {result['median'][k]:.2f}x (min {result['min'][k]:.2f}, max {result['max'][k]:.2f})")

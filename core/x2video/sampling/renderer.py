@@ -126,7 +126,7 @@ class Renderer:
         relative paths of a reference image in the edits (the project file's folder).
         """
         emit: Callable[[RenderEvent], None] = on_event if on_event is not None else (lambda e: None)
-        done: list[int] = []
+        done: set[int] = set()  # frames delivered so far
         self.encode_seconds = 0.0
         try:
             self._render(shot, edits, settings, emit, cancel, base_dir, done)
@@ -165,7 +165,7 @@ class Renderer:
         emit: Callable[[RenderEvent], None],
         cancel: CancelToken | None,
         base_dir: str | Path | None,
-        done: list[int],
+        done: set[int],
     ) -> None:
         t0 = time.perf_counter()
         settings = self._validate(shot, settings)
@@ -190,7 +190,6 @@ class Renderer:
             emit(RenderStarted(num_frames=len({f for w in windows for f in w.generate}), num_windows=len(windows), levels=levels))
             latents: dict[int, torch.Tensor] = {}  # frame -> (4, h, w), only while a later window reads it
             self.peak_latents = 0
-            made: set[int] = set()  # frames delivered so far (`done` in delivery order)
             for index, window in enumerate(windows):
                 if cancel is not None and cancel.cancelled:
                     raise Cancelled(f"cancelled before window {index}")
@@ -212,9 +211,8 @@ class Renderer:
                     if keep_until.get(f) == index:
                         latents.pop(f, None)
                 frames = {f: np.asarray(images[i], dtype=np.float32) for i, f in enumerate(window.generate)}
-                again = tuple(f for f in window.generate if f in made)  # the seam pass makes frames a second time
-                done.extend(f for f in window.generate if f not in made)
-                made.update(window.generate)
+                again = tuple(f for f in window.generate if f in done)  # the seam pass makes frames a second time
+                done.update(window.generate)
                 emit(FramesReady(window=index, frames=frames, level=window.level, mode=window.mode, seconds=time.perf_counter() - tw,
                                  replaces=again))
         emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))
