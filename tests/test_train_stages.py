@@ -316,6 +316,52 @@ def test_video_stage_moves_the_zero_initialised_alphas_at_their_own_rate(runs, t
     assert max(v for k, v in moved.items() if k not in alphas) <= 1.01 * lr
 
 
+def test_video_stage_train_only_interp_leaves_the_keyframe_path_bit_identical(runs, tmp_path):
+    """--train-only interp: only the temporal interp<k> and reference r1 LoRA branches move, so
+    keyframe-mode and sequential windows render exactly as before; it refuses keyframe batches and
+    image models, whose training could not reach those branches."""
+    from x2video.model.pipeline import X2VideoModel
+    from x2video.train.batches import WindowConfig
+    from x2video.train.diffusion_stages import VideoStageConfig, interp_branches_only, run_video_stage
+
+    stage = VideoStageConfig(batch=1, heldout_batches=0, train_only="interp", window=WindowConfig(interp_p=1.0, ref_p_interp=1.0))
+    res = run_video_stage(runs["root"] / "video", runs["root"] / "cache", tmp_path / "v", stage,
+                          LoopConfig(steps=2, lr=1e-3, warmup=0, ema_decay=0.0))
+    got = X2VideoModel.from_pretrained(res["model"], text_encoder=FakeTextEncoder()).unet.state_dict()
+    want = X2VideoModel.from_pretrained(runs["video"]["model"], text_encoder=FakeTextEncoder()).unet.state_dict()
+    assert got.keys() == want.keys()
+    trained = {k for k in want if interp_branches_only(k)}
+    assert trained and all(".lora.interp" in k or ".ref.lora.r1." in k for k in trained)
+    assert not any(".lora.key." in k or ".lora.r0." in k or k.endswith(("alpha_r", "alpha_t")) for k in trained)
+    assert all(torch.equal(got[k], want[k]) for k in want if k not in trained)
+    assert any(not torch.equal(got[k], want[k]) for k in trained)
+    with pytest.raises(ValueError, match="--interp-p 1"):
+        run_video_stage(runs["root"] / "video", runs["root"] / "cache", tmp_path / "w",
+                        VideoStageConfig(batch=1, heldout_batches=0, train_only="interp"), LoopConfig(steps=1))
+    with pytest.raises(ValueError, match="holds an image model"):
+        run_video_stage(runs["root"] / "image", runs["root"] / "cache", tmp_path / "x", stage, LoopConfig(steps=1))
+
+
+def test_cache_from_a_model_folder_keeps_its_latent_scales(runs, tmp_path):
+    """A new cache encoded with a trained model's VAE keeps that model's latent scales (instead of
+    measuring its own), so the model can be trained further on it; a VAE run has none and measures."""
+    from x2video.model.checkpoint import read_config
+    from x2video.train.cache import build_cache
+    from x2video.train.diffusion_stages import VideoStageConfig, run_video_stage
+    from x2video.train.runs import load_vae
+
+    cfg, vae = load_vae(runs["video"]["model"])
+    other = {"train": runs["ds"]["train"][1:], "test": runs["ds"]["test"]}  # other frames: measuring would give other scales
+    build_cache(other, vae, cfg, tmp_path / "cache", text_encoder=FakeTextEncoder(), scale_frames=4)
+    assert read_config(tmp_path / "cache" / "model").latent_scales == cfg.latent_scales
+    assert cfg.latent_scales == read_config(runs["root"] / "cache" / "model").latent_scales
+    res = run_video_stage(runs["video"]["model"], tmp_path / "cache", tmp_path / "v", VideoStageConfig(batch=1, heldout_batches=0),
+                          LoopConfig(steps=1, lr=0.0, warmup=0))
+    assert res["step"] == 1
+    vcfg, _ = load_vae(runs["root"] / "vae")
+    assert all(v == 1.0 for v in vcfg.latent_scales.values())  # the VAE run's: measured by the first cache
+
+
 def test_batch_workers_draw_valid_distinct_batches(runs):
     """--workers: batches drawn in forked DataLoader workers are the same kind of batch as in-process
     ones, workers draw different samples, and workers=0 keeps the in-process sequence reproducible."""

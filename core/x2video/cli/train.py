@@ -50,6 +50,9 @@ def _window_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--frames", type=int, default=5, help="N: frames per window")
     g.add_argument("--levels", type=int, default=3, help="K: recursive levels (keyframe strides (N-1)^(k-1), interpolation levels 1..K)")
     g.add_argument("--ref-p", type=float, default=0.5, help="probability a window carries its reference frame(s)")
+    g.add_argument("--ref-p-interp", type=float, default=None,
+                   help="the same for interpolation windows (default: --ref-p; at inference they always carry both)")
+    g.add_argument("--interp-p", type=float, default=0.5, help="probability a batch is interpolation-mode windows (else keyframe)")
 
 
 def _loop_cfg(a: argparse.Namespace):
@@ -75,7 +78,11 @@ def _aug(a: argparse.Namespace):
 def _window(a: argparse.Namespace):
     from x2video.train.batches import WindowConfig
 
-    return WindowConfig(frames=a.frames, levels=a.levels, ref_p_key=a.ref_p, ref_p_interp=a.ref_p)
+    for flag, v in (("--ref-p", a.ref_p), ("--ref-p-interp", a.ref_p_interp), ("--interp-p", a.interp_p)):
+        if v is not None and not 0.0 <= v <= 1.0:
+            raise ValueError(f"{flag} must be a probability in [0, 1], got {v}")
+    return WindowConfig(frames=a.frames, levels=a.levels, interp_p=a.interp_p, ref_p_key=a.ref_p,
+                        ref_p_interp=a.ref_p if a.ref_p_interp is None else a.ref_p_interp)
 
 
 class Progress:
@@ -182,7 +189,7 @@ def cmd_video(a: argparse.Namespace) -> int:
     sp = None if a.shading_prior is None else a.shading_prior == "on"
     rp = None if a.residual_prior is None else a.residual_prior == "on"
     stage = VideoStageConfig(batch=a.batch, shading_prior=sp, residual_prior=rp, prediction=a.prediction, seed=a.seed, heldout_batches=a.heldout_batches, augment=_aug(a),
-                             window=_window(a), alpha_lr_mult=a.alpha_lr_mult)
+                             window=_window(a), alpha_lr_mult=a.alpha_lr_mult, train_only=a.train_only)
     _print_result(_run("video", loop.steps, lambda bar: run_video_stage(a.init, a.cache, a.out, stage, loop, bar)))
     return 0
 
@@ -266,6 +273,9 @@ def register(subparsers) -> None:
     s.add_argument("--heldout-batches", type=int, default=4, help="test-room batches for the final held-out v-loss (0: skip)")
     s.add_argument("--alpha-lr-mult", type=float, default=100.0,
                    help="learning-rate multiplier of the zero-initialised Hybrid Self-Attention alphas (scalars; default 100)")
+    s.add_argument("--train-only", choices=("all", "interp"), default="all",
+                   help="interp: train only the interpolation-mode LoRA branches (temporal interp1..K, end-frame reference r1) "
+                        "of a video model, so keyframe-mode and sequential renders stay bit-identical; needs --interp-p 1")
     _aug_args(s)
     _window_args(s)
     _loop_args(s, steps=2000, lr=5e-5)

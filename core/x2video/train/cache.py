@@ -143,16 +143,22 @@ def build_cache(
     progress: Callable[[int, int], None] | None = None,
 ) -> CacheInfo:
     """Encode every frame of `shots` ({'train': [...], 'test': [...]}) once into `out_dir` (see module doc).
-    Latent scales are measured on `scale_frames` random training frames (`measure_latent_scales`)."""
+    Latent scales are measured on `scale_frames` random training frames (`measure_latent_scales`) when
+    `config` has none (all 1.0, as a VAE run's); a model folder's scales are kept, so the models trained
+    with them can train further on this cache (the latents are stored unscaled either way)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     train = list(shots.get("train", []))
     if not train:
         raise ValueError("build_cache: no training rooms")
     vae = vae.eval().requires_grad_(False)
-    scales = measure_latent_scales(vae, _scale_samples(train, size, scale_frames, 0), next(vae.parameters()).device)
+    if all(v == 1.0 for v in config.latent_scales.values()):
+        scales = measure_latent_scales(vae, _scale_samples(train, size, scale_frames, 0), next(vae.parameters()).device)
+        log.info("latent scales (measured): %s", {k: round(v, 4) for k, v in scales.items()})
+    else:
+        scales = dict(config.latent_scales)
+        log.info("latent scales (the VAE folder's): %s", {k: round(v, 4) for k, v in scales.items()})
     cfg = dataclasses.replace(config, latent_scales=scales)
-    log.info("latent scales: %s", {k: round(v, 4) for k, v in scales.items()})
 
     rooms: list[dict] = []
     prompts: dict[str, None] = {"": None}

@@ -71,6 +71,10 @@ class VideoStageConfig:
     """Learning-rate multiplier of the Hybrid Self-Attention alphas. They start at 0 and are single
     scalars, so at the UNet's rate Adam moves each by at most ~lr per step: after 2,458 steps at
     <= 1e-4 they sat at 0.01-0.05 and the reference and temporal branches were nearly off."""
+    train_only: str = "all"
+    """"all": every parameter trains. "interp": only the interpolation-mode LoRA branches (the temporal
+    branches interp1..K and the end-frame reference branch r1) of a video --init; everything keyframe-mode
+    and sequential windows use (the UNet, the alphas, the "key" and "r0" branches) stays bit-identical."""
     seed: int = 0
     heldout_batches: int = 4
     """Batches of held-out (test) windows for the final held-out v-loss (0: skip)."""
@@ -127,10 +131,17 @@ def _heldout(unet: UNet2DConditionModel, cache: Path, cfg: ModelConfig, shading:
 
 def _run(unet: UNet2DConditionModel, cfg: ModelConfig, cache: Path, out_dir: Path, loop: LoopConfig, batch_size: int,
          batches, stage_config: dict, on_step: Callable[[StepLog], None] | None, key: str, heldout=None,
-         lr_mult: Callable[[str], float] | None = None) -> dict:
+         lr_mult: Callable[[str], float] | None = None, trainable: Callable[[str], bool] | None = None) -> dict:
     _, vae = load_vae(cache / "model")
     sched = noise_scheduler()
     unet.requires_grad_(True)
+    if trainable is not None:
+        for name, p in unet.named_parameters():
+            p.requires_grad_(trainable(name))
+        n = sum(p.numel() for p in unet.parameters() if p.requires_grad)
+        if n == 0:
+            raise ValueError(f"{key} stage: no parameter of the UNet is selected for training")
+        log.info("%s stage: training %d of %d parameters", key, n, sum(p.numel() for p in unet.parameters()))
 
     def loss_fn(b, step):
         return v_loss(unet, sched, diffusion_batch(b.to(next(unet.parameters()).device), cfg.residual_prior), cfg.prediction)
@@ -203,6 +214,14 @@ def run_video_stage(init: str | Path, cache: str | Path, out_dir: str | Path, st
     """Convert the image UNet of `init` to the video UNet and train it on windows of the cache."""
     cache, out_dir = Path(cache), Path(out_dir)
     init_cfg = read_config(model_dir(init))
+    if stage.train_only not in ("all", "interp"):
+        raise ValueError(f"train_only must be 'all' or 'interp', got {stage.train_only!r}")
+    if stage.train_only == "interp":
+        if not init_cfg.video:
+            raise ValueError(f"--train-only interp fine-tunes a trained video model; --init {init} holds an image model")
+        if stage.window.interp_p != 1.0:
+            raise ValueError(f"--train-only interp needs --interp-p 1 (got {stage.window.interp_p}): keyframe-mode "
+                             "windows do not reach the interpolation branches")
     if init_cfg.video:
         # continue a video model (e.g. into the residual target): no conversion, the architecture is kept
         if stage.shading_prior is not None and stage.shading_prior != init_cfg.shading_prior:
@@ -235,7 +254,19 @@ def run_video_stage(init: str | Path, cache: str | Path, out_dir: str | Path, st
         return d.sample(rng, windows, aug, mode=mode, level=level, ref_positions=refs)
 
     return _run(unet, cfg, cache, out_dir, loop, stage.batch * stage.window.frames, batches, sc, on_step, "video",
-                lambda m: _heldout(m, cache, cfg, sp, stage.heldout_batches, draw), alpha_lr(stage.alpha_lr_mult))
+                lambda m: _heldout(m, cache, cfg, sp, stage.heldout_batches, draw), alpha_lr(stage.alpha_lr_mult),
+                interp_branches_only if stage.train_only == "interp" else None)
+
+
+def interp_branches_only(name: str) -> bool:
+    """Parameters only interpolation-mode windows use: the LoRA branches interp<k> of the temporal
+    attention and r1 (the end-frame reference) of the reference attention."""
+    parts = name.split(".")
+    for i, part in enumerate(parts[:-1]):
+        if part == "lora" and i >= 1:
+            branch = parts[i + 1]
+            return (parts[i - 1] == "temp" and branch.startswith("interp")) or (parts[i - 1] == "ref" and branch == "r1")
+    return False
 
 
 def alpha_lr(mult: float) -> Callable[[str], float]:
