@@ -305,3 +305,42 @@ def test_bf16_encoder_changes_only_the_encoder(model, tmp_path):
     z = torch.randn(2, 4, H // 8, W // 8)
     assert np.array_equal(fp32.decode(z), bf16.decode(z))
     assert fp32.content_key() != bf16.content_key()
+
+
+def test_channels_last_encoder_gives_the_default_layouts_latents(model, tmp_path):
+    """On the CPU the encoder runs channels-last (a speed-up, bench/vae_layout.py): its latents equal the
+    default layout's to float rounding, come back contiguous, and the saved weights and the cache key
+    are those of the default layout."""
+    assert model.encoder_channels_last and model.vae.encoder.conv_in.weight.is_contiguous(memory_format=torch.channels_last)
+    model.save_pretrained(tmp_path / "m")
+    again = X2VideoModel.from_pretrained(tmp_path / "m", text_encoder=model.text_encoder)
+    plain = X2VideoModel.from_pretrained(tmp_path / "m", text_encoder=model.text_encoder)
+    plain.encoder_channels_last = False
+    for part in (plain.vae.encoder, plain.vae.quant_conv):
+        part.to(memory_format=torch.contiguous_format)
+    assert plain.vae.encoder.conv_in.weight.is_contiguous()
+    frames = [_frame(i) for i in range(3)]
+    a, b = again.encode_frames(frames), plain.encode_frames(frames)
+    assert a.is_contiguous()
+    torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+    assert again.content_key() == plain.content_key()
+    torch.testing.assert_close(again.vae.encoder.conv_in.weight, plain.vae.encoder.conv_in.weight, rtol=0, atol=0)
+
+
+def test_vae_layout_bench_writes_both_layouts(model, tmp_path):
+    """bench/vae_layout.py times the encoder in both layouts on the same batch and reports how far apart
+    their latents are (float rounding)."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("vae_layout", Path(__file__).resolve().parents[1] / "bench" / "vae_layout.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    model.save_pretrained(tmp_path / "m")
+    out = tmp_path / "vl.json"
+    assert bench.main(["--weights", str(tmp_path / "m"), "--size", f"{W}x{H}", "--batch", "2", "--repeats", "4", "--out", str(out)]) == 0
+    r = json.loads(out.read_text())
+    assert r["format"] == "x2video-vae-layout" and r["size"] == [W, H] and r["dtype"] == "float32"
+    assert set(r["ms_per_image"]) == {"default", "channels_last"} and all(v > 0 for v in r["ms_per_image"].values())
+    assert r["speedup"] == pytest.approx(r["ms_per_image"]["default"] / r["ms_per_image"]["channels_last"], rel=1e-2)
+    assert r["max_abs_latent_difference"] < 1e-4 * max(1.0, r["latent_std"])
