@@ -77,14 +77,6 @@ class X2VideoModel:
             for part in (self.vae.encoder, self.vae.quant_conv):
                 if part is not None:
                     part.to(self.encoder_dtype)
-        #: the encoder in channels-last (NHWC) layout on the CPU, where oneDNN runs its convolutions about
-        #: 14 % faster at 160x112 (bench/vae_layout.py); the latents equal the default layout's to float
-        #: rounding. Not measured on a GPU, so left in the default layout there.
-        self.encoder_channels_last = self.device.type == "cpu"
-        if self.encoder_channels_last:
-            for part in (self.vae.encoder, self.vae.quant_conv):
-                if part is not None:
-                    part.to(memory_format=torch.channels_last)
         self.lcm_unet = None if lcm_unet is None else _prepare(lcm_unet, self.device, dtype)
         if text_encoder is None and (config.text.kind == "minilm" or config.text.path):
             text_encoder = build_text_encoder(config.text.kind, config.text.max_length, config.unet.cross_attention_dim, config.text.path)
@@ -299,11 +291,8 @@ class X2VideoModel:
     # -- helpers ------------------------------------------------------------------------
     def _encode(self, images: list[np.ndarray]) -> torch.Tensor:
         """(H, W, 3) arrays in [-1, 1] -> (n, 4, h, w) unscaled posterior-mode latents."""
-        x = images_to_tensor(images, self.device, self.encoder_dtype)  # (n, 3, H, W)
-        if self.encoder_channels_last:
-            x = x.contiguous(memory_format=torch.channels_last)
-        z = encode_mode(self.vae, x, self.encode_batch)
-        return z.to(self.dtype).contiguous()
+        z = encode_mode(self.vae, images_to_tensor(images, self.device, self.encoder_dtype), self.encode_batch)
+        return z.to(self.dtype)
 
     @staticmethod
     def _checked(frame: FrameConditioning, name: str, H: int, W: int) -> np.ndarray:
