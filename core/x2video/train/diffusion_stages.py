@@ -21,7 +21,8 @@ from diffusers import UNet2DConditionModel
 
 from x2video.model.checkpoint import load_into, read_config, save_checkpoint
 from x2video.model.config import ModelConfig, UNetConfig, preset
-from x2video.model.unet import build_unet, convert_image_to_video
+from x2video.model.hybrid_attention import REF_BRANCHES, temporal_branches
+from x2video.model.unet import build_unet, convert_image_to_video, hybrid_processors
 from x2video.train.batches import AugmentConfig, LatentData, WindowConfig, image_batches, video_batches
 from x2video.train.diffusion import diffusion_batch, heldout_v_loss, noise_scheduler, v_loss
 from x2video.train.loop import LoopConfig, StepLog, process_index, train
@@ -131,13 +132,15 @@ def _heldout(unet: UNet2DConditionModel, cache: Path, cfg: ModelConfig, shading:
 
 def _run(unet: UNet2DConditionModel, cfg: ModelConfig, cache: Path, out_dir: Path, loop: LoopConfig, batch_size: int,
          batches, stage_config: dict, on_step: Callable[[StepLog], None] | None, key: str, heldout=None,
-         lr_mult: Callable[[str], float] | None = None, trainable: Callable[[str], bool] | None = None) -> dict:
+         lr_mult: Callable[[str], float] | None = None,
+         trainable: Callable[[UNet2DConditionModel], list[torch.nn.Parameter]] | None = None) -> dict:
     _, vae = load_vae(cache / "model")
     sched = noise_scheduler()
     unet.requires_grad_(True)
-    if trainable is not None:
-        for name, p in unet.named_parameters():
-            p.requires_grad_(trainable(name))
+    if trainable is not None:  # the parameters it returns train; the rest are frozen
+        keep = {id(p) for p in trainable(unet)}
+        for p in unet.parameters():
+            p.requires_grad_(id(p) in keep)
         n = sum(p.numel() for p in unet.parameters() if p.requires_grad)
         if n == 0:
             raise ValueError(f"{key} stage: no parameter of the UNet is selected for training")
@@ -255,18 +258,18 @@ def run_video_stage(init: str | Path, cache: str | Path, out_dir: str | Path, st
 
     return _run(unet, cfg, cache, out_dir, loop, stage.batch * stage.window.frames, batches, sc, on_step, "video",
                 lambda m: _heldout(m, cache, cfg, sp, stage.heldout_batches, draw), alpha_lr(stage.alpha_lr_mult),
-                interp_branches_only if stage.train_only == "interp" else None)
+                interp_branch_parameters if stage.train_only == "interp" else None)
 
 
-def interp_branches_only(name: str) -> bool:
-    """Parameters only interpolation-mode windows use: the LoRA branches interp<k> of the temporal
-    attention and r1 (the end-frame reference) of the reference attention."""
-    parts = name.split(".")
-    for i, part in enumerate(parts[:-1]):
-        if part == "lora" and i >= 1:
-            branch = parts[i + 1]
-            return (parts[i - 1] == "temp" and branch.startswith("interp")) or (parts[i - 1] == "ref" and branch == "r1")
-    return False
+def interp_branch_parameters(unet: UNet2DConditionModel) -> list[torch.nn.Parameter]:
+    """Parameters only interpolation-mode windows use: in every Hybrid Self-Attention layer, the temporal
+    LoRA branches after "key" (interp1..K) and the end-frame reference branch (r1)."""
+    out: list[torch.nn.Parameter] = []
+    for proc in hybrid_processors(unet).values():
+        for branch in temporal_branches(proc.interp_levels)[1:]:
+            out += proc.temp.lora[branch].parameters()
+        out += proc.ref.lora[REF_BRANCHES[1]].parameters()
+    return out
 
 
 def alpha_lr(mult: float) -> Callable[[str], float]:
