@@ -84,7 +84,7 @@ def back_to_back(renderers: dict, shots: list, args: argparse.Namespace) -> dict
             for reference in (False, True):
                 r = renderers[sampler]
                 settings = RenderSettings(sampler=sampler, steps=steps[sampler], seed=args.seed, window=args.window,  # type: ignore[arg-type]
-                                          replace_refs=args.replace_refs)
+                                          replace_refs=args.replace_refs, noise=args.noise, noise_shared=args.noise_shared)
                 secs = enc = 0.0
                 frames = 0
                 for s in shots:

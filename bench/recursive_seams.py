@@ -54,6 +54,7 @@ def measure(args: argparse.Namespace) -> dict:
     from x2video.eval.conditions import build_edits, parse_condition
     from x2video.eval.data import load_eval_shots
     from x2video.eval.runner import render_shot
+    from x2video.metrics.image import psnr
     from x2video.metrics.temporal import ground_truth_flows, warping_errors
     from x2video.sampling.events import RenderSettings
     from x2video.sampling.renderer import Renderer
@@ -64,7 +65,7 @@ def measure(args: argparse.Namespace) -> dict:
     size, _ = resolve_size(args, weights_dir, models.video.downsample)
     shots = load_eval_shots(args.data, args.split, args.rooms, args.frames, size)
     renderer = Renderer(models.video)
-    per: dict[str, dict] = {s: {"pred": [], "gt": [], "classes": [], "shots": {}} for s in SCHEMES}
+    per: dict[str, dict] = {s: {"pred": [], "gt": [], "classes": [], "shots": {}, "psnr": []} for s in SCHEMES}
     for shot in shots:
         edits, _ = build_edits(shot.shot, shot.name, condition, args.seed)
         gt = [tonemap(g) for g in shot.gt]
@@ -73,11 +74,13 @@ def measure(args: argparse.Namespace) -> dict:
         ref = resolve_reference(shot.shot, edits) if edits is not None else None  # where the Renderer anchors the plan
         for scheme in SCHEMES:
             settings = RenderSettings(sampler="ddim", steps=args.steps, seed=args.seed, window=args.window, scheme=scheme,  # type: ignore[arg-type]
-                                      replace_refs=args.replace_refs, seams=args.seams)
+                                      replace_refs=args.replace_refs, seams=args.seams, noise=args.noise, noise_shared=args.noise_shared)
             classes = np.array(pair_classes(renderer.plan(shot.shot, settings, None if ref is None else ref[0]), shot.num_frames))
             frames, _ = render_shot(renderer, shot, edits, settings)
-            err = warping_errors([tonemap(f) for f in frames], flows).errors
+            shown = [tonemap(f) for f in frames]
+            err = warping_errors(shown, flows).errors
             p = per[scheme]
+            p["psnr"].extend(psnr(a, b) for a, b in zip(shown, gt))
             p["pred"].append(err)
             p["gt"].append(gt_err)
             p["classes"].append(classes)
@@ -86,7 +89,7 @@ def measure(args: argparse.Namespace) -> dict:
     schemes = {}
     for scheme, p in per.items():
         pred, gt, classes = (np.concatenate(p[k]) for k in ("pred", "gt", "classes"))
-        schemes[scheme] = {"tc": _tc(pred, gt, np.ones_like(pred, bool))["tc"],
+        schemes[scheme] = {"tc": _tc(pred, gt, np.ones_like(pred, bool))["tc"], "psnr": float(np.mean(p["psnr"])),
                            "classes": {c: _tc(pred, gt, classes == c) for c in sorted(set(classes))},
                            "shots": p["shots"]}
     return {
@@ -106,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     result = run_measure(args, measure)
     for scheme, r in result["schemes"].items():
-        print(f"{scheme:>10}: TC {r['tc']:.3f}; " + "; ".join(f"{c} {v['tc']:.3f} ({v['pairs']} pairs)" for c, v in r["classes"].items()))
+        print(f"{scheme:>10}: PSNR {r['psnr']:.3f} dB, TC {r['tc']:.3f}; " + "; ".join(f"{c} {v['tc']:.3f} ({v['pairs']} pairs)" for c, v in r["classes"].items()))
     print(f"wrote {args.out}")
     return 0
 

@@ -193,6 +193,9 @@ def test_markdown_rows_escape_bars_and_show_missing_models():
     md = results_markdown(_results())
     assert "### (a) A" in md and "### (d) D" in md and "re-estimates its reference frames (`--no-replace-refs`)" in md  # results without the setting
     assert "held at their noised latents between steps (`--replace-refs`)" in results_markdown(dict(_results(), settings={"replace_refs": True}))
+    assert "Initial noise: per window (`--noise window`)" in md  # results from before the option
+    framed = results_markdown(dict(_results(), settings={"noise": "frame", "noise_shared": 0.95}))
+    assert "per frame of the shot (`--noise frame`), 0.95 of its variance shared by all frames (`--noise-shared 0.95`)" in framed
 
 
 def test_model_card_from_results_and_runs(tmp_path, capsys):
@@ -418,3 +421,8 @@ def test_eval_command_line_reproduces_every_setting():
     on = build_parser().parse_args(base + ["--seams", "--bf16-encoder"])
     assert on.seams and on.bf16_encoder and " --seams" in command_line(on) and " --bf16-encoder" in command_line(on)
     assert command_line(build_parser().parse_args(command_line(on).split()[1:])) == command_line(on)
+    assert " --noise frame --noise-shared 0.95 " in command_line(a)  # RenderSettings' defaults, written out
+    win = build_parser().parse_args(base + ["--noise", "window"])
+    assert " --noise window " in command_line(win) and "--noise-shared" not in command_line(win)
+    half = build_parser().parse_args(base + ["--noise-shared", "0.5"])
+    assert half.noise_shared == 0.5 and command_line(build_parser().parse_args(command_line(half).split()[1:])) == command_line(half)

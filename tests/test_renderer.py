@@ -333,3 +333,55 @@ def test_sink_refuses_a_replacement_of_nothing(tmp_path) -> None:
     with pytest.raises(ValueError, match="frame 2 arrived twice"):
         sink.add(2, np.zeros((4, 4, 3), np.float32))
     sink.abort()
+
+
+def _initial_noise(model: FakeModel, events: list, steps: int) -> list[dict[int, torch.Tensor]]:
+    """Per window, frame -> the window's initial noise at that frame's position (the t = 999 sample)."""
+    starts = [e for e in events if isinstance(e, WindowStarted)]
+    return [{f: model.x_t[steps * i][1][p] for p, f in enumerate(w.frames)} for i, w in enumerate(starts)]
+
+
+def test_frame_noise_gives_a_frame_the_same_noise_in_every_window_and_sub_range() -> None:
+    """noise='frame': a frame read as a reference is re-noised with the noise it was made from, and a
+    re-render of a sub-range starts from the same noise; noise='window' (the default) does neither."""
+    shot = make_shot(17)
+    for noise in ("window", "frame"):
+        model = FakeModel()
+        events = run(Renderer(model), shot, RenderSettings(steps=2, window=5, noise=noise, detail=False))
+        seen: dict[int, list[torch.Tensor]] = {}
+        for per in _initial_noise(model, events, 2):
+            for f, x in per.items():
+                seen.setdefault(f, []).append(x)
+        shared = [f for f, xs in seen.items() if len(xs) > 1]
+        assert len(shared) == 5  # the keyframes 0, 4, 8, 12, 16 sit in their own and in interpolation windows
+        same = [all(torch.equal(xs[0], x) for x in xs[1:]) for f, xs in seen.items() if f in shared]
+        assert all(same) if noise == "frame" else not any(same)
+        if noise == "frame":
+            part = FakeModel()
+            sub = run(Renderer(part), shot, RenderSettings(steps=2, window=5, noise=noise, frames=(8, 13), detail=False))
+            for per in _initial_noise(part, sub, 2):
+                for f, x in per.items():
+                    assert torch.equal(x, seen[f][0])
+
+
+def test_frame_noise_shares_the_requested_fraction_of_variance() -> None:
+    from x2video.sampling.renderer import frame_noise
+
+    x = frame_noise(3, [0, 1, 7], (4, 64, 64), 0.5).reshape(3, -1).double()
+    assert torch.allclose(x.std(1), torch.ones(3, dtype=torch.float64), atol=0.03)  # each frame stays N(0, 1)
+    corr = torch.corrcoef(x)
+    assert torch.allclose(corr[~torch.eye(3, dtype=torch.bool)], torch.full((6,), 0.5, dtype=torch.float64), atol=0.03)
+    indep = torch.corrcoef(frame_noise(3, [0, 1, 7], (4, 64, 64)).reshape(3, -1))
+    assert indep[~torch.eye(3, dtype=torch.bool)].abs().max() < 0.03
+    assert torch.equal(frame_noise(3, [7], (4, 8, 8), 0.5)[0], frame_noise(3, [0, 7], (4, 8, 8), 0.5)[1])  # per frame, not per call
+    assert not torch.equal(frame_noise(3, [7], (4, 8, 8))[0], frame_noise(4, [7], (4, 8, 8))[0])
+
+
+@pytest.mark.parametrize(("noise", "shared", "match"), [
+    ("pink", 0.0, "unknown noise seeding 'pink'"),
+    ("frame", 1.5, r"noise_shared must lie in \[0, 1\], got 1.5"),
+    ("frame", -0.1, r"noise_shared must lie in \[0, 1\]"),
+])
+def test_bad_noise_settings_are_refused(noise: str, shared: float, match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        run(Renderer(FakeModel()), make_shot(5), RenderSettings(steps=1, noise=noise, noise_shared=shared))  # type: ignore[arg-type]

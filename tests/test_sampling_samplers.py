@@ -125,3 +125,22 @@ def test_known_positions_follow_the_noised_reference(sampler) -> None:
     assert not torch.allclose(plain[1][[0, 2]], seen[1][1][[0, 2]], atol=1e-3)  # replacement changed them
     # the returned sample is the model's estimate everywhere (the caller keeps the generated positions)
     assert out.shape == eps.shape and not torch.allclose(out[[0, 2]], ref, atol=1e-2)
+
+
+def test_lcm_renoise_supplies_the_noise_between_steps() -> None:
+    """With `renoise`, each step after the first sees sqrt(a) x0_est + sqrt(1 - a) renoise(i): the
+    Renderer's per-frame noise replaces the generator's draw, which then has no effect."""
+    x0, x_T = _data(1)
+    ac = alphas_cumprod().float()
+    z = [torch.randn(3, 4, 6, 8, generator=torch.Generator().manual_seed(10 + i)) for i in range(3)]
+    runs = []
+    for gseed in (0, 1):
+        seen: list = []
+        denoised: list = []
+        out = sample_lcm(_oracle(x0 + 0.3, seen), x_T, 4, generator=torch.Generator().manual_seed(gseed),
+                         renoise=lambda i: z[i], callback=lambda info: denoised.append(info["denoised"]))
+        for i in range(3):
+            t_next = seen[i + 1][0]
+            assert torch.allclose(seen[i + 1][1], ac[t_next].sqrt() * denoised[i] + (1 - ac[t_next]).sqrt() * z[i], atol=1e-5)
+        runs.append(out)
+    assert torch.equal(runs[0], runs[1])

@@ -18,6 +18,11 @@ def size_arg(text: str) -> tuple[int, int]:
 #: help of `--bf16-encoder` (x2video render, x2video eval, the benches)
 BF16_ENCODER_HELP = ("run the VAE encoder (the channel encoding, a per-frame cost every sampler pays) in bfloat16 and the "
                      "rest in float32: faster on CPUs with native bf16 (AVX512-BF16, AMX), slower on others")
+#: help of `--noise` and `--noise-shared` (x2video render, x2video eval, the benches)
+NOISE_HELP = ("seed the initial noise per 'window' or per 'frame' of the shot (a frame then has the same noise in every "
+              "window that holds it; `RenderSettings.noise`)")
+NOISE_SHARED_HELP = ("with --noise frame: the fraction of the noise's variance every frame shares, in [0, 1] (a mixed "
+                     "noise prior; `RenderSettings.noise_shared`; ignored with --noise window)")
 #: help of `--seams/--no-seams` (x2video render, x2video eval, the benches)
 SEAMS_HELP = ("recursive scheme, 18 frames or more at N = 5: after the first interpolation level, make each keyframe again "
               "with its neighbours in an interpolation window (the seam pass, `RenderSettings.seams`)")

@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from x2video.cli.args import BF16_ENCODER_HELP, SEAMS_HELP
+from x2video.cli.args import BF16_ENCODER_HELP, NOISE_HELP, NOISE_SHARED_HELP, SEAMS_HELP
 from x2video.sampling.events import (
     FramesReady,
     RenderEvent,
@@ -48,6 +48,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="hold each window's reference frames at their noised latents between denoising steps, as in "
                         "training (default on; --no-replace-refs lets each window re-estimate them)")
     p.add_argument("--seams", action=argparse.BooleanOptionalAction, default=d.seams, help=SEAMS_HELP)
+    p.add_argument("--noise", choices=("window", "frame"), default=d.noise, help=NOISE_HELP + f" (default {d.noise})")
+    p.add_argument("--noise-shared", type=float, default=d.noise_shared, help=NOISE_SHARED_HELP + f" (default {d.noise_shared})")
     p.add_argument("--weights", type=Path, help="model checkpoint folder (default: the weights shipped in resources/)")
     p.add_argument("--untrained", action="store_true", help="use untrained tiny weights (smoke test: the output is noise)")
     p.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
@@ -162,6 +164,8 @@ def run(args: argparse.Namespace) -> int:
         detail=args.detail,
         replace_refs=args.replace_refs,
         seams=args.seams,
+        noise=args.noise,
+        noise_shared=args.noise_shared,
     )
     shot, edits, base_dir = load_inputs(args)
     start, stop = settings.frames or (0, shot.num_frames)

@@ -40,6 +40,10 @@ class EvalConfig:
     """hold the windows' reference frames at their noised latents between steps (`RenderSettings.replace_refs`)"""
     seams: bool = RenderSettings.seams
     """recursive rows: the seam pass that re-generates keyframes with their neighbours (`RenderSettings.seams`)"""
+    noise: str = RenderSettings.noise
+    """how the initial noise is seeded, 'window' or 'frame' (`RenderSettings.noise`); every row alike"""
+    noise_shared: float = RenderSettings.noise_shared
+    """with noise 'frame': the fraction of the noise's variance all frames share (`RenderSettings.noise_shared`)"""
     image_window: int = 32
     """the image model renders frames independently; it runs this many per UNet call"""
     masks: int = 3

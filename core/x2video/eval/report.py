@@ -156,6 +156,12 @@ def results_markdown(results: dict[str, Any], *, heading: str | None = "X2Video 
         out.append("- Sampling: reference frames held at their noised latents between steps (`--replace-refs`)")
     else:  # results from before the option existed hold no setting: they re-estimated the references
         out.append("- Sampling: each window re-estimates its reference frames (`--no-replace-refs`)")
+    noise = results.get("settings", {}).get("noise", "window")  # results from before the option: per window
+    if noise == "frame":  # noise_shared is ignored with per-window noise
+        shared = results["settings"].get("noise_shared", 0.0)
+        out.append(f"- Initial noise: per frame of the shot (`--noise frame`), {shared:g} of its variance shared by all frames (`--noise-shared {shared:g}`)")
+    else:
+        out.append("- Initial noise: per window (`--noise window`)")
     if results.get("settings", {}).get("seams"):
         out.append("- Recursive rows: keyframes re-generated with their neighbours after the first interpolation level (`--seams`)")
     if data:

@@ -38,6 +38,17 @@ class RenderSettings:
     interpolate between frames that agree. One more window per keyframe; the frames it makes
     again arrive twice (`FramesReady.replaces`). Off by default: on `ship_h` it lowered TC where
     the model generates but cost PSNR with a reference frame (model card, Evaluations 7-8)."""
+    noise: Literal["window", "frame"] = "frame"
+    """How the noise is seeded. 'frame' (default): per frame of the shot, so a frame has the same
+    noise in every window that holds it, a reference is re-noised with the noise it was made from,
+    and re-rendering a sub-range gives the same noise (`frame_noise`). 'window': each window draws
+    its own noise for all its positions (the renders of the model card's Evaluations 1-14)."""
+    noise_shared: float = 0.95
+    """'frame' noise only: the fraction of the noise's variance every frame of the shot shares, in
+    [0, 1] (a mixed noise prior, Ge et al. 2023, "Preserve Your Own Correlation", used here without
+    training for it); each frame's noise stays standard normal. Default 0.95: on 65-frame held-out
+    shots it cut TC by a quarter with all channels and by half without irradiance, for under 0.2 dB
+    of PSNR (bench/recursive_seams.py, model card); 0 gives independent per-frame noise."""
     preset: Literal["fast", "quality"] | None = None
     """Overrides sampler and steps when set: 'fast' = LCM-2 if distilled weights are loaded, else
     DDIM-4; 'quality' = DDIM-20 (`x2video.sampling.renderer.select_steps`)."""

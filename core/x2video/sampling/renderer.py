@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
@@ -76,6 +77,25 @@ def plain_conditioning(shot: Shot, t: int) -> FrameConditioning:
 def window_seed(seed: int, window: Window) -> int:
     """Seed of one window's initial noise: depends on the user seed and the window's frames and level only."""
     return int(np.random.SeedSequence([seed, window.level, *window.frames]).generate_state(1, np.uint64)[0] >> 1)
+
+
+def _seeded(*entropy: int) -> torch.Generator:
+    return torch.Generator(device="cpu").manual_seed(int(np.random.SeedSequence(list(entropy)).generate_state(1, np.uint64)[0] >> 1))
+
+
+def frame_noise(seed: int, frames: Sequence[int], shape: tuple[int, ...], shared: float = 0.0, draw: int = 0) -> torch.Tensor:
+    """(len(frames), *shape) CPU float32 noise, one draw per shot frame (`RenderSettings.noise` =
+    'frame'): frame f's noise depends only on the seed, f, `draw` (0: the initial noise; i: what LCM
+    adds back after step i) and `shared`, the fraction of variance every frame shares:
+    sqrt(shared) e + sqrt(1 - shared) e_f with e and e_f independent N(0, I)."""
+    if not 0.0 <= shared <= 1.0:
+        raise ValueError(f"noise_shared must lie in [0, 1], got {shared}")
+    x = torch.stack([torch.randn(*shape, generator=_seeded(seed, 1, draw, f)) for f in frames])
+    if shared > 0.0:
+        gen = _seeded(seed, 2, draw)
+        common = torch.randn(*shape, generator=gen)
+        x = math.sqrt(shared) * common + math.sqrt(1.0 - shared) * x
+    return x
 
 
 class Renderer:
@@ -151,6 +171,10 @@ class Renderer:
             raise ValueError("sampler 'lcm' needs distilled LCM weights, and the loaded model has none")
         if settings.steps < 1:
             raise ValueError(f"steps must be at least 1, got {settings.steps}")
+        if settings.noise not in ("window", "frame"):
+            raise ValueError(f"unknown noise seeding {settings.noise!r} (use 'window' or 'frame')")
+        if not 0.0 <= settings.noise_shared <= 1.0:
+            raise ValueError(f"noise_shared must lie in [0, 1], got {settings.noise_shared}")
         h, w = shot.size
         d = self.model.downsample
         if h % d or w % d:
@@ -294,7 +318,10 @@ class Renderer:
             local_masks=torch.from_numpy(masks).to(model.device, model.dtype),
         )
         gen = torch.Generator(device="cpu").manual_seed(window_seed(settings.seed, window))
-        noise = torch.randn(n, model.latent_channels, h, w, generator=gen)  # (n, 4, h, w), CPU so devices agree
+        if settings.noise == "frame":
+            noise = frame_noise(settings.seed, window.frames, (model.latent_channels, h, w), settings.noise_shared)
+        else:
+            noise = torch.randn(n, model.latent_channels, h, w, generator=gen)  # (n, 4, h, w), CPU so devices agree
         x_T = noise.to(model.device, model.dtype)
         lcm = settings.sampler == "lcm"
         known = None
@@ -313,7 +340,11 @@ class Renderer:
             emit(StepDone(window=index, step=info["i"] + 1, steps=info["steps"]))
 
         if lcm:
-            x0 = sample_lcm(model_fn, x_T, settings.steps, callback=callback, cancel=cancel, generator=gen, known=known)
+            renoise = None
+            if settings.noise == "frame":
+                def renoise(i: int) -> torch.Tensor:
+                    return frame_noise(settings.seed, window.frames, (model.latent_channels, h, w), settings.noise_shared, i + 1)
+            x0 = sample_lcm(model_fn, x_T, settings.steps, callback=callback, cancel=cancel, generator=gen, known=known, renoise=renoise)
         else:
             x0 = sample_ddim(model_fn, x_T, settings.steps, callback=callback, cancel=cancel, known=known)
         return x0, conds, keys, cond

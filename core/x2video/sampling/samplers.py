@@ -131,10 +131,13 @@ def sample_lcm(
     generator: torch.Generator | None = None,
     scheduler: LCMScheduler | None = None,
     known: Known | None = None,
+    renoise: Callable[[int], torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """Latent Consistency Model multistep sampling (Luo et al. 2023, Alg. 1) with v-prediction.
 
-    Between steps LCM re-noises its x0 estimate; `generator` makes that noise reproducible.
+    Between steps LCM re-noises its x0 estimate; `generator` makes that noise reproducible, or
+    `renoise(i)` supplies it ((N, C, h, w), standard normal) after step i: the Renderer's per-frame
+    noise (`RenderSettings.noise`), so that a frame's re-noising does not depend on its window.
     """
     if steps < 1:
         raise ValueError(f"LCM needs at least 1 step, got {steps}")
@@ -146,6 +149,9 @@ def sample_lcm(
         v = model_fn(x, t)  # (N, C, h, w)
         out = sched.step(v, t, x, generator=generator)
         x = out.prev_sample
+        if renoise is not None and i < len(sched.timesteps) - 1:  # LCMScheduler.step's update with our noise
+            a = sched.alphas_cumprod[int(sched.timesteps[i + 1])].to(x.device, torch.float32)
+            x = (a.sqrt() * out.denoised.float() + (1 - a).sqrt() * renoise(i).to(x.device, torch.float32)).to(x.dtype)
         if known is not None:
             x = known.after_step(x, sched, i)
         if callback is not None:
