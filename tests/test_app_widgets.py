@@ -144,3 +144,20 @@ def test_render_panel_seam_pass_only_with_the_recursive_scheme(qtbot):
     assert settings.seams and settings.scheme == "recursive"
     panel.scheme.setCurrentIndex(panel.scheme.findData("sequential"))
     assert not panel.seams.isEnabled() and panel.values()["seams"] is False
+
+
+def test_render_panel_noise_shared_reaches_the_settings(qtbot):
+    from x2video.sampling.events import RenderSettings
+    from x2video_app.render_controller import RenderController
+    from x2video_app.render_panel import RenderPanel
+
+    panel = RenderPanel()
+    qtbot.addWidget(panel)
+    changed = []
+    panel.sigSettingsChanged.connect(lambda: changed.append(1))
+    assert panel.values()["noise_shared"] == RenderSettings.noise_shared
+    panel.noise_shared.setValue(0.5)
+    settings = RenderController.settings(None, **panel.values())  # type: ignore[arg-type]  (does not touch self)
+    assert changed and settings.noise == "frame" and settings.noise_shared == 0.5
+    panel.noise_shared.setValue(1.7)  # clamped to the range the Renderer accepts
+    assert panel.values()["noise_shared"] == 1.0

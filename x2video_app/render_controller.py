@@ -108,8 +108,9 @@ class RenderController(QObject):
     def running(self) -> bool:
         return self.worker is not None
 
-    def settings(self, preset: str, seed: int, window: int, scheme: str, seams: bool = False) -> RenderSettings:
-        return RenderSettings(preset=preset, seed=seed, window=window, scheme=scheme, seams=seams)
+    def settings(self, preset: str, seed: int, window: int, scheme: str, seams: bool = False,
+                 noise_shared: float = RenderSettings.noise_shared) -> RenderSettings:
+        return RenderSettings(preset=preset, seed=seed, window=window, scheme=scheme, seams=seams, noise="frame", noise_shared=noise_shared)
 
     def start(self, settings: RenderSettings) -> bool:
         """Start a render of the document's shot and edits; False when one is running or nothing is open."""
