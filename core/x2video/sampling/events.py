@@ -46,9 +46,10 @@ class RenderSettings:
     noise_shared: float = 0.95
     """'frame' noise only: the fraction of the noise's variance every frame of the shot shares, in
     [0, 1] (a mixed noise prior, Ge et al. 2023, "Preserve Your Own Correlation", used here without
-    training for it); each frame's noise stays standard normal. Default 0.95: on 65-frame held-out
-    shots it cut TC by a quarter with all channels and by half without irradiance, for under 0.2 dB
-    of PSNR (bench/recursive_seams.py, model card); 0 gives independent per-frame noise."""
+    training for it); each frame's noise stays standard normal. Default 0.95: on the held-out shots
+    it cut TC by a quarter with all channels, at a PSNR within seed-to-seed chance, and by 40-60 %
+    where a channel is missing or masked, at 0.8-1.4 dB of PSNR there (3 seeds, bench/noise_prior.py;
+    model card, "Noise shared across frames"); 0 gives independent per-frame noise."""
     preset: Literal["fast", "quality"] | None = None
     """Overrides sampler and steps when set: 'fast' = LCM-2 if distilled weights are loaded, else
     DDIM-4; 'quality' = DDIM-20 (`x2video.sampling.renderer.select_steps`)."""
