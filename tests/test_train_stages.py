@@ -389,3 +389,36 @@ def test_batch_workers_draw_valid_distinct_batches(runs):
             assert g.ref.shape == g.x0.shape
     # the two workers alternate; their seeds differ, so their first batches differ
     assert not (got[0].x0.shape == got[1].x0.shape and torch.equal(got[0].x0, got[1].x0))
+
+
+def test_window_noise_shares_the_fraction_within_windows_only():
+    from x2video.train.diffusion import window_noise
+
+    x0 = torch.zeros(3 * 4, 4, 32, 32)  # 3 windows of 4 frames
+    g = torch.Generator().manual_seed(0)
+    flat = window_noise(x0, 4, 0.95, g).reshape(12, -1).double()
+    assert torch.allclose(flat.std(1), torch.ones(12, dtype=torch.float64), atol=0.04)
+    corr = torch.corrcoef(flat)
+    same = torch.block_diag(*[torch.ones(4, 4, dtype=torch.bool)] * 3) & ~torch.eye(12, dtype=torch.bool)
+    other = ~torch.block_diag(*[torch.ones(4, 4, dtype=torch.bool)] * 3)
+    assert torch.allclose(corr[same], torch.full_like(corr[same], 0.95), atol=0.02)
+    assert corr[other].abs().max() < 0.06
+    indep = torch.corrcoef(window_noise(x0, 4, 0.0, g).reshape(12, -1))
+    assert indep[~torch.eye(12, dtype=torch.bool)].abs().max() < 0.06
+    with pytest.raises(ValueError, match="whole windows"):
+        window_noise(torch.zeros(10, 4, 2, 2), 4, 0.5)
+
+
+def test_video_stage_trains_and_scores_with_the_shared_noise(runs, tmp_path):
+    """--noise-shared: the windows' noise (training and held-out) is the renderer's mixed prior; with
+    the weights held (lr 0) the held-out v-loss is then measured on other noise than without it."""
+    from x2video.train.diffusion_stages import VideoStageConfig, run_video_stage
+
+    loop = LoopConfig(steps=1, lr=0.0, warmup=0)
+    plain = run_video_stage(runs["root"] / "video", runs["root"] / "cache", tmp_path / "a", VideoStageConfig(batch=1, heldout_batches=1), loop)
+    shared = run_video_stage(runs["root"] / "video", runs["root"] / "cache", tmp_path / "b",
+                             VideoStageConfig(batch=1, heldout_batches=1, noise_shared=0.95), loop)
+    assert plain["heldout_v_loss"] and shared["heldout_v_loss"] and plain["heldout_v_loss"] != shared["heldout_v_loss"]
+    with pytest.raises(ValueError, match="noise-shared must lie in"):
+        run_video_stage(runs["root"] / "video", runs["root"] / "cache", tmp_path / "c",
+                        VideoStageConfig(batch=1, heldout_batches=0, noise_shared=1.5), loop)

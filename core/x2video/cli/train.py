@@ -189,7 +189,8 @@ def cmd_video(a: argparse.Namespace) -> int:
     sp = None if a.shading_prior is None else a.shading_prior == "on"
     rp = None if a.residual_prior is None else a.residual_prior == "on"
     stage = VideoStageConfig(batch=a.batch, shading_prior=sp, residual_prior=rp, prediction=a.prediction, seed=a.seed, heldout_batches=a.heldout_batches, augment=_aug(a),
-                             window=_window(a), alpha_lr_mult=a.alpha_lr_mult, train_only=a.train_only)
+                             window=_window(a), alpha_lr_mult=a.alpha_lr_mult, train_only=a.train_only,
+                             noise_shared=a.noise_shared)
     _print_result(_run("video", loop.steps, lambda bar: run_video_stage(a.init, a.cache, a.out, stage, loop, bar)))
     return 0
 
@@ -276,6 +277,9 @@ def register(subparsers) -> None:
     s.add_argument("--train-only", choices=("all", "interp"), default="all",
                    help="interp: train only the interpolation-mode LoRA branches (temporal interp1..K, end-frame reference r1) "
                         "of a video model, so keyframe-mode and sequential renders stay bit-identical; needs --interp-p 1")
+    s.add_argument("--noise-shared", type=float, default=0.0,
+                   help="fraction of the noise's variance a window's frames share, in [0, 1]: train with the mixed noise prior the "
+                        "renderer samples with by default (RenderSettings.noise_shared); 0 (default): independent per frame")
     _aug_args(s)
     _window_args(s)
     _loop_args(s, steps=2000, lr=5e-5)

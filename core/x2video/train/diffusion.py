@@ -10,6 +10,7 @@ what DDIM/LCM sample.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import torch
 import torch.nn.functional as F
@@ -44,21 +45,39 @@ def predict(unet: UNet2DConditionModel, x_t: torch.Tensor, t: torch.Tensor, b: B
     )
 
 
+def window_noise(x0: torch.Tensor, num_frames: int, shared: float = 0.0, generator: torch.Generator | None = None) -> torch.Tensor:
+    """(B*N, C, h, w) standard normal noise for a batch of windows of `num_frames` frames, a fraction
+    `shared` of whose variance the frames of each window share: the mixed noise prior the Renderer
+    samples with (`RenderSettings.noise_shared`, `x2video.sampling.renderer.frame_noise`), so a model
+    trained with it sees at training what it is given at inference. 0: independent noise per frame."""
+    if not 0.0 <= shared <= 1.0:
+        raise ValueError(f"noise_shared must lie in [0, 1], got {shared}")
+    if x0.shape[0] % num_frames:
+        raise ValueError(f"{x0.shape[0]} frames are not whole windows of {num_frames}")
+    own = torch.randn(x0.shape, generator=generator).to(x0.device, x0.dtype)
+    if shared == 0.0:
+        return own
+    common = torch.randn((x0.shape[0] // num_frames, *x0.shape[1:]), generator=generator).to(x0.device, x0.dtype)
+    return math.sqrt(shared) * common.repeat_interleave(num_frames, 0) + math.sqrt(1.0 - shared) * own
+
+
 #: min-SNR-gamma (Hang et al. 2023) of the x0-predicting models' loss
 MIN_SNR_GAMMA = 5.0
 
 
-def v_loss(unet: UNet2DConditionModel, sched: DDPMScheduler, b: Batch, prediction: str = "v") -> tuple[torch.Tensor, dict[str, float]]:
+def v_loss(unet: UNet2DConditionModel, sched: DDPMScheduler, b: Batch, prediction: str = "v",
+           noise_shared: float = 0.0) -> tuple[torch.Tensor, dict[str, float]]:
     """MSE between predicted and true velocity for random per-window timesteps.
 
     For an x0-predicting UNet the v error is (x0 error) / sqrt(1 - a), i.e. the x0 error weighted
     by 1 + SNR, which reaches 1,176 at t = 0 and would spend the gradient on nearly clean inputs;
     there the per-frame weight is min(1 + SNR, gamma) / (1 + SNR) = min(1, gamma (1 - a)) with
-    gamma = MIN_SNR_GAMMA (min-SNR weighting of the x0 loss, Hang et al. 2023)."""
+    gamma = MIN_SNR_GAMMA (min-SNR weighting of the x0 loss, Hang et al. 2023). `noise_shared`: the
+    fraction of the noise's variance a window's frames share (`window_noise`)."""
     bn = b.x0.shape[0]
     t = torch.randint(0, sched.config.num_train_timesteps, (b.windows,), device=b.x0.device)  # (B,)
     t_frames = t.repeat_interleave(b.num_frames)  # (BN,)
-    noise = torch.randn_like(b.x0)
+    noise = torch.randn_like(b.x0) if noise_shared == 0.0 else window_noise(b.x0, b.num_frames, noise_shared)
     x_t = sched.add_noise(b.x0, noise, t_frames)
     target = sched.get_velocity(b.x0, noise, t_frames)
     v = predict(unet, x_t, t, b, prediction)
@@ -76,7 +95,7 @@ HELDOUT_T = (50, 250, 500, 750, 950)
 
 
 @torch.no_grad()
-def heldout_v_loss(unet: UNet2DConditionModel, batches: list[Batch], seed: int = 0, prediction: str = "v") -> float:
+def heldout_v_loss(unet: UNet2DConditionModel, batches: list[Batch], seed: int = 0, prediction: str = "v", noise_shared: float = 0.0) -> float:
     """Mean v-prediction MSE over fixed held-out batches at fixed timesteps `HELDOUT_T`, seeded noise:
     a cheap, comparable number (e.g. shading prior on vs off) before rendering anything."""
     sched = noise_scheduler()
@@ -89,7 +108,7 @@ def heldout_v_loss(unet: UNet2DConditionModel, batches: list[Batch], seed: int =
         b = b.to(dev)
         for t in HELDOUT_T:
             tw = torch.full((b.windows,), t, device=dev, dtype=torch.long)
-            noise = torch.randn(b.x0.shape, generator=g).to(dev)
+            noise = torch.randn(b.x0.shape, generator=g).to(dev) if noise_shared == 0.0 else window_noise(b.x0, b.num_frames, noise_shared, g)
             tf = tw.repeat_interleave(b.num_frames)
             v = predict(unet, sched.add_noise(b.x0, noise, tf), tw, b, prediction)
             total += float(F.mse_loss(v.float(), sched.get_velocity(b.x0, noise, tf).float()))

@@ -76,6 +76,10 @@ class VideoStageConfig:
     """"all": every parameter trains. "interp": only the interpolation-mode LoRA branches (the temporal
     branches interp1..K and the end-frame reference branch r1) of a video --init; everything keyframe-mode
     and sequential windows use (the UNet, the alphas, the "key" and "r0" branches) stays bit-identical."""
+    noise_shared: float = 0.0
+    """Fraction of the noise's variance the frames of a training window share (the mixed noise prior
+    the Renderer samples with by default, `RenderSettings.noise_shared`); 0: independent per frame, as
+    the shipped weights were trained. The held-out v-loss uses the same noise."""
     seed: int = 0
     heldout_batches: int = 4
     """Batches of held-out (test) windows for the final held-out v-loss (0: skip)."""
@@ -116,7 +120,7 @@ def image_model_config(stage: ImageStageConfig, cache_cfg: ModelConfig) -> Model
                                prediction=stage.prediction or ("sample" if stage.shading_prior and stage.residual_prior else "v"))
 
 
-def _heldout(unet: UNet2DConditionModel, cache: Path, cfg: ModelConfig, shading: bool, n: int, draw) -> dict:
+def _heldout(unet: UNet2DConditionModel, cache: Path, cfg: ModelConfig, shading: bool, n: int, draw, noise_shared: float = 0.0) -> dict:
     """Held-out v-loss on the cache's test split: all channels, and with the training augmentation."""
     from x2video.train.cache import read_info
 
@@ -126,14 +130,15 @@ def _heldout(unet: UNet2DConditionModel, cache: Path, cfg: ModelConfig, shading:
     out = {}
     for name, aug in (("full", AugmentConfig(channel_drop_p=0.0, prompt_drop_p=0.0, mask_p=0.0)), ("augmented", AugmentConfig())):
         rng = np.random.default_rng(1234)
-        out[name] = heldout_v_loss(unet, [diffusion_batch(draw(data, rng, aug), cfg.residual_prior) for _ in range(n)], prediction=cfg.prediction)
+        out[name] = heldout_v_loss(unet, [diffusion_batch(draw(data, rng, aug), cfg.residual_prior) for _ in range(n)], prediction=cfg.prediction,
+                                   noise_shared=noise_shared)
     return out
 
 
 def _run(unet: UNet2DConditionModel, cfg: ModelConfig, cache: Path, out_dir: Path, loop: LoopConfig, batch_size: int,
          batches, stage_config: dict, on_step: Callable[[StepLog], None] | None, key: str, heldout=None,
          lr_mult: Callable[[str], float] | None = None,
-         trainable: Callable[[UNet2DConditionModel], list[torch.nn.Parameter]] | None = None) -> dict:
+         trainable: Callable[[UNet2DConditionModel], list[torch.nn.Parameter]] | None = None, noise_shared: float = 0.0) -> dict:
     _, vae = load_vae(cache / "model")
     sched = noise_scheduler()
     unet.requires_grad_(True)
@@ -147,7 +152,7 @@ def _run(unet: UNet2DConditionModel, cfg: ModelConfig, cache: Path, out_dir: Pat
         log.info("%s stage: training %d of %d parameters", key, n, sum(p.numel() for p in unet.parameters()))
 
     def loss_fn(b, step):
-        return v_loss(unet, sched, diffusion_batch(b.to(next(unet.parameters()).device), cfg.residual_prior), cfg.prediction)
+        return v_loss(unet, sched, diffusion_batch(b.to(next(unet.parameters()).device), cfg.residual_prior), cfg.prediction, noise_shared)
 
     def save(module: torch.nn.Module, d: Path) -> None:
         save_checkpoint(d, cfg, {"unet": module, "vae": vae})
@@ -219,6 +224,8 @@ def run_video_stage(init: str | Path, cache: str | Path, out_dir: str | Path, st
     init_cfg = read_config(model_dir(init))
     if stage.train_only not in ("all", "interp"):
         raise ValueError(f"train_only must be 'all' or 'interp', got {stage.train_only!r}")
+    if not 0.0 <= stage.noise_shared <= 1.0:
+        raise ValueError(f"--noise-shared must lie in [0, 1], got {stage.noise_shared}")
     if stage.train_only == "interp":
         if not init_cfg.video:
             raise ValueError(f"--train-only interp fine-tunes a trained video model; --init {init} holds an image model")
@@ -257,8 +264,8 @@ def run_video_stage(init: str | Path, cache: str | Path, out_dir: str | Path, st
         return d.sample(rng, windows, aug, mode=mode, level=level, ref_positions=refs)
 
     return _run(unet, cfg, cache, out_dir, loop, stage.batch * stage.window.frames, batches, sc, on_step, "video",
-                lambda m: _heldout(m, cache, cfg, sp, stage.heldout_batches, draw), alpha_lr(stage.alpha_lr_mult),
-                interp_branch_parameters if stage.train_only == "interp" else None)
+                lambda m: _heldout(m, cache, cfg, sp, stage.heldout_batches, draw, stage.noise_shared), alpha_lr(stage.alpha_lr_mult),
+                interp_branch_parameters if stage.train_only == "interp" else None, stage.noise_shared)
 
 
 def interp_branch_parameters(unet: UNet2DConditionModel) -> list[torch.nn.Parameter]:
