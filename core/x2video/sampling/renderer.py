@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import time
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -39,7 +38,7 @@ from x2video.sampling.events import (
     WindowStarted,
 )
 from x2video.sampling.planner import Window, last_use, plan, shift
-from x2video.sampling.samplers import Known, alphas_cumprod, sample_ddim, sample_lcm
+from x2video.sampling.samplers import Known, alphas_cumprod, mix_noise, sample_ddim, sample_lcm
 from x2video.shot import Shot
 
 log = logging.getLogger(__name__)
@@ -88,14 +87,8 @@ def frame_noise(seed: int, frames: Sequence[int], shape: tuple[int, ...], shared
     'frame'): frame f's noise depends only on the seed, f, `draw` (0: the initial noise; i: what LCM
     adds back after step i) and `shared`, the fraction of variance every frame shares:
     sqrt(shared) e + sqrt(1 - shared) e_f with e and e_f independent N(0, I)."""
-    if not 0.0 <= shared <= 1.0:
-        raise ValueError(f"noise_shared must lie in [0, 1], got {shared}")
     x = torch.stack([torch.randn(*shape, generator=_seeded(seed, 1, draw, f)) for f in frames])
-    if shared > 0.0:
-        gen = _seeded(seed, 2, draw)
-        common = torch.randn(*shape, generator=gen)
-        x = math.sqrt(shared) * common + math.sqrt(1.0 - shared) * x
-    return x
+    return mix_noise(x, torch.randn(*shape, generator=_seeded(seed, 2, draw)), shared) if shared > 0.0 else x
 
 
 class Renderer:

@@ -15,6 +15,7 @@ reference positions held at the noised reference latent between steps
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -63,6 +64,15 @@ SCHEDULE: dict[str, Any] = dict(
     clip_sample=False,
     set_alpha_to_one=True,
 )
+
+
+def mix_noise(own: torch.Tensor, common: torch.Tensor, shared: float) -> torch.Tensor:
+    """sqrt(shared) common + sqrt(1 - shared) own: standard normal again when both are, with a fraction
+    `shared` of the variance common to every sample `common` broadcasts over (the mixed noise prior of
+    Ge et al. 2023; the Renderer's per-frame noise and `x2video train video --noise-shared`)."""
+    if not 0.0 <= shared <= 1.0:
+        raise ValueError(f"noise_shared must lie in [0, 1], got {shared}")
+    return math.sqrt(shared) * common + math.sqrt(1.0 - shared) * own
 
 
 def ddim_scheduler(**overrides: Any) -> DDIMScheduler:

@@ -10,14 +10,13 @@ what DDIM/LCM sample.
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import torch
 import torch.nn.functional as F
 from diffusers import DDPMScheduler, UNet2DConditionModel
 
 from x2video.model.inputs import prior_latents, run_unet
-from x2video.sampling.samplers import SCHEDULE
+from x2video.sampling.samplers import SCHEDULE, mix_noise
 from x2video.train.batches import Batch
 
 
@@ -50,15 +49,14 @@ def window_noise(x0: torch.Tensor, num_frames: int, shared: float = 0.0, generat
     `shared` of whose variance the frames of each window share: the mixed noise prior the Renderer
     samples with (`RenderSettings.noise_shared`, `x2video.sampling.renderer.frame_noise`), so a model
     trained with it sees at training what it is given at inference. 0: independent noise per frame."""
-    if not 0.0 <= shared <= 1.0:
-        raise ValueError(f"noise_shared must lie in [0, 1], got {shared}")
     if x0.shape[0] % num_frames:
         raise ValueError(f"{x0.shape[0]} frames are not whole windows of {num_frames}")
-    own = torch.randn(x0.shape, generator=generator).to(x0.device, x0.dtype)
+    dev = x0.device if generator is None else "cpu"  # a seeded (CPU) generator draws on the CPU
+    own = torch.randn(x0.shape, generator=generator, device=dev).to(x0.device, x0.dtype)
     if shared == 0.0:
         return own
-    common = torch.randn((x0.shape[0] // num_frames, *x0.shape[1:]), generator=generator).to(x0.device, x0.dtype)
-    return math.sqrt(shared) * common.repeat_interleave(num_frames, 0) + math.sqrt(1.0 - shared) * own
+    common = torch.randn((x0.shape[0] // num_frames, *x0.shape[1:]), generator=generator, device=dev).to(x0.device, x0.dtype)
+    return mix_noise(own, common.repeat_interleave(num_frames, 0), shared)
 
 
 #: min-SNR-gamma (Hang et al. 2023) of the x0-predicting models' loss
@@ -77,7 +75,7 @@ def v_loss(unet: UNet2DConditionModel, sched: DDPMScheduler, b: Batch, predictio
     bn = b.x0.shape[0]
     t = torch.randint(0, sched.config.num_train_timesteps, (b.windows,), device=b.x0.device)  # (B,)
     t_frames = t.repeat_interleave(b.num_frames)  # (BN,)
-    noise = torch.randn_like(b.x0) if noise_shared == 0.0 else window_noise(b.x0, b.num_frames, noise_shared)
+    noise = window_noise(b.x0, b.num_frames, noise_shared)
     x_t = sched.add_noise(b.x0, noise, t_frames)
     target = sched.get_velocity(b.x0, noise, t_frames)
     v = predict(unet, x_t, t, b, prediction)
@@ -108,7 +106,7 @@ def heldout_v_loss(unet: UNet2DConditionModel, batches: list[Batch], seed: int =
         b = b.to(dev)
         for t in HELDOUT_T:
             tw = torch.full((b.windows,), t, device=dev, dtype=torch.long)
-            noise = torch.randn(b.x0.shape, generator=g).to(dev) if noise_shared == 0.0 else window_noise(b.x0, b.num_frames, noise_shared, g)
+            noise = window_noise(b.x0, b.num_frames, noise_shared, g)
             tf = tw.repeat_interleave(b.num_frames)
             v = predict(unet, sched.add_noise(b.x0, noise, tf), tw, b, prediction)
             total += float(F.mse_loss(v.float(), sched.get_velocity(b.x0, noise, tf).float()))
