@@ -24,7 +24,7 @@ import sys
 import time
 from pathlib import Path
 
-from x2video.cli.args import BF16_ENCODER_HELP, SEAMS_HELP, size_arg
+from x2video.cli.args import BF16_ENCODER_HELP, NOISE_HELP, NOISE_SHARED_HELP, SEAMS_HELP, size_arg
 
 RESULTS = Path(__file__).resolve().parent / "results" / "speed_accuracy.json"
 #: (sampler, steps, add the shading detail); the no-detail row is measured for residual-prior models only
@@ -180,9 +180,8 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=RenderSettings.replace_refs,
                    help="hold reference frames at their noised latents between steps (default: as x2video render)")
     p.add_argument("--seams", action=argparse.BooleanOptionalAction, default=RenderSettings.seams, help=SEAMS_HELP)
-    p.add_argument("--noise", choices=("window", "frame"), default=RenderSettings.noise, help="initial noise seeded per window or per frame (RenderSettings.noise)")
-    p.add_argument("--noise-shared", type=float, default=RenderSettings.noise_shared,
-                   help="with --noise frame: fraction of the noise's variance all frames share (RenderSettings.noise_shared)")
+    p.add_argument("--noise", choices=("window", "frame"), default=RenderSettings.noise, help=NOISE_HELP)
+    p.add_argument("--noise-shared", type=float, default=RenderSettings.noise_shared, help=NOISE_SHARED_HELP)
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
 
 
