@@ -74,7 +74,7 @@ def measure(args: argparse.Namespace) -> dict:
         ref = resolve_reference(shot.shot, edits) if edits is not None else None  # where the Renderer anchors the plan
         for scheme in SCHEMES:
             settings = RenderSettings(sampler="ddim", steps=args.steps, seed=args.seed, window=args.window, scheme=scheme,  # type: ignore[arg-type]
-                                      replace_refs=args.replace_refs, seams=args.seams, noise=args.noise, noise_shared=args.noise_shared)
+                                      replace_refs=args.replace_refs, seams=args.seams, max_levels=args.max_levels, noise=args.noise, noise_shared=args.noise_shared)
             classes = np.array(pair_classes(renderer.plan(shot.shot, settings, None if ref is None else ref[0]), shot.num_frames))
             frames, _ = render_shot(renderer, shot, edits, settings)
             shown = [tonemap(f) for f in frames]

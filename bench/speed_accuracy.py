@@ -24,7 +24,7 @@ import sys
 import time
 from pathlib import Path
 
-from x2video.cli.args import BF16_ENCODER_HELP, NOISE_HELP, NOISE_SHARED_HELP, SEAMS_HELP, size_arg
+from x2video.cli.args import BF16_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, SEAMS_HELP, size_arg
 
 RESULTS = Path(__file__).resolve().parent / "results" / "speed_accuracy.json"
 #: (sampler, steps, add the shading detail); the no-detail row is measured for residual-prior models only
@@ -59,7 +59,7 @@ def measure(args: argparse.Namespace) -> dict:
         warm_up(renderer, shots[0], sampler)  # untimed: first-call costs stay out of the first preset
         renderer.cache.clear()  # every preset pays its own encoding, as in `x2video eval`
         settings = RenderSettings(sampler=sampler, steps=steps, seed=args.seed, window=args.window, detail=detail,  # type: ignore[arg-type]
-                                  replace_refs=args.replace_refs, seams=args.seams, noise=args.noise, noise_shared=args.noise_shared)
+                                  replace_refs=args.replace_refs, seams=args.seams, max_levels=args.max_levels, noise=args.noise, noise_shared=args.noise_shared)
         preds, secs = {}, {}
         for s in shots:
             preds[s.name], secs[s.name] = render_shot(renderer, s, None, settings)
@@ -180,6 +180,7 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=RenderSettings.replace_refs,
                    help="hold reference frames at their noised latents between steps (default: as x2video render)")
     p.add_argument("--seams", action=argparse.BooleanOptionalAction, default=RenderSettings.seams, help=SEAMS_HELP)
+    p.add_argument("--max-levels", type=int, default=RenderSettings.max_levels, help=MAX_LEVELS_HELP)
     p.add_argument("--noise", choices=("window", "frame"), default=RenderSettings.noise, help=NOISE_HELP)
     p.add_argument("--noise-shared", type=float, default=RenderSettings.noise_shared, help=NOISE_SHARED_HELP)
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")

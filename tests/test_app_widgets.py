@@ -161,3 +161,19 @@ def test_render_panel_noise_shared_reaches_the_settings(qtbot):
     assert changed and settings.noise == "frame" and settings.noise_shared == 0.5
     panel.noise_shared.setValue(1.7)  # clamped to the range the Renderer accepts
     assert panel.values()["noise_shared"] == 1.0
+
+
+def test_render_panel_max_levels_reaches_the_settings(qtbot):
+    from x2video_app.render_controller import RenderController
+    from x2video_app.render_panel import RenderPanel
+
+    panel = RenderPanel()
+    qtbot.addWidget(panel)
+    changed = []
+    panel.sigSettingsChanged.connect(lambda: changed.append(1))
+    assert panel.values()["max_levels"] is None and panel.levels.text() == "auto"  # the Renderer's default
+    panel.levels.setValue(2)
+    settings = RenderController.settings(None, **panel.values())  # type: ignore[arg-type]  (does not touch self)
+    assert changed and settings.max_levels == 2 and settings.scheme == "recursive"
+    panel.scheme.setCurrentIndex(panel.scheme.findData("sequential"))
+    assert not panel.levels.isEnabled() and panel.values()["max_levels"] is None

@@ -196,6 +196,8 @@ def test_markdown_rows_escape_bars_and_show_missing_models():
     assert "Initial noise: per window (`--noise window`)" in md  # results from before the option
     framed = results_markdown(dict(_results(), settings={"noise": "frame", "noise_shared": 0.95}))
     assert "per frame of the shot (`--noise frame`), 0.95 of its variance shared by all frames (`--noise-shared 0.95`)" in framed
+    assert "--max-levels" not in md
+    assert "at most 2 levels (`--max-levels 2`)" in results_markdown(dict(_results(), settings={"max_levels": 2}))
 
 
 def test_model_card_from_results_and_runs(tmp_path, capsys):
@@ -426,3 +428,7 @@ def test_eval_command_line_reproduces_every_setting():
     assert " --noise window " in command_line(win) and "--noise-shared" not in command_line(win)
     half = build_parser().parse_args(base + ["--noise-shared", "0.5"])
     assert half.noise_shared == 0.5 and command_line(build_parser().parse_args(command_line(half).split()[1:])) == command_line(half)
+    assert "--max-levels" not in command_line(a)  # None: as many levels as the shot needs
+    capped = build_parser().parse_args(base + ["--max-levels", "2"])
+    assert capped.max_levels == 2 and " --no-seams --max-levels 2 " in command_line(capped)
+    assert command_line(build_parser().parse_args(command_line(capped).split()[1:])) == command_line(capped)

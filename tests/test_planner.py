@@ -146,3 +146,33 @@ def test_seam_pass_65_frames() -> None:
     # two levels: no pass (it would double level 1 to re-make keyframes 4 frames apart); three from 18 frames
     assert plan_recursive(17, 5, seams=True) == plan_recursive(17, 5)
     assert plan_recursive(18, 5, seams=True) != plan_recursive(18, 5)
+
+
+def test_max_levels_exhaustive() -> None:
+    """Capping K keeps every plan invariant; the keyframes are (N-1)^(K-1) apart in chained windows."""
+    for window in range(3, 8):
+        for length in range(1, 140):
+            full = num_levels(length - 1, window)
+            for cap in range(1, full + 2):
+                plan = plan_recursive(length, window, max_levels=cap)
+                check_plan(plan, length, window)
+                k = min(cap, full)
+                assert max(w.level for w in plan) == k if length > 1 else True
+                keys = [w for w in plan if w.mode == "key"]
+                stride = (window - 1) ** (k - 1)
+                assert sorted({f for w in keys for f in w.generate}) == sorted(set(range(0, length, stride)) | {length - 1})
+                if cap >= full:
+                    assert plan == plan_recursive(length, window), "a cap at or above K changes nothing"
+
+
+def test_max_levels_65_frames() -> None:
+    """K = 2 at 65 frames: four chained keyframe windows at stride 4, then sixteen level-1 windows."""
+    plan = plan_recursive(65, 5, ref_frame=0, max_levels=2)
+    keys = [w for w in plan if w.mode == "key"]
+    assert [w.frames for w in keys] == [tuple(range(s, s + 17, 4)) for s in (0, 16, 32, 48)]
+    assert keys[0].user_ref and [w.refs for w in keys[1:]] == [(16,), (32,), (48,)]
+    assert [w.level for w in plan].count(1) == 16 and all(w.mode == "interp" for w in plan[4:])
+    assert plan_recursive(65, 5, max_levels=1) == [
+        Window(w.frames, w.generate, w.refs, "key", 1, w.user_ref) for w in plan_sequential(65, 5)]
+    with pytest.raises(ValueError, match="max_levels"):
+        plan_recursive(65, 5, max_levels=0)

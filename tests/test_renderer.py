@@ -385,3 +385,19 @@ def test_frame_noise_shares_the_requested_fraction_of_variance() -> None:
 def test_bad_noise_settings_are_refused(noise: str, shared: float, match: str) -> None:
     with pytest.raises(ValueError, match=match):
         run(Renderer(FakeModel()), make_shot(5), RenderSettings(steps=1, noise=noise, noise_shared=shared))  # type: ignore[arg-type]
+
+
+def test_max_levels_caps_the_plan_the_renderer_runs() -> None:
+    """K = 2 on 17 frames at N = 3: keyframes 2 apart in chained windows, then one interpolation level;
+    every frame arrives once and a bad cap is refused before any window runs."""
+    shot = make_shot(17, height=16, width=24)
+    renderer = Renderer(FakeModel())
+    settings = RenderSettings(steps=1, window=3, max_levels=2)
+    windows = renderer.plan(shot, settings)
+    assert max(w.level for w in windows) == 2 and [w.frames for w in windows if w.mode == "key"][:2] == [(0, 2, 4), (4, 6, 8)]
+    assert max(w.level for w in renderer.plan(shot, dataclasses.replace(settings, max_levels=None))) == 4
+    events = run(renderer, shot, settings)
+    made = [f for e in events if isinstance(e, FramesReady) for f in e.frames]
+    assert sorted(made) == list(range(17)) and events[0].num_windows == len(windows)
+    with pytest.raises(ValueError, match="max_levels"):
+        run(renderer, shot, dataclasses.replace(settings, max_levels=0))

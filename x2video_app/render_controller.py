@@ -109,8 +109,9 @@ class RenderController(QObject):
         return self.worker is not None
 
     def settings(self, preset: str, seed: int, window: int, scheme: str, seams: bool = False,
-                 noise_shared: float = RenderSettings.noise_shared) -> RenderSettings:
-        return RenderSettings(preset=preset, seed=seed, window=window, scheme=scheme, seams=seams, noise="frame", noise_shared=noise_shared)
+                 noise_shared: float = RenderSettings.noise_shared, max_levels: int | None = None) -> RenderSettings:
+        return RenderSettings(preset=preset, seed=seed, window=window, scheme=scheme, seams=seams, noise="frame", noise_shared=noise_shared,
+                              max_levels=max_levels)
 
     def start(self, settings: RenderSettings) -> bool:
         """Start a render of the document's shot and edits; False when one is running or nothing is open."""
@@ -127,7 +128,7 @@ class RenderController(QObject):
         try:
             from x2video.sampling.planner import plan
 
-            for w in plan(settings.scheme, self.doc.num_frames, settings.window, None, settings.seams):
+            for w in plan(settings.scheme, self.doc.num_frames, settings.window, None, settings.seams, settings.max_levels):
                 per_level[w.level] = per_level.get(w.level, 0) + 1
         except Exception as e:  # a plan we cannot show must not stop the render; the Renderer reports the error
             log.warning("could not plan for the progress bars: %s", e)

@@ -48,7 +48,14 @@ class RenderPanel(QWidget):
         self.seams.setToolTip("Recursive, 18 frames or more at N=5: make each keyframe again with its neighbours after the "
                               "first interpolation level. Steadier where the model generates (a channel missing or masked), "
                               "slightly less faithful to a reference frame; about 1.2x the windows on 65 frames.")
+        self.levels = QSpinBox()
+        self.levels.setRange(0, 8)
+        self.levels.setSpecialValueText("auto")  # 0: as many levels as the shot needs (RenderSettings.max_levels None)
+        self.levels.setToolTip("Recursive: at most this many levels K. auto: the fewest that let one keyframe window span "
+                               "the shot (K=3 at 65 frames, keyframes 16 apart, as in the paper). Fewer put the keyframes "
+                               "(N-1)^(K-1) frames apart in chained keyframe windows.")
         self.scheme.currentIndexChanged.connect(lambda _i: self.seams.setEnabled(self.scheme.currentData() == "recursive"))
+        self.scheme.currentIndexChanged.connect(lambda _i: self.levels.setEnabled(self.scheme.currentData() == "recursive"))
         self.noise_shared = QDoubleSpinBox()
         self.noise_shared.setRange(0.0, 1.0)
         self.noise_shared.setSingleStep(0.05)
@@ -65,12 +72,13 @@ class RenderPanel(QWidget):
         form.addRow("Window N", self.window)
         form.addRow("Scheme", self.scheme)
         form.addRow("", self.seams)
+        form.addRow("Max levels", self.levels)
         form.addRow("Noise shared", self.noise_shared)
         self.noise_shared.valueChanged.connect(lambda _v: self.sigSettingsChanged.emit())
         self.seams.toggled.connect(lambda _on: self.sigSettingsChanged.emit())
         for w in (self.preset, self.scheme):
             w.currentIndexChanged.connect(lambda _i: self.sigSettingsChanged.emit())
-        for w in (self.seed, self.window):
+        for w in (self.seed, self.window, self.levels):
             w.valueChanged.connect(lambda _v: self.sigSettingsChanged.emit())
 
         self.render_button = QPushButton("Render")
@@ -114,6 +122,7 @@ class RenderPanel(QWidget):
             "scheme": self.scheme.currentData(),
             "seams": self.seams.isChecked() and self.scheme.currentData() == "recursive",
             "noise_shared": self.noise_shared.value(),
+            "max_levels": self.levels.value() or None if self.scheme.currentData() == "recursive" else None,
         }
 
     def set_running(self, running: bool) -> None:

@@ -23,6 +23,10 @@ NOISE_HELP = ("seed the initial noise per 'window' or per 'frame' of the shot (a
               "window that holds it; `RenderSettings.noise`)")
 NOISE_SHARED_HELP = ("with --noise frame: the fraction of the noise's variance every frame shares, in [0, 1] (a mixed "
                      "noise prior; `RenderSettings.noise_shared`; ignored with --noise window)")
+#: help of `--max-levels` (x2video render, x2video eval, the benches)
+MAX_LEVELS_HELP = ("recursive scheme: at most K levels (default: the fewest that let one keyframe window span the shot, "
+                   "K = 3 at 65 frames); fewer put the keyframes (N-1)^(K-1) frames apart in chained keyframe windows "
+                   "(`RenderSettings.max_levels`)")
 #: help of `--seams/--no-seams` (x2video render, x2video eval, the benches)
 SEAMS_HELP = ("recursive scheme, 18 frames or more at N = 5: after the first interpolation level, make each keyframe again "
               "with its neighbours in an interpolation window (the seam pass, `RenderSettings.seams`)")

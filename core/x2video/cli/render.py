@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from x2video.cli.args import BF16_ENCODER_HELP, NOISE_HELP, NOISE_SHARED_HELP, SEAMS_HELP
+from x2video.cli.args import BF16_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, SEAMS_HELP
 from x2video.sampling.events import (
     FramesReady,
     RenderEvent,
@@ -48,6 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="hold each window's reference frames at their noised latents between denoising steps, as in "
                         "training (default on; --no-replace-refs lets each window re-estimate them)")
     p.add_argument("--seams", action=argparse.BooleanOptionalAction, default=d.seams, help=SEAMS_HELP)
+    p.add_argument("--max-levels", type=int, default=d.max_levels, help=MAX_LEVELS_HELP)
     p.add_argument("--noise", choices=("window", "frame"), default=d.noise, help=NOISE_HELP + f" (default {d.noise})")
     p.add_argument("--noise-shared", type=float, default=d.noise_shared, help=NOISE_SHARED_HELP + f" (default {d.noise_shared})")
     p.add_argument("--weights", type=Path, help="model checkpoint folder (default: the weights shipped in resources/)")
@@ -164,6 +165,7 @@ def run(args: argparse.Namespace) -> int:
         detail=args.detail,
         replace_refs=args.replace_refs,
         seams=args.seams,
+        max_levels=args.max_levels,
         noise=args.noise,
         noise_shared=args.noise_shared,
     )
@@ -171,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
     start, stop = settings.frames or (0, shot.num_frames)
     if not 0 <= start < stop <= shot.num_frames:
         raise ValueError(f"--frames: frame range [{start}, {stop}) outside the shot's {shot.num_frames} frames")
-    plan(settings.scheme, stop - start, settings.window)  # bad window sizes fail before the model loads
+    plan(settings.scheme, stop - start, settings.window, max_levels=settings.max_levels)  # bad window sizes or levels fail before the model loads
     model = load_model(args.weights, args.untrained, args.device, args.fp16, args.bf16_encoder)
     resolved = select_steps(settings, model)
     renderer = Renderer(model)

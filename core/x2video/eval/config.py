@@ -40,6 +40,8 @@ class EvalConfig:
     """hold the windows' reference frames at their noised latents between steps (`RenderSettings.replace_refs`)"""
     seams: bool = RenderSettings.seams
     """recursive rows: the seam pass that re-generates keyframes with their neighbours (`RenderSettings.seams`)"""
+    max_levels: int | None = RenderSettings.max_levels
+    """recursive rows: at most this many levels (`RenderSettings.max_levels`; None: as many as the shot needs)"""
     noise: str = RenderSettings.noise
     """how the initial noise is seeded, 'window' or 'frame' (`RenderSettings.noise`); every row alike"""
     noise_shared: float = RenderSettings.noise_shared
@@ -78,6 +80,8 @@ class EvalConfig:
             raise ValueError(f"masks must be at least 1, got {self.masks}")
         if self.window < 2 or self.image_window < 1:
             raise ValueError(f"window must be at least 2 and image_window at least 1 (got {self.window}, {self.image_window})")
+        if self.max_levels is not None and self.max_levels < 1:
+            raise ValueError(f"max_levels must be at least 1, got {self.max_levels}")
 
     def to_dict(self) -> dict:
         d = asdict(self)

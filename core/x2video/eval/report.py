@@ -164,6 +164,10 @@ def results_markdown(results: dict[str, Any], *, heading: str | None = "X2Video 
         out.append("- Initial noise: per window (`--noise window`)")
     if results.get("settings", {}).get("seams"):
         out.append("- Recursive rows: keyframes re-generated with their neighbours after the first interpolation level (`--seams`)")
+    if results.get("settings", {}).get("max_levels") is not None:
+        k = results["settings"]["max_levels"]
+        out.append(f"- Recursive rows: at most {k} level{'s' if k != 1 else ''} (`--max-levels {k}`): the keyframes are (N-1)^(K-1) "
+                   "frames apart in chained keyframe windows")
     if data:
         out.append("")
     for key, table in results["tables"].items():

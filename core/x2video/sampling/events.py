@@ -38,6 +38,11 @@ class RenderSettings:
     interpolate between frames that agree. One more window per keyframe; the frames it makes
     again arrive twice (`FramesReady.replaces`). Off by default: on `ship_h` it lowered TC where
     the model generates but cost PSNR with a reference frame (model card, Evaluations 7-8)."""
+    max_levels: int | None = None
+    """Recursive scheme only: at most this many levels K. None (default): the fewest that let one
+    keyframe window span the shot (65 frames at N = 5: K = 3, keyframes 16 apart, the paper's
+    example). Fewer levels put the keyframes (N-1)^(K-1) apart and chain the keyframe windows
+    (`x2video.sampling.planner.plan_recursive`); K = 1 is sequential sampling in keyframe mode."""
     noise: Literal["window", "frame"] = "frame"
     """How the noise is seeded. 'frame' (default): per frame of the shot, so a frame has the same
     noise in every window that holds it, a reference is re-noised with the noise it was made from,

@@ -168,13 +168,24 @@ def seam_windows(keyframes: list[int], produced: list[int], length: int, window:
     return out
 
 
-def plan_recursive(length: int, window: int, ref_frame: int | None = None, seams: bool = False) -> list[Window]:
+def plan_recursive(length: int, window: int, ref_frame: int | None = None, seams: bool = False,
+                   max_levels: int | None = None) -> list[Window]:
     """Recursive Sampling: keyframe window(s) at the widest stride, then interpolation level by level;
     with `seams`, the seam pass (`seam_windows`) right after the first interpolation level when there
     are three levels or more (18 frames or more at N = 5). With two, the first interpolation level is
-    the last, and the pass would double its windows to re-make keyframes only N-1 frames apart."""
+    the last, and the pass would double its windows to re-make keyframes only N-1 frames apart.
+
+    The number of levels K is the fewest that let one keyframe window span the shot from the anchor
+    (`num_levels`: 65 frames at N = 5 give K = 3, keyframes 16 apart, as in the paper's example), or
+    `max_levels` when that is fewer: the keyframes are then (N-1)^(K-1) apart and the keyframe
+    windows chained, each starting at the previous one's last keyframe (K = 2 at 65 frames: four
+    keyframe windows at stride 4, then one interpolation level)."""
     anchor = _validate(length, window, ref_frame)
+    if max_levels is not None and max_levels < 1:
+        raise ValueError(f"max_levels must be at least 1, got {max_levels}")
     levels = num_levels(max(anchor, length - 1 - anchor), window)
+    if max_levels is not None:
+        levels = min(levels, max_levels)
     stride = (window - 1) ** (levels - 1)
     plan = _chain(_grid(anchor, length - 1, stride), window, "key", levels, False, ref_frame is not None)
     if anchor > 0:
@@ -205,10 +216,12 @@ def plan_sequential(length: int, window: int, ref_frame: int | None = None) -> l
     return plan
 
 
-def plan(scheme: str, length: int, window: int, ref_frame: int | None = None, seams: bool = False) -> list[Window]:
-    """`plan_recursive` or `plan_sequential` by name (`seams`: the recursive plan's seam pass)."""
+def plan(scheme: str, length: int, window: int, ref_frame: int | None = None, seams: bool = False,
+         max_levels: int | None = None) -> list[Window]:
+    """`plan_recursive` or `plan_sequential` by name (`seams`: the recursive plan's seam pass;
+    `max_levels`: its cap on the number of levels)."""
     if scheme == "recursive":
-        return plan_recursive(length, window, ref_frame, seams)
+        return plan_recursive(length, window, ref_frame, seams, max_levels)
     if scheme == "sequential":
         return plan_sequential(length, window, ref_frame)
     raise ValueError(f"unknown sampling scheme {scheme!r} (use 'recursive' or 'sequential')")

@@ -118,7 +118,7 @@ class Renderer:
         start, stop = self._range(shot, settings)
         if ref_frame is not None:
             ref_frame = min(max(ref_frame, start), stop - 1) - start
-        return shift(plan(settings.scheme, stop - start, settings.window, ref_frame, settings.seams), start)
+        return shift(plan(settings.scheme, stop - start, settings.window, ref_frame, settings.seams, settings.max_levels), start)
 
     # -- the render ------------------------------------------------------------------
     def render(
@@ -168,6 +168,8 @@ class Renderer:
             raise ValueError(f"unknown noise seeding {settings.noise!r} (use 'window' or 'frame')")
         if not 0.0 <= settings.noise_shared <= 1.0:
             raise ValueError(f"noise_shared must lie in [0, 1], got {settings.noise_shared}")
+        if settings.max_levels is not None and settings.max_levels < 1:
+            raise ValueError(f"max_levels must be at least 1, got {settings.max_levels}")
         h, w = shot.size
         d = self.model.downsample
         if h % d or w % d:
