@@ -11,8 +11,13 @@ the eval's TC).
     python bench/recursive_seams.py --data DATA [--weights RUN_OR_DIR] [--rooms 2] [--frames 65]
         [--condition drop_irradiance+ref] [--threads 1] [--out bench/results/recursive_seams.json]
 
+Each seam is also classed by its side of the window boundary (`pair_sides`): "start" when the window
+that made the later frame read the earlier one (every sequential seam), "end" when the window that
+made the earlier frame read the later one (the frame before an interpolation window's end reference).
+
 Writes {"format": "x2video-recursive-seams", "command", "machine", "weights", "data", "condition",
-"schemes": {scheme: {"tc", "classes": {class: {"tc", "pairs"}}, "shots": {name: {class: {"tc", "pairs"}}}}}}.
+"schemes": {scheme: {"tc", "psnr", "classes": {class: {"tc", "pairs"}}, "sides": {side: {"tc", "pairs"}},
+"shots": {name: {class: {"tc", "pairs"}}}}}}.
 """
 from __future__ import annotations
 
@@ -42,6 +47,29 @@ def pair_classes(windows: list, num_frames: int) -> list[str]:
     return out
 
 
+def pair_sides(windows: list, num_frames: int) -> list[str]:
+    """For each pair (t, t+1): "same window", or at a seam the side of the window boundary it lies on:
+    "start" when the window that made t+1 read t (the frame after a window's first reference: every
+    sequential seam), "end" when the window that made t read t+1 (the frame before an interpolation
+    window's end reference), else "other"."""
+    made_by = {}
+    for w in windows:
+        for f in w.generate:
+            made_by[f] = w
+    out = []
+    for t in range(num_frames - 1):
+        wa, wb = made_by[t], made_by[t + 1]
+        if wa is wb:
+            out.append("same window")
+        elif t in wb.refs:
+            out.append("start")
+        elif t + 1 in wa.refs:
+            out.append("end")
+        else:
+            out.append("other")
+    return out
+
+
 def _tc(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> dict:
     ok = mask & np.isfinite(pred) & np.isfinite(gt)
     return {"tc": float(pred[ok].mean() / gt[ok].mean()) if ok.any() else None, "pairs": int(ok.sum())}
@@ -65,7 +93,7 @@ def measure(args: argparse.Namespace) -> dict:
     size, _ = resolve_size(args, weights_dir, models.video.downsample)
     shots = load_eval_shots(args.data, args.split, args.rooms, args.frames, size)
     renderer = Renderer(models.video)
-    per: dict[str, dict] = {s: {"pred": [], "gt": [], "classes": [], "shots": {}, "psnr": []} for s in SCHEMES}
+    per: dict[str, dict] = {s: {"pred": [], "gt": [], "classes": [], "sides": [], "shots": {}, "psnr": []} for s in SCHEMES}
     for shot in shots:
         edits, _ = build_edits(shot.shot, shot.name, condition, args.seed)
         gt = [tonemap(g) for g in shot.gt]
@@ -75,7 +103,9 @@ def measure(args: argparse.Namespace) -> dict:
         for scheme in SCHEMES:
             settings = RenderSettings(sampler="ddim", steps=args.steps, seed=args.seed, window=args.window, scheme=scheme,  # type: ignore[arg-type]
                                       replace_refs=args.replace_refs, seams=args.seams, max_levels=args.max_levels, noise=args.noise, noise_shared=args.noise_shared)
-            classes = np.array(pair_classes(renderer.plan(shot.shot, settings, None if ref is None else ref[0]), shot.num_frames))
+            windows = renderer.plan(shot.shot, settings, None if ref is None else ref[0])
+            classes = np.array(pair_classes(windows, shot.num_frames))
+            sides = np.array(pair_sides(windows, shot.num_frames))
             frames, _ = render_shot(renderer, shot, edits, settings)
             shown = [tonemap(f) for f in frames]
             err = warping_errors(shown, flows).errors
@@ -84,13 +114,15 @@ def measure(args: argparse.Namespace) -> dict:
             p["pred"].append(err)
             p["gt"].append(gt_err)
             p["classes"].append(classes)
+            p["sides"].append(sides)
             p["shots"][shot.name] = {c: _tc(err, gt_err, classes == c) for c in sorted(set(classes))}
             print(f"{shot.name} {scheme}: " + ", ".join(f"{c} TC {v['tc']:.2f} ({v['pairs']})" for c, v in p["shots"][shot.name].items()), file=sys.stderr)
     schemes = {}
     for scheme, p in per.items():
-        pred, gt, classes = (np.concatenate(p[k]) for k in ("pred", "gt", "classes"))
+        pred, gt, classes, sides = (np.concatenate(p[k]) for k in ("pred", "gt", "classes", "sides"))
         schemes[scheme] = {"tc": _tc(pred, gt, np.ones_like(pred, bool))["tc"], "psnr": float(np.mean(p["psnr"])),
                            "classes": {c: _tc(pred, gt, classes == c) for c in sorted(set(classes))},
+                           "sides": {c: _tc(pred, gt, sides == c) for c in sorted(set(sides))},
                            "shots": p["shots"]}
     return {
         **result_header("recursive-seams", "recursive_seams.py", args, models, shots, size),
@@ -110,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     result = run_measure(args, measure)
     for scheme, r in result["schemes"].items():
         print(f"{scheme:>10}: PSNR {r['psnr']:.3f} dB, TC {r['tc']:.3f}; " + "; ".join(f"{c} {v['tc']:.3f} ({v['pairs']} pairs)" for c, v in r["classes"].items()))
+        print(" " * 12 + "by side of the seam: " + "; ".join(f"{c} {v['tc']:.3f} ({v['pairs']} pairs)" for c, v in r["sides"].items()))
     print(f"wrote {args.out}")
     return 0
 

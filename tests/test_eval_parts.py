@@ -403,6 +403,12 @@ def test_recursive_seams_classifies_pairs_by_the_windows_that_made_them():
     # the seam pass: the level-2 windows that make the keyframes again become their makers (the last window wins)
     seams = mod.pair_classes(plan("recursive", 65, 5, seams=True), 65)
     assert "seam, level 3" not in seams and seams[15] == seams[16] == "seam, level 2" and seams[13] == "same window"
+    # sides: sequential seams all lie after a window's first reference; recursive ones on both sides
+    assert set(mod.pair_sides(plan("sequential", 17, 5), 17)) == {"same window", "start"}
+    sides = mod.pair_sides(plan("recursive", 17, 5), 17)
+    assert sides[:4] == ["start", "same window", "same window", "end"] and sides.count("start") == sides.count("end") == 4
+    # the keyframe window made 0 and 16 and reads neither of its level-1 neighbours' frames
+    assert mod.pair_sides(plan("recursive", 65, 5), 65)[15] == "end" and "other" not in mod.pair_sides(plan("recursive", 65, 5), 65)
 
 
 def test_eval_command_line_reproduces_every_setting():
