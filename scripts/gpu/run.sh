@@ -6,7 +6,8 @@
 #   B: stash payload B, rebuild the full latent cache, train the video stage (-> held-out v-loss),
 #      distil LCM, ship fp16 into $OUT.
 # Payloads are read from $PAYLOAD/A and $PAYLOAD/B (default .gpu, ignored by git). B: TAG names the runs
-# (video_$TAG, lcm_$TAG; default g); VIDEO_ARGS is added to the video stage's command (e.g. --ref-p 0.75).
+# (video_$TAG, lcm_$TAG; default g); VIDEO_ARGS is added to the video stage's command (e.g. --ref-p 0.75),
+# LCM_ARGS to the LCM stage's (e.g. --noise-shared 0.95).
 set -u -o pipefail
 PART=$1
 P=${PAYLOAD:-.gpu}
@@ -79,7 +80,7 @@ tail -c 3000 $OUT/video_$TAG.log | tr '\r' '\n' | grep -v "step/s\]" | tail -25
 el "video done rc=$rc"
 [ $rc = 0 ] || exit 10
 $X train lcm --teacher /tmp/video_$TAG --cache /tmp/cache --out /tmp/lcm_$TAG --batch $B --workers $W --mixed-precision $MP --steps 1000000 \
-   --lr 5e-5 --warmup 20 --ema 0.99 --ckpt-every 2000 --time-limit $TL > $OUT/lcm_$TAG.log 2>&1; rc=$?
+   --lr 5e-5 --warmup 20 --ema 0.99 --ckpt-every 2000 --time-limit $TL ${LCM_ARGS:-} > $OUT/lcm_$TAG.log 2>&1; rc=$?
 tail -c 1500 $OUT/lcm_$TAG.log | tr '\r' '\n' | grep -v "step/s\]" | tail -12
 el "lcm done rc=$rc"
 SHIPFROM=/tmp/lcm_$TAG; [ $rc = 0 ] || SHIPFROM=/tmp/video_$TAG

@@ -199,7 +199,8 @@ def cmd_lcm(a: argparse.Namespace) -> int:
     from x2video.train.lcm_stage import LCMStageConfig, run_lcm_stage
 
     loop = _loop_cfg(a)
-    stage = LCMStageConfig(batch=a.batch, target_ema=a.target_ema, seed=a.seed, augment=_aug(a), window=_window(a))
+    stage = LCMStageConfig(batch=a.batch, target_ema=a.target_ema, seed=a.seed, noise_shared=a.noise_shared, augment=_aug(a),
+                           window=_window(a))
     _print_result(_run("lcm", loop.steps, lambda bar: run_lcm_stage(a.teacher, a.cache, a.out, stage, loop, bar)))
     return 0
 
@@ -291,6 +292,9 @@ def register(subparsers) -> None:
     s.add_argument("--out", type=Path, required=True)
     s.add_argument("--batch", type=int, default=2, help="windows per batch")
     s.add_argument("--target-ema", type=float, default=0.95, help="EMA decay of the target network")
+    s.add_argument("--noise-shared", type=float, default=0.0,
+                   help="fraction of the noise's variance a window's frames share, in [0, 1]: distil with the mixed noise prior "
+                        "the renderer samples with by default (RenderSettings.noise_shared); 0 (default): independent per frame")
     _aug_args(s)
     _window_args(s)
     _loop_args(s, steps=1000, lr=1e-5, ema=0.99)

@@ -30,7 +30,7 @@ from x2video.model.checkpoint import load_into, read_config, save_checkpoint
 from x2video.model.unet import build_unet
 from x2video.sampling.samplers import lcm_scheduler
 from x2video.train.batches import AugmentConfig, Batch, LatentData, WindowConfig, video_batches
-from x2video.train.diffusion import diffusion_batch, noise_scheduler, predict
+from x2video.train.diffusion import diffusion_batch, noise_scheduler, predict, window_noise
 from x2video.train.loop import LoopConfig, StepLog, train
 from x2video.train.runs import check_same_vae, load_vae, model_dir, write_results
 
@@ -49,6 +49,10 @@ class LCMStageConfig:
     """EMA decay of the target network theta- (LCM: 0.95)."""
     huber_c: float = 0.001
     """Pseudo-Huber constant (LCM-LoRA training script: 0.001)."""
+    noise_shared: float = 0.0
+    """Fraction of the noise's variance a window's frames share, in [0, 1]: distil with the mixed noise prior
+    the Renderer samples with by default (`RenderSettings.noise_shared`), as `x2video train video
+    --noise-shared` trains the teacher; 0: independent per frame, as the shipped LCM UNet was distilled."""
     seed: int = 0
     augment: AugmentConfig = field(default_factory=AugmentConfig)
     window: WindowConfig = field(default_factory=WindowConfig)
@@ -94,7 +98,7 @@ class LCMLoss:
         tpf = t_prev.clamp(min=0).repeat_interleave(b.num_frames)
         a = alphas[tf][:, None, None, None]
         a_prev = torch.where(t_prev.repeat_interleave(b.num_frames) >= 0, alphas[tpf], torch.ones_like(alphas[tpf]))[:, None, None, None]
-        noise = torch.randn_like(b.x0)
+        noise = window_noise(b.x0, b.num_frames, self.stage.noise_shared)  # (BN, 4, h, w), frames of a window share a part
         x_t = a.sqrt() * b.x0 + (1 - a).sqrt() * noise  # (BN, 4, h, w)
 
         c_skip, c_out = self.scalings(tf)
@@ -115,6 +119,8 @@ def run_lcm_stage(teacher: str | Path, cache: str | Path, out_dir: str | Path, s
                   on_step: Callable[[StepLog], None] | None = None) -> dict:
     """Distil the video model of `teacher` (a run or model folder) into an LCM UNet."""
     cache, out_dir = Path(cache), Path(out_dir)
+    if not 0.0 <= stage.noise_shared <= 1.0:
+        raise ValueError(f"--noise-shared must lie in [0, 1], got {stage.noise_shared}")
     d = model_dir(teacher)
     cfg = read_config(d)
     if not cfg.video:
