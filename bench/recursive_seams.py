@@ -34,17 +34,16 @@ RESULTS = Path(__file__).resolve().parent / "results" / "recursive_seams.json"
 SCHEMES = ("sequential", "recursive")
 
 
+def _made_by(windows: list) -> dict:
+    """frame -> the window that made it last (the seam pass makes some frames twice)."""
+    return {f: w for w in windows for f in w.generate}
+
+
 def pair_classes(windows: list, num_frames: int) -> list[str]:
     """For each pair (t, t+1): "same window" or "seam, level k" from the plan's windows."""
-    made_by = {}
-    for i, w in enumerate(windows):
-        for f in w.generate:
-            made_by[f] = (i, w.level)
-    out = []
-    for t in range(num_frames - 1):
-        (wa, la), (wb, lb) = made_by[t], made_by[t + 1]
-        out.append("same window" if wa == wb else f"seam, level {max(la, lb)}")
-    return out
+    made_by = _made_by(windows)
+    return ["same window" if made_by[t] is made_by[t + 1] else f"seam, level {max(made_by[t].level, made_by[t + 1].level)}"
+            for t in range(num_frames - 1)]
 
 
 def pair_sides(windows: list, num_frames: int) -> list[str]:
@@ -52,10 +51,7 @@ def pair_sides(windows: list, num_frames: int) -> list[str]:
     "start" when the window that made t+1 read t (the frame after a window's first reference: every
     sequential seam), "end" when the window that made t read t+1 (the frame before an interpolation
     window's end reference), else "other"."""
-    made_by = {}
-    for w in windows:
-        for f in w.generate:
-            made_by[f] = w
+    made_by = _made_by(windows)
     out = []
     for t in range(num_frames - 1):
         wa, wb = made_by[t], made_by[t + 1]

@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 from x2video.sampling.events import RenderSettings
+from x2video.sampling.planner import check_max_levels
 
 TABLES = ("a", "b", "c", "d")
 
@@ -80,8 +81,7 @@ class EvalConfig:
             raise ValueError(f"masks must be at least 1, got {self.masks}")
         if self.window < 2 or self.image_window < 1:
             raise ValueError(f"window must be at least 2 and image_window at least 1 (got {self.window}, {self.image_window})")
-        if self.max_levels is not None and self.max_levels < 1:
-            raise ValueError(f"max_levels must be at least 1, got {self.max_levels}")
+        check_max_levels(self.max_levels)  # before hours of rendering, not at the first recursive row
 
     def to_dict(self) -> dict:
         d = asdict(self)

@@ -104,6 +104,12 @@ def _chain(frames: list[int], n: int, mode: Mode, level: int, first_produced: bo
     return out
 
 
+def check_max_levels(max_levels: int | None) -> None:
+    """The cap on Recursive Sampling's levels (`RenderSettings.max_levels`): None or at least 1."""
+    if max_levels is not None and max_levels < 1:
+        raise ValueError(f"max_levels must be at least 1, got {max_levels}")
+
+
 def _validate(length: int, window: int, ref_frame: int | None) -> int:
     if length < 1:
         raise ValueError(f"cannot plan a render of {length} frames (need at least 1)")
@@ -181,8 +187,7 @@ def plan_recursive(length: int, window: int, ref_frame: int | None = None, seams
     windows chained, each starting at the previous one's last keyframe (K = 2 at 65 frames: four
     keyframe windows at stride 4, then one interpolation level)."""
     anchor = _validate(length, window, ref_frame)
-    if max_levels is not None and max_levels < 1:
-        raise ValueError(f"max_levels must be at least 1, got {max_levels}")
+    check_max_levels(max_levels)
     levels = num_levels(max(anchor, length - 1 - anchor), window)
     if max_levels is not None:
         levels = min(levels, max_levels)
@@ -219,7 +224,8 @@ def plan_sequential(length: int, window: int, ref_frame: int | None = None) -> l
 def plan(scheme: str, length: int, window: int, ref_frame: int | None = None, seams: bool = False,
          max_levels: int | None = None) -> list[Window]:
     """`plan_recursive` or `plan_sequential` by name (`seams`: the recursive plan's seam pass;
-    `max_levels`: its cap on the number of levels)."""
+    `max_levels`: its cap on the number of levels, checked for either scheme)."""
+    check_max_levels(max_levels)
     if scheme == "recursive":
         return plan_recursive(length, window, ref_frame, seams, max_levels)
     if scheme == "sequential":

@@ -168,8 +168,6 @@ class Renderer:
             raise ValueError(f"unknown noise seeding {settings.noise!r} (use 'window' or 'frame')")
         if not 0.0 <= settings.noise_shared <= 1.0:
             raise ValueError(f"noise_shared must lie in [0, 1], got {settings.noise_shared}")
-        if settings.max_levels is not None and settings.max_levels < 1:
-            raise ValueError(f"max_levels must be at least 1, got {settings.max_levels}")
         h, w = shot.size
         d = self.model.downsample
         if h % d or w % d:

@@ -44,6 +44,12 @@ def predict(unet: UNet2DConditionModel, x_t: torch.Tensor, t: torch.Tensor, b: B
     )
 
 
+def check_noise_shared(value: float) -> None:
+    """`--noise-shared` of the video and LCM stages: a fraction in [0, 1], refused before a run starts."""
+    if not 0.0 <= value <= 1.0:
+        raise ValueError(f"--noise-shared must lie in [0, 1], got {value}")
+
+
 def window_noise(x0: torch.Tensor, num_frames: int, shared: float = 0.0, generator: torch.Generator | None = None) -> torch.Tensor:
     """(B*N, C, h, w) standard normal noise for a batch of windows of `num_frames` frames, a fraction
     `shared` of whose variance the frames of each window share: the mixed noise prior the Renderer

@@ -24,7 +24,7 @@ from x2video.model.config import ModelConfig, UNetConfig, preset
 from x2video.model.hybrid_attention import REF_BRANCHES, temporal_branches
 from x2video.model.unet import build_unet, convert_image_to_video, hybrid_processors
 from x2video.train.batches import AugmentConfig, LatentData, WindowConfig, image_batches, video_batches
-from x2video.train.diffusion import diffusion_batch, heldout_v_loss, noise_scheduler, v_loss
+from x2video.train.diffusion import check_noise_shared, diffusion_batch, heldout_v_loss, noise_scheduler, v_loss
 from x2video.train.loop import LoopConfig, StepLog, process_index, train
 from x2video.train.runs import check_same_vae, load_vae, model_dir, write_results
 
@@ -224,8 +224,7 @@ def run_video_stage(init: str | Path, cache: str | Path, out_dir: str | Path, st
     init_cfg = read_config(model_dir(init))
     if stage.train_only not in ("all", "interp"):
         raise ValueError(f"train_only must be 'all' or 'interp', got {stage.train_only!r}")
-    if not 0.0 <= stage.noise_shared <= 1.0:
-        raise ValueError(f"--noise-shared must lie in [0, 1], got {stage.noise_shared}")
+    check_noise_shared(stage.noise_shared)
     if stage.train_only == "interp":
         if not init_cfg.video:
             raise ValueError(f"--train-only interp fine-tunes a trained video model; --init {init} holds an image model")

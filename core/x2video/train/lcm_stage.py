@@ -30,7 +30,7 @@ from x2video.model.checkpoint import load_into, read_config, save_checkpoint
 from x2video.model.unet import build_unet
 from x2video.sampling.samplers import lcm_scheduler
 from x2video.train.batches import AugmentConfig, Batch, LatentData, WindowConfig, video_batches
-from x2video.train.diffusion import diffusion_batch, noise_scheduler, predict, window_noise
+from x2video.train.diffusion import check_noise_shared, diffusion_batch, noise_scheduler, predict, window_noise
 from x2video.train.loop import LoopConfig, StepLog, train
 from x2video.train.runs import check_same_vae, load_vae, model_dir, write_results
 
@@ -119,8 +119,7 @@ def run_lcm_stage(teacher: str | Path, cache: str | Path, out_dir: str | Path, s
                   on_step: Callable[[StepLog], None] | None = None) -> dict:
     """Distil the video model of `teacher` (a run or model folder) into an LCM UNet."""
     cache, out_dir = Path(cache), Path(out_dir)
-    if not 0.0 <= stage.noise_shared <= 1.0:
-        raise ValueError(f"--noise-shared must lie in [0, 1], got {stage.noise_shared}")
+    check_noise_shared(stage.noise_shared)
     d = model_dir(teacher)
     cfg = read_config(d)
     if not cfg.video:
