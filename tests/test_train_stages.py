@@ -422,3 +422,24 @@ def test_video_stage_trains_and_scores_with_the_shared_noise(runs, tmp_path):
     with pytest.raises(ValueError, match="noise-shared must lie in"):
         run_video_stage(runs["root"] / "video", runs["root"] / "cache", tmp_path / "c",
                         VideoStageConfig(batch=1, heldout_batches=0, noise_shared=1.5), loop)
+
+
+def test_ship_keep_runs_carries_the_replaced_lineage(runs, tmp_path):
+    """A model continued from the shipped one keeps the shipped folder's run records and sources;
+    without a training.json to keep, --keep-runs fails naming the file."""
+    from x2video.train.ship import ship
+
+    out = tmp_path / "resources" / "x2video-tiny"
+    first = ship(runs["root"] / "video", out, runs=[runs["root"] / "video"])
+    ship(runs["root"] / "lcm", out, runs=[runs["root"] / "lcm"], overwrite=True, keep_runs=True)
+    doc = json.loads((out / "training.json").read_text())
+    assert set(doc["runs"]) == {"video", "lcm"}
+    assert doc["runs"]["video"]["results"]["video"]["step"] == 2
+    assert doc["previous"] == [first["parts"]]
+    assert doc["shipped"]["model"]["source"] != first["parts"]["model"]["source"]
+    ship(runs["root"] / "lcm", out, overwrite=True, keep_runs=True)  # a second replacement stacks up
+    doc2 = json.loads((out / "training.json").read_text())
+    assert len(doc2["previous"]) == 2 and doc2["previous"][1] == first["parts"] and set(doc2["runs"]) == {"video", "lcm"}
+    (out / "training.json").unlink()
+    with pytest.raises(FileNotFoundError, match="training.json"):
+        ship(runs["root"] / "lcm", out, overwrite=True, keep_runs=True)

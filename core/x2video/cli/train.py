@@ -209,7 +209,8 @@ def cmd_ship(a: argparse.Namespace) -> int:
     """Write a trained model as the fp16 folder the CLI, editor and eval load by default."""
     from x2video.train.ship import ship
 
-    _print_result(ship(a.model, a.out, image=a.image, size=a.size, runs=a.run, overwrite=a.overwrite))
+    _print_result(ship(a.model, a.out, image=a.image, size=a.size, runs=a.run, overwrite=a.overwrite,
+                       keep_runs=a.keep_runs))
     return 0
 
 
@@ -310,4 +311,7 @@ def register(subparsers) -> None:
     s.add_argument("--size", type=size_arg, default=None, help="training size WxH (default: read from the run's latent cache)")
     s.add_argument("--run", type=Path, action="append", default=[], help="training run folder whose summary/results go into training.json (repeatable)")
     s.add_argument("--overwrite", action="store_true", help="replace an existing OUT")
+    s.add_argument("--keep-runs", action="store_true",
+                   help="with --overwrite: carry the replaced OUT/training.json's run records and shipped sources "
+                        "(for a model continued from the shipped one, whose earlier runs' folders may be gone)")
     s.set_defaults(func=cmd_ship)

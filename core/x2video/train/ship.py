@@ -2,11 +2,16 @@
 
     OUT/config.json, unet.safetensors, vae.safetensors[, lcm_unet.safetensors]   (fp16)
     OUT/image/...        optional: the image-stage model (eval table a)
-    OUT/training.json    {"size": [W, H], "source": ..., "runs": {name: {summary, results}}}
+    OUT/training.json    {"size": [W, H], "shipped": {part: {source, bytes}}, "runs": {name: {summary, results}},
+                          "previous": [the "shipped" records of the folders this one replaced, newest first]}
 
 `training.json`'s size is what `x2video eval` and the renderers read to know the resolution the
 model was trained at. The folder is assembled beside OUT and renamed into place, so an
 interrupted ship never leaves a half-written model where the CLI and editor look for one.
+
+A model continued from the shipped one (`--init resources/...`) descends from runs whose folders may
+be gone; `keep_runs` carries the replaced folder's run records and shipped sources into the new
+training.json, so the lineage the model card describes stays on record beside the weights.
 """
 from __future__ import annotations
 
@@ -44,10 +49,21 @@ def _run_doc(run: Path) -> dict[str, Any]:
 
 
 def ship(model: str | Path, out: str | Path, *, image: str | Path | None = None, size: tuple[int, int] | None = None,
-         runs: list[Path] | None = None, overwrite: bool = False) -> dict[str, Any]:
+         runs: list[Path] | None = None, overwrite: bool = False, keep_runs: bool = False) -> dict[str, Any]:
     out = Path(out)
     if out.exists() and not overwrite:
         raise FileExistsError(f"{out} exists; pass --overwrite to replace it")
+    kept: dict[str, Any] = {}
+    if keep_runs:
+        old_doc = out / "training.json"
+        if not old_doc.is_file():
+            raise FileNotFoundError(f"{old_doc}: --keep-runs needs the training.json of the folder being replaced")
+        try:
+            kept = json.loads(old_doc.read_text())
+        except ValueError as e:
+            raise ValueError(f"{old_doc}: cannot read JSON ({e})") from None
+        if not isinstance(kept.get("runs"), dict) or not isinstance(kept.get("shipped"), dict):
+            raise ValueError(f"{old_doc}: no 'runs' and 'shipped' records to keep")
     src = model_dir(model)
     size = size or training_size(src)
     if size is None:
@@ -58,8 +74,10 @@ def ship(model: str | Path, out: str | Path, *, image: str | Path | None = None,
         info = {"model": _copy_fp16(src, tmp)}
         if image is not None:
             info["image"] = _copy_fp16(model_dir(image), tmp / "image")
-        doc = {"size": [int(size[0]), int(size[1])], "shipped": info,
-               "runs": {Path(r).name: _run_doc(Path(r)) for r in (runs or [])}}
+        doc: dict[str, Any] = {"size": [int(size[0]), int(size[1])], "shipped": info,
+                               "runs": {**kept.get("runs", {}), **{Path(r).name: _run_doc(Path(r)) for r in (runs or [])}}}
+        if kept:
+            doc["previous"] = [kept["shipped"], *kept.get("previous", [])]
         (tmp / "training.json").write_text(json.dumps(doc, indent=1))
         for p in [tmp, *tmp.rglob("*")]:  # mkdtemp and safetensors leave owner-only modes
             p.chmod(0o755 if p.is_dir() else 0o644)
