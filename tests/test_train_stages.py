@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -443,3 +444,28 @@ def test_ship_keep_runs_carries_the_replaced_lineage(runs, tmp_path):
     (out / "training.json").unlink()
     with pytest.raises(FileNotFoundError, match="training.json"):
         ship(runs["root"] / "lcm", out, overwrite=True, keep_runs=True)
+
+
+def test_lcm_student_init_starts_from_the_given_student(runs, tmp_path):
+    """--student-init: with lr 0 the saved student is exactly the init's lcm_unet (not the teacher's
+    UNet), the teacher stays the given video model, and a folder without an LCM UNet fails naming it."""
+    from safetensors.torch import load_file
+
+    from x2video.train.lcm_stage import LCMStageConfig, run_lcm_stage
+    from x2video.train.loop import LoopConfig
+
+    init = Path(runs["lcm"]["model"])
+    teacher = runs["root"] / "video"
+    res = run_lcm_stage(teacher, runs["root"] / "cache", tmp_path / "lcm2", LCMStageConfig(batch=1),
+                        LoopConfig(steps=1, lr=0.0, warmup=0, ckpt_every=1), student_init=init)
+    got = load_file(str(Path(res["model"]) / "lcm_unet.safetensors"))
+    want = load_file(str(init / "lcm_unet.safetensors"))
+    teacher_sd = load_file(str(Path(res["model"]) / "unet.safetensors"))
+    assert got.keys() == want.keys()
+    assert all(torch.equal(got[k], want[k]) for k in got)
+    assert any(not torch.equal(got[k], teacher_sd[k]) for k in got)  # the init's student moved away from its teacher
+    state = json.loads((Path(res["checkpoint"]) / "state.json").read_text())
+    assert state["stage_config"]["student_init"] == str(init.resolve())
+    with pytest.raises(FileNotFoundError, match="lcm_unet"):
+        run_lcm_stage(teacher, runs["root"] / "cache", tmp_path / "lcm3", LCMStageConfig(batch=1), LoopConfig(steps=1),
+                      student_init=teacher)

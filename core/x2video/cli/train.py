@@ -201,7 +201,7 @@ def cmd_lcm(a: argparse.Namespace) -> int:
     loop = _loop_cfg(a)
     stage = LCMStageConfig(batch=a.batch, target_ema=a.target_ema, seed=a.seed, noise_shared=a.noise_shared, augment=_aug(a),
                            window=_window(a))
-    _print_result(_run("lcm", loop.steps, lambda bar: run_lcm_stage(a.teacher, a.cache, a.out, stage, loop, bar)))
+    _print_result(_run("lcm", loop.steps, lambda bar: run_lcm_stage(a.teacher, a.cache, a.out, stage, loop, bar, student_init=a.student_init)))
     return 0
 
 
@@ -289,6 +289,9 @@ def register(subparsers) -> None:
 
     s = sub.add_parser("lcm", help="LCM distillation of the video model for 2-step sampling")
     s.add_argument("--teacher", type=Path, required=True, help="video run (newest checkpoint) or video model folder")
+    s.add_argument("--student-init", type=Path, default=None,
+                   help="start the student from this LCM run's or model folder's lcm_unet (same architecture) "
+                        "instead of from the teacher")
     s.add_argument("--cache", type=Path, required=True)
     s.add_argument("--out", type=Path, required=True)
     s.add_argument("--batch", type=int, default=2, help="windows per batch")

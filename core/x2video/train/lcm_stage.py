@@ -116,8 +116,13 @@ class LCMLoss:
 
 
 def run_lcm_stage(teacher: str | Path, cache: str | Path, out_dir: str | Path, stage: LCMStageConfig, loop: LoopConfig,
-                  on_step: Callable[[StepLog], None] | None = None) -> dict:
-    """Distil the video model of `teacher` (a run or model folder) into an LCM UNet."""
+                  on_step: Callable[[StepLog], None] | None = None, student_init: str | Path | None = None) -> dict:
+    """Distil the video model of `teacher` (a run or model folder) into an LCM UNet.
+
+    The student (and the target network, its EMA) starts from the teacher, or from `student_init`'s
+    `lcm_unet.safetensors` (an LCM run or shipped folder of the same architecture): a teacher
+    continued from a distilled model's teacher is re-distilled from that student instead of from
+    scratch, which on a CPU budget is the difference between a student below the old one and one above it."""
     cache, out_dir = Path(cache), Path(out_dir)
     check_noise_shared(stage.noise_shared)
     d = model_dir(teacher)
@@ -129,7 +134,19 @@ def run_lcm_stage(teacher: str | Path, cache: str | Path, out_dir: str | Path, s
     load_into(teacher_unet, d / "unet.safetensors", "unet")
     teacher_unet.eval().requires_grad_(False)
     student = copy.deepcopy(teacher_unet).train().requires_grad_(True)
-    target = copy.deepcopy(teacher_unet).eval().requires_grad_(False)
+    init_dir = None
+    if student_init is not None:
+        init_dir = model_dir(student_init).resolve()
+        init_cfg = read_config(init_dir)
+        if not (init_dir / "lcm_unet.safetensors").is_file():
+            raise FileNotFoundError(f"--student-init {student_init}: {init_dir} has no lcm_unet.safetensors (an LCM run or shipped model)")
+        if init_cfg.unet != cfg.unet or init_cfg.video != cfg.video or init_cfg.shading_prior != cfg.shading_prior \
+                or init_cfg.prediction != cfg.prediction:
+            raise ValueError(f"--student-init {student_init}: its UNet (video={init_cfg.video}, shading_prior={init_cfg.shading_prior}, "
+                             f"prediction={init_cfg.prediction}, unet {init_cfg.unet.block_out_channels}) is not the teacher's architecture")
+        load_into(student, init_dir / "lcm_unet.safetensors", "lcm_unet")
+        log.info("LCM student initialised from %s", init_dir)
+    target = copy.deepcopy(student).eval().requires_grad_(False)
     _, vae = load_vae(d)
     data = LatentData(cache, "train", cfg.latent_scales, cfg.shading_prior)
     loss = LCMLoss(student, teacher_unet, target, stage, cfg.prediction)
@@ -144,6 +161,8 @@ def run_lcm_stage(teacher: str | Path, cache: str | Path, out_dir: str | Path, s
         save_checkpoint(out, cfg, {"unet": teacher_unet, "vae": vae, "lcm_unet": module})
 
     sc = {"stage": "lcm", **dataclasses.asdict(stage), "model": cfg.to_dict(), "cache": str(cache.resolve()), "teacher": str(d.resolve())}
+    if init_dir is not None:
+        sc["student_init"] = str(init_dir)
     ck = train(module=student, loss_fn=loss_fn, batches=video_batches(data, stage.batch, stage.augment, stage.window, stage.seed, loop.workers),
                save_fn=save, out_dir=out_dir, cfg=loop, stage_config=sc, batch_size=stage.batch * stage.window.frames,
                on_step=on_step, extra_state={"target": target})
