@@ -141,10 +141,11 @@ def run_lcm_stage(teacher: str | Path, cache: str | Path, out_dir: str | Path, s
         init_cfg = read_config(init_dir)
         if not (init_dir / "lcm_unet.safetensors").is_file():
             raise FileNotFoundError(f"--student-init {student_init}: {init_dir} has no lcm_unet.safetensors (an LCM run or shipped model)")
-        if init_cfg.unet != cfg.unet or init_cfg.video != cfg.video or init_cfg.shading_prior != cfg.shading_prior \
-                or init_cfg.prediction != cfg.prediction:
-            raise ValueError(f"--student-init {student_init}: its UNet (video={init_cfg.video}, shading_prior={init_cfg.shading_prior}, "
-                             f"prediction={init_cfg.prediction}, unet {init_cfg.unet.block_out_channels}) is not the teacher's architecture")
+        # shapes are load_into's to check (it names every mismatched tensor); what loads but means
+        # something else is the target the UNet predicts
+        if (init_cfg.prediction, init_cfg.residual_prior) != (cfg.prediction, cfg.residual_prior):
+            raise ValueError(f"--student-init {student_init}: predicts {init_cfg.prediction} (residual_prior={init_cfg.residual_prior}), "
+                             f"the teacher {cfg.prediction} (residual_prior={cfg.residual_prior})")
         load_into(student, init_dir / "lcm_unet.safetensors", "lcm_unet")
         log.info("LCM student initialised from %s", init_dir)
     target = copy.deepcopy(student).eval().requires_grad_(False)
