@@ -24,7 +24,8 @@ import sys
 import time
 from pathlib import Path
 
-from x2video.cli.args import BF16_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, SEAMS_HELP, size_arg
+from x2video.cli.args import BF16_ENCODER_HELP, CHANNEL_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, SEAMS_HELP, size_arg
+from x2video.model.config import CHANNEL_ENCODERS, DEFAULT_CHANNEL_ENCODER
 
 RESULTS = Path(__file__).resolve().parent / "results" / "speed_accuracy.json"
 #: (sampler, steps, add the shading detail); the no-detail row is measured for residual-prior models only
@@ -173,6 +174,7 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default=None)
     p.add_argument("--fp16", action="store_true")
     p.add_argument("--bf16-encoder", action="store_true", help=BF16_ENCODER_HELP)
+    p.add_argument("--channel-encoder", choices=CHANNEL_ENCODERS, default=DEFAULT_CHANNEL_ENCODER, help=CHANNEL_ENCODER_HELP)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--window", type=int, default=5)
     from x2video.sampling.events import RenderSettings  # light (no torch); keeps the benches on the Renderer's default

@@ -275,6 +275,9 @@ def test_speedup_ordering_from_back_to_back_repeats(tmp_path, capsys):
     bench2.write_text(json.dumps(bf16))
     assert card.main([str(res), "--speedup", str(bench), "--speedup", str(bench2), "--out", str(out)]) == 0
     assert "## LCM-2 vs DDIM-20 back to back, 2 torch threads, VAE encoder in bfloat16\n" in out.read_text()
+    bench2.write_text(json.dumps(dict(bf16, weights={"video": {"channel_encoder": "distilled"}})))
+    assert card.main([str(res), "--speedup", str(bench), "--speedup", str(bench2), "--out", str(out)]) == 0
+    assert "## LCM-2 vs DDIM-20 back to back, 2 torch threads, channels through the distilled encoder\n" in out.read_text()
     gpu = _speedup_bench([(6.1, 6.0, 9.0)], threads=16)
     gpu["machine"].update(device="cuda", cuda="NVIDIA H200")
     bench2.write_text(json.dumps(gpu))
@@ -423,6 +426,9 @@ def test_eval_command_line_reproduces_every_setting():
     off = build_parser().parse_args(base + ["--no-replace-refs"])
     assert not off.replace_refs and "--no-replace-refs" in command_line(off) and " --replace-refs" not in command_line(off)
     assert command_line(build_parser().parse_args(command_line(off).split()[1:])) == command_line(off)
+    assert " --channel-encoder auto " in command_line(a)  # the encoder is part of what a timing means
+    distilled = build_parser().parse_args(base + ["--channel-encoder", "distilled"])
+    assert command_line(build_parser().parse_args(command_line(distilled).split()[1:])) == command_line(distilled)
     assert "--threads" not in command_line(a) and "--threads 1 --out o" in command_line(build_parser().parse_args(base + ["--threads", "1"]))
     assert command_line(build_parser().parse_args(command_line(a).split()[1:])) == command_line(a)  # a fixed point
     assert " --no-seams" in command_line(a) and "--bf16-encoder" not in command_line(a)

@@ -469,3 +469,112 @@ def test_lcm_student_init_starts_from_the_given_student(runs, tmp_path):
     with pytest.raises(FileNotFoundError, match="lcm_unet"):
         run_lcm_stage(teacher, runs["root"] / "cache", tmp_path / "lcm3", LCMStageConfig(batch=1), LoopConfig(steps=1),
                       student_init=teacher)
+
+
+def test_encoder_stage_distils_the_channel_encoder_and_ships_with_the_teacher(runs, tmp_path):
+    """`x2video train encoder`: the run's model is the teacher's parts bit for bit plus channel_encoder; training
+    brings the attention-free encoder closer to the full one on held-out rooms; it resumes; "distilled" then
+    encodes the channels with it (slot = student latent x scale), "vae" ignores it, and it ships in fp16."""
+    from safetensors.torch import load_file
+
+    from x2video.eval.data import training_size
+    from x2video.model.channel_encoder import ChannelEncoder
+    from x2video.model.checkpoint import load_into
+    from x2video.model.pipeline import X2VideoModel
+    from x2video.model.vae import to_vae_range
+    from x2video.train.encoder_stage import EncoderStageConfig, run_encoder_stage
+    from x2video.train.ship import ship
+
+    teacher = Path(runs["lcm"]["model"])
+    ds = runs["ds"]
+    stage = EncoderStageConfig(batch=8, pool_frames_per_room=4, eval_frames_per_room=2)
+    res = run_encoder_stage(teacher, ds["train"], ds["test"], tmp_path / "enc", stage,
+                            LoopConfig(steps=30, lr=2e-4, warmup=2, ckpt_every=30, ema_decay=0))
+    held, start = res["heldout"], res["heldout_untrained"]
+    assert set(held) == {"albedo", "normal", "roughness", "metallic", "shading", "all"}
+    assert held["shading"]["images"] == 2 * held["albedo"]["images"]  # full prior + one dropped-channel variant
+    assert start["all"]["relative_mse"] > 0  # dropping the attention changes the latents ...
+    assert held["all"]["relative_mse"] < 0.7 * start["all"]["relative_mse"], (start, held)  # ... and training closes the gap
+    model = Path(res["model"])
+    for part in ("unet", "vae", "lcm_unet"):
+        a, b = load_file(str(model / f"{part}.safetensors")), load_file(str(teacher / f"{part}.safetensors"))
+        assert a.keys() == b.keys() and all(torch.equal(a[k], b[k].to(a[k].dtype)) for k in a)
+    resumed = run_encoder_stage(teacher, ds["train"], ds["test"], tmp_path / "enc", stage,
+                                LoopConfig(steps=31, lr=2e-4, warmup=2, ckpt_every=30, ema_decay=0))
+    assert resumed["step"] == 31 and len(json.loads((tmp_path / "enc" / "log.json").read_text())) == 31
+
+    fast = X2VideoModel.from_pretrained(model, text_encoder=FakeTextEncoder(), channel_encoder="distilled")
+    vae = X2VideoModel.from_pretrained(model, text_encoder=FakeTextEncoder(), channel_encoder="vae")
+    auto = X2VideoModel.from_pretrained(model, text_encoder=FakeTextEncoder(), channel_encoder="auto")
+    assert fast.channel_encoder is not None and auto.channel_encoder is not None and vae.channel_encoder is None
+    assert fast.content_key() != vae.content_key() and fast.content_key() == auto.content_key()
+    shot = ds["test"][0]
+    frames = [_frame_conditioning(shot, t, {c: True for c in ("albedo", "normal", "roughness", "metallic", "irradiance")}) for t in (0, 1)]
+    got, ref = fast.encode_frames(frames), vae.encode_frames(frames)
+    student = ChannelEncoder(fast.config.vae)
+    load_into(student, model / "channel_encoder.safetensors", "channel_encoder")
+    x = torch.from_numpy(np.stack([to_vae_range("albedo", f.channels["albedo"]) for f in frames])).permute(0, 3, 1, 2)
+    with torch.no_grad():
+        want = student(x) * fast.config.latent_scales["albedo"]
+    torch.testing.assert_close(got[:, 0:4], want, rtol=1e-4, atol=1e-5)
+    assert not torch.allclose(got[:, 0:4], ref[:, 0:4])  # the VAE's latents are what "vae" gives
+    torch.testing.assert_close(got[:, 16:19], ref[:, 16:19])  # irradiance is not VAE-encoded either way
+    with pytest.raises(FileNotFoundError, match="channel_encoder.safetensors"):
+        X2VideoModel.from_pretrained(teacher, text_encoder=FakeTextEncoder(), channel_encoder="distilled")
+
+    out = tmp_path / "resources" / "x2video-tiny"
+    ship(tmp_path / "enc", out)
+    assert training_size(out) == (32, 24)  # followed from the encoder run to its teacher's cache
+    sd = load_file(str(out / "channel_encoder.safetensors"))
+    assert sd and all(v.dtype == torch.float16 for v in sd.values()) and not any("attention" in k for k in sd)
+    assert X2VideoModel.from_pretrained(out, text_encoder=FakeTextEncoder(), channel_encoder="auto").channel_encoder is not None
+
+
+def test_channel_encoder_is_the_vae_encoder_without_its_attention(runs):
+    """Started from a VAE, the student shares every encoder tensor but the mid-block attention's, and gives
+    the VAE's latents exactly once that attention is switched off in the VAE itself."""
+    from x2video.model.channel_encoder import ChannelEncoder
+    from x2video.model.vae import encode_mode
+    from x2video.train.runs import load_vae
+
+    cfg, vae = load_vae(runs["root"] / "vae")
+    enc = ChannelEncoder.from_vae(vae, cfg.vae)
+    sd, full = enc.state_dict(), vae.state_dict()
+    assert all(torch.equal(v, full[k]) for k, v in sd.items())
+    assert {k for k in full if k.startswith(("encoder.", "quant_conv.")) and k not in sd} == \
+        {k for k in full if k.startswith("encoder.mid_block.attentions.")}
+    x = torch.rand(2, 3, 24, 32) * 2 - 1
+    with torch.no_grad():
+        got = enc(x)
+        assert got.shape == (2, 4, 12, 16) and not torch.allclose(got, encode_mode(vae, x))
+        vae.encoder.mid_block.attentions[0].forward = lambda h, temb=None: h  # the attention as identity
+        torch.testing.assert_close(got, encode_mode(vae, x))
+    with pytest.raises(ValueError, match="not a multiple of 2"):
+        enc(torch.randn(1, 3, 9, 12))
+
+
+def test_cli_encoder_stage_and_eval_refuses_mixed_channel_encoders(runs, tmp_path, capsys):
+    """`x2video train encoder` from the command line (size from the teacher's run), and `x2video eval` refusing a
+    video and an LCM model that would encode the channels differently (table d compares samplers, not encoders)."""
+    from x2video.cli import build_parser, main
+    from x2video.cli.eval import load_models
+    from x2video.procedural.shotgen import write_procedural_shot
+
+    data = tmp_path / "data"
+    write_procedural_shot(data / "train" / "room_00000", 0, 3, 32, 24, overwrite=True)
+    write_procedural_shot(data / "test" / "room_00001", 1, 3, 32, 24, overwrite=True)
+    teacher = runs["root"] / "lcm"
+    args = ["train", "encoder", "--teacher", str(teacher), "--data", str(data), "--out", str(tmp_path / "enc"), "--steps", "2",
+            "--pool-frames", "2", "--eval-frames", "1", "--batch", "4", "--warmup", "1", "--threads", "1"]
+    assert main(args) == 0
+    res = json.loads((tmp_path / "enc" / "results.json").read_text())["encoder"]
+    assert res["step"] == 2 and res["heldout"]["all"]["images"] == 6
+    base = ["eval", "--data", str(data), "--out", str(tmp_path / "ev")]
+    a = build_parser().parse_args(base + ["--weights", str(tmp_path / "enc"), "--lcm-weights", str(teacher), "--channel-encoder", "auto"])
+    with pytest.raises(ValueError, match="pick vae or distilled"):
+        load_models(a, with_image=False)
+    a = build_parser().parse_args(base + ["--weights", str(tmp_path / "enc"), "--channel-encoder", "distilled"])
+    models, _ = load_models(a, with_image=False)
+    assert models.info["video"]["channel_encoder"] == "distilled" and models.video.channel_encoder is not None
+    assert main(["train", "encoder", "--teacher", str(tmp_path / "nope"), "--data", str(data), "--out", str(tmp_path / "x")]) == 2
+    assert "nope" in capsys.readouterr().err

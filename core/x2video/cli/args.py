@@ -18,6 +18,11 @@ def size_arg(text: str) -> tuple[int, int]:
 #: help of `--bf16-encoder` (x2video render, x2video eval, the benches)
 BF16_ENCODER_HELP = ("run the VAE encoder (the channel encoding, a per-frame cost every sampler pays) in bfloat16 and the "
                      "rest in float32: faster on CPUs with native bf16 (AVX512-BF16, AMX), slower on others")
+#: help of `--channel-encoder` (x2video render, x2video eval, the benches)
+CHANNEL_ENCODER_HELP = ("what encodes the conditioning channels: 'vae' (the VAE's encoder, what the UNet was trained on), "
+                        "'distilled' (the model folder's channel_encoder.safetensors: the encoder without its mid-block "
+                        "attention, trained to reproduce the full encoder's latents; `x2video train encoder`) or 'auto' "
+                        "(distilled when the folder has one)")
 #: help of `--noise` and `--noise-shared` (x2video render, x2video eval, the benches)
 NOISE_HELP = ("seed the initial noise per 'window' or per 'frame' of the shot (a frame then has the same noise in every "
               "window that holds it; `RenderSettings.noise`)")

@@ -9,7 +9,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from x2video.cli.args import BF16_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, SEAMS_HELP, size_arg
+from x2video.cli.args import BF16_ENCODER_HELP, CHANNEL_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, SEAMS_HELP, size_arg
+from x2video.model.config import CHANNEL_ENCODERS, DEFAULT_CHANNEL_ENCODER
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +62,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
     g.add_argument("--fp16", action="store_true", help="half precision (GPU)")
     g.add_argument("--bf16-encoder", action="store_true", help=BF16_ENCODER_HELP)
+    g.add_argument("--channel-encoder", choices=CHANNEL_ENCODERS, default=DEFAULT_CHANNEL_ENCODER, help=CHANNEL_ENCODER_HELP)
     g = p.add_argument_group("data")
     g.add_argument("--data", type=Path, required=True, help="data set folder from `x2video dataset make` (DATA/test/room_*)")
     g.add_argument("--split", default=d.split, help=f"split of held-out rooms (default {d.split})")
@@ -123,6 +125,7 @@ def command_line(a: argparse.Namespace) -> str:
     if a.max_levels is not None:
         parts += ["--max-levels", str(a.max_levels)]
     parts += ["--noise", a.noise] + (["--noise-shared", f"{a.noise_shared:g}"] if a.noise == "frame" else [])
+    parts += ["--channel-encoder", getattr(a, "channel_encoder", DEFAULT_CHANNEL_ENCODER)]  # explicit: the timings depend on it
     for flag, on in (("--no-fid", a.no_fid), ("--no-tc", a.no_tc), ("--fp16", a.fp16), ("--bf16-encoder", getattr(a, "bf16_encoder", False))):
         if on:
             parts.append(flag)
@@ -152,6 +155,7 @@ def load_models(a: argparse.Namespace, *, with_image: bool = True) -> Any:
     dev = a.device or ("cuda" if torch.cuda.is_available() else "cpu")
     dtype = torch.float16 if a.fp16 else torch.float32
     encoder_dtype = torch.bfloat16 if getattr(a, "bf16_encoder", False) else None
+    channel_encoder = getattr(a, "channel_encoder", DEFAULT_CHANNEL_ENCODER)
     if a.untrained:
         if a.weights or a.image_weights or a.lcm_weights:
             raise ValueError("--untrained excludes --weights, --image-weights and --lcm-weights")
@@ -174,7 +178,10 @@ def load_models(a: argparse.Namespace, *, with_image: bool = True) -> Any:
         for part in ("unet.safetensors", "vae.safetensors"):
             if not (d / part).is_file():
                 raise FileNotFoundError(f"--{role}: {d} has no {part}")
-        model = X2VideoModel.from_pretrained(d, device=dev, dtype=dtype, encoder_dtype=encoder_dtype)
+        # The image model of table (a) is compared with the video model as the paper's baseline: it encodes its channels
+        # like the video model where it can ("distilled" needs its own channel_encoder.safetensors, so "auto" for it).
+        enc = "auto" if role == "image-weights" and channel_encoder == "distilled" else channel_encoder
+        model = X2VideoModel.from_pretrained(d, device=dev, dtype=dtype, encoder_dtype=encoder_dtype, channel_encoder=enc)
         if model.config.video != want_video:
             kind = "video" if model.config.video else "image"
             raise ValueError(f"--{role}: {d} holds an {kind} model; expected {'a video' if want_video else 'an image'} model")
@@ -184,6 +191,7 @@ def load_models(a: argparse.Namespace, *, with_image: bool = True) -> Any:
                 "lcm": model.has_lcm, "step": _step(d), "untrained": False}
         if encoder_dtype is not None:
             info["encoder_dtype"] = str(encoder_dtype).removeprefix("torch.")
+        info["channel_encoder"] = "vae" if model.channel_encoder is None else "distilled"
         return model, info, d
 
     video, vinfo, vdir = load(weights, "weights", True)
@@ -193,6 +201,10 @@ def load_models(a: argparse.Namespace, *, with_image: bool = True) -> Any:
         image, info["image"], _ = load(a.image_weights, "image-weights", False)
     if a.lcm_weights is not None:
         lcm, info["lcm"], _ = load(a.lcm_weights, "lcm-weights", True, want_lcm=True)
+        if info["lcm"]["channel_encoder"] != vinfo["channel_encoder"]:  # table (d) compares samplers, not encoders
+            raise ValueError(f"--channel-encoder {channel_encoder}: --weights encodes the channels with its "
+                             f"{vinfo['channel_encoder']} encoder, --lcm-weights with its {info['lcm']['channel_encoder']} one; "
+                             "pick vae or distilled explicitly")
     elif video.has_lcm:
         info["lcm"] = dict(vinfo, note="lcm_unet.safetensors of --weights")
     return EvalModels(video, image, lcm, info), vdir

@@ -7,7 +7,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from x2video.cli.args import BF16_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, SEAMS_HELP
+from x2video.cli.args import BF16_ENCODER_HELP, CHANNEL_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, SEAMS_HELP
+from x2video.model.config import CHANNEL_ENCODERS, DEFAULT_CHANNEL_ENCODER
 from x2video.sampling.events import (
     FramesReady,
     RenderEvent,
@@ -56,6 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
     p.add_argument("--fp16", action="store_true", help="half precision (GPU)")
     p.add_argument("--bf16-encoder", action="store_true", help=BF16_ENCODER_HELP)
+    p.add_argument("--channel-encoder", choices=CHANNEL_ENCODERS, default=DEFAULT_CHANNEL_ENCODER, help=CHANNEL_ENCODER_HELP)
     p.add_argument("--fps", type=float, help="MP4 frame rate (default: the shot's)")
     p.set_defaults(func=run)
 
@@ -77,7 +79,8 @@ def shipped_weights(resources: Path | None = None) -> Path | None:
     return found[0] if found else None
 
 
-def load_model(weights: Path | None, untrained: bool, device: str | None, fp16: bool, bf16_encoder: bool = False) -> Any:
+def load_model(weights: Path | None, untrained: bool, device: str | None, fp16: bool, bf16_encoder: bool = False,
+               channel_encoder: str = DEFAULT_CHANNEL_ENCODER) -> Any:
     import torch
 
     from x2video.model.pipeline import X2VideoModel
@@ -99,7 +102,7 @@ def load_model(weights: Path | None, untrained: bool, device: str | None, fp16: 
             )
     if not (weights / "config.json").is_file():
         raise FileNotFoundError(f"{weights} is not a model checkpoint folder (no config.json)")
-    return X2VideoModel.from_pretrained(weights, device=dev, dtype=dtype, encoder_dtype=encoder_dtype)
+    return X2VideoModel.from_pretrained(weights, device=dev, dtype=dtype, encoder_dtype=encoder_dtype, channel_encoder=channel_encoder)
 
 
 def ensure_demo(cache: Path) -> Path:
@@ -174,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
     if not 0 <= start < stop <= shot.num_frames:
         raise ValueError(f"--frames: frame range [{start}, {stop}) outside the shot's {shot.num_frames} frames")
     plan(settings.scheme, stop - start, settings.window, max_levels=settings.max_levels)  # bad window sizes or levels fail before the model loads
-    model = load_model(args.weights, args.untrained, args.device, args.fp16, args.bf16_encoder)
+    model = load_model(args.weights, args.untrained, args.device, args.fp16, args.bf16_encoder, args.channel_encoder)
     resolved = select_steps(settings, model)
     renderer = Renderer(model)
     t0 = time.perf_counter()

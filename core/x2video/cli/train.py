@@ -205,6 +205,23 @@ def cmd_lcm(a: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_encoder(a: argparse.Namespace) -> int:
+    from x2video.eval.data import training_size
+    from x2video.train.data import open_dataset
+    from x2video.train.encoder_stage import EncoderStageConfig, run_encoder_stage
+    from x2video.train.runs import model_dir
+
+    loop = _loop_cfg(a)
+    if loop.workers:
+        raise ValueError("--workers applies to the image, video and lcm stages (the encoder stage trains on frames in memory)")
+    ds = open_dataset(a.data)
+    size = a.size or training_size(model_dir(a.teacher))
+    stage = EncoderStageConfig(batch=a.batch, size=size, pool_frames_per_room=a.pool_frames,
+                               eval_frames_per_room=a.eval_frames, seed=a.seed)
+    _print_result(_run("encoder", loop.steps, lambda bar: run_encoder_stage(a.teacher, ds["train"], ds["test"], a.out, stage, loop, bar)))
+    return 0
+
+
 def cmd_ship(a: argparse.Namespace) -> int:
     """Write a trained model as the fp16 folder the CLI, editor and eval load by default."""
     from x2video.train.ship import ship
@@ -215,8 +232,8 @@ def cmd_ship(a: argparse.Namespace) -> int:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("train", help="train the VAE, cache latents, train the image, video and LCM models",
-                              description="Training stages, in order: vae -> cache -> image -> video -> lcm. Each is resumable: "
+    p = subparsers.add_parser("train", help="train the VAE, cache latents, train the image, video and LCM models, distil the channel encoder",
+                              description="Training stages, in order: vae -> cache -> image -> video -> lcm (-> encoder). Each is resumable: "
                                           "run the same command again (with a larger --steps) to continue.")
     sub = p.add_subparsers(dest="stage", metavar="STAGE")
     sub.required = True
@@ -303,6 +320,21 @@ def register(subparsers) -> None:
     _window_args(s)
     _loop_args(s, steps=1000, lr=1e-5, ema=0.99)
     s.set_defaults(func=cmd_lcm)
+
+    s = sub.add_parser("encoder", help="distil the VAE encoder, without its attention, for the conditioning channels (faster encoding)",
+                       description="Starts from a finished model's VAE encoder built without its mid-block attention and trains it "
+                                   "to reproduce the full encoder's latents of albedo, normal, roughness, metallic and the shading "
+                                   "prior. The run's model/ is the teacher plus channel_encoder.safetensors; render or evaluate it "
+                                   "with --channel-encoder distilled, ship it with `x2video train ship`.")
+    s.add_argument("--teacher", type=Path, required=True, help="video (or LCM) run or model folder whose VAE is distilled")
+    s.add_argument("--data", type=Path, required=True, help="data set folder with train/ and test/ rooms")
+    s.add_argument("--out", type=Path, required=True, help="run folder")
+    s.add_argument("--batch", type=int, default=16, help="whole-frame images per batch")
+    s.add_argument("--size", type=size_arg, default=None, help="resize frames to WxH (default: the teacher's training size)")
+    s.add_argument("--pool-frames", type=int, default=16, help="frames per training room held in memory")
+    s.add_argument("--eval-frames", type=int, default=8, help="held-out frames per test room for the error report")
+    _loop_args(s, steps=2000, lr=3e-4, ema=0.995)
+    s.set_defaults(func=cmd_encoder)
 
     s = sub.add_parser("ship", help="write a trained model (fp16 safetensors + training.json) into resources/",
                        description="Copies the newest model of a run (lcm, video or image) in fp16 into OUT with a "

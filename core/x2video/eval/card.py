@@ -206,10 +206,12 @@ def append_to_card(card: str, results: list[dict[str, Any]], speedups: list[dict
 def _speedup_heading(b: dict[str, Any]) -> str:
     m = b.get("machine", {})
     threads = m.get("torch_threads")
-    enc = b.get("weights", {}).get("video", {}).get("encoder_dtype")
+    video = b.get("weights", {}).get("video", {})
+    enc = video.get("encoder_dtype")
     where = (f"on {m['cuda']}" if str(m.get("device", "")).startswith("cuda") and m.get("cuda")
              else f"{threads} torch thread{'s' if threads != 1 else ''}")
-    return f"LCM-2 vs DDIM-20 back to back, {where}" + (f", VAE encoder in {enc}" if enc else "")
+    distilled = ", channels through the distilled encoder" if video.get("channel_encoder") == "distilled" else ""
+    return f"LCM-2 vs DDIM-20 back to back, {where}" + (f", VAE encoder in {enc}" if enc else "") + distilled
 
 
 def main(argv: list[str] | None = None) -> int:

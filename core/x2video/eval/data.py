@@ -137,7 +137,7 @@ def training_size(weights: str | Path) -> tuple[int, int] | None:
 
     Looked up in order: `training.json` {"size": [W, H]} in the model folder (for shipped
     weights); for a training run's `step-*/model/`, the run's `state.json` stage config ->
-    its latent cache's `meta.json` size."""
+    its latent cache's `meta.json` size (an encoder run's: its teacher's)."""
     p = Path(weights)
     for doc in (p / "training.json", p.parent / "training.json"):
         if doc.is_file():
@@ -146,7 +146,11 @@ def training_size(weights: str | Path) -> tuple[int, int] | None:
                 return int(size[0]), int(size[1])
     for state in (p.parent / "state.json", p / "state.json"):
         if state.is_file():
-            cache = json.loads(state.read_text()).get("stage_config", {}).get("cache")
+            stage_config = json.loads(state.read_text()).get("stage_config", {})
+            teacher = stage_config.get("teacher") if stage_config.get("stage") == "encoder" else None
+            if teacher and Path(teacher).resolve() != p.resolve():  # an encoder run: its teacher's size
+                return training_size(teacher)
+            cache = stage_config.get("cache")
             meta = Path(cache) / "meta.json" if cache else None
             if meta is not None and meta.is_file():
                 size = json.loads(meta.read_text()).get("size")

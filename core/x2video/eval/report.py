@@ -206,4 +206,6 @@ def _model_text(d: dict) -> str:
         bits.append(f"step {d['step']}")
     if d.get("encoder_dtype"):
         bits.append(f"VAE encoder in {d['encoder_dtype']} (`--bf16-encoder`)")
+    if d.get("channel_encoder") == "distilled":
+        bits.append("channels encoded by the distilled encoder (`--channel-encoder`)")
     return "(" + ", ".join(bits) + ")"

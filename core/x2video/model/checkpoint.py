@@ -4,6 +4,7 @@
     DIR/unet.safetensors       the (video or image) UNet, Hybrid Self-Attention weights included
     DIR/vae.safetensors        the AutoencoderKL
     DIR/lcm_unet.safetensors   optional: an LCM-distilled UNet of the same config
+    DIR/channel_encoder.safetensors  optional: the distilled encoder of the conditioning channels
 
 Loading validates every tensor name and shape and reports all mismatches at once.
 """
@@ -22,7 +23,7 @@ from x2video.model.config import ModelConfig
 
 FORMAT = "x2video-model"
 VERSION = 1
-PARTS = ("unet", "vae", "lcm_unet")
+PARTS = ("unet", "vae", "lcm_unet", "channel_encoder")
 
 
 def _atomic_write(path: Path, write) -> None:

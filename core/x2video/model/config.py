@@ -13,6 +13,13 @@ from typing import Any, Literal
 
 #: Channels that go through the VAE and carry their own latent scaling factor (DESIGN.md).
 LATENT_SCALE_KEYS = ("albedo", "normal", "roughness", "metallic", "rgb")
+#: what encodes the conditioning channels (`X2VideoModel.from_pretrained(channel_encoder=...)`, `--channel-encoder`):
+#: the VAE's encoder, the folder's distilled `channel_encoder.safetensors`, or the distilled one when present.
+#: "auto" by default: on the shipped model the distilled encoder renders within 0.02 dB of the VAE's in all
+#: but one row of tables (a) and (b) and cuts the encoding by about 30 % (model card, "Distilled channel
+#: encoder"); "vae" reproduces the VAE-encoded figures exactly.
+CHANNEL_ENCODERS = ("vae", "distilled", "auto")
+DEFAULT_CHANNEL_ENCODER = "auto"
 
 
 @dataclass

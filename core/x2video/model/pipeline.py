@@ -21,8 +21,9 @@ from diffusers import AutoencoderKL, UNet2DConditionModel
 
 from x2video.conditioning import FrameConditioning
 from x2video.model.api import WindowInputs
+from x2video.model.channel_encoder import ChannelEncoder
 from x2video.model.checkpoint import PARTS, load_into, read_config, save_checkpoint
-from x2video.model.config import ModelConfig, preset
+from x2video.model.config import CHANNEL_ENCODERS, DEFAULT_CHANNEL_ENCODER, ModelConfig, preset
 from x2video.model.inputs import cond_channels, is_video_unet, prior_latents, run_unet, sd_alphas_cumprod
 from x2video.model.shading import classical_shading, shading_available
 from x2video.model.text import TextEncoder, build_text_encoder
@@ -64,6 +65,7 @@ class X2VideoModel:
         untrained: bool = False,
         encode_batch: int = 8,
         encoder_dtype: torch.dtype | None = None,
+        channel_encoder: ChannelEncoder | None = None,
     ) -> None:
         self.config = config
         self.device = torch.device(device)
@@ -78,6 +80,11 @@ class X2VideoModel:
                 if part is not None:
                     part.to(self.encoder_dtype)
         self.lcm_unet = None if lcm_unet is None else _prepare(lcm_unet, self.device, dtype)
+        #: the distilled encoder of the conditioning channels (`x2video.model.channel_encoder`), or None:
+        #: the VAE's encoder. Runs in `encoder_dtype` like the VAE encoder it replaces.
+        self.channel_encoder = None if channel_encoder is None else _prepare(channel_encoder, self.device, self.encoder_dtype)
+        if channel_encoder is not None and channel_encoder.factor != config.vae.downsample:
+            raise ValueError(f"channel encoder has latent factor {channel_encoder.factor}, the VAE {config.vae.downsample}")
         if text_encoder is None and (config.text.kind == "minilm" or config.text.path):
             text_encoder = build_text_encoder(config.text.kind, config.text.max_length, config.unet.cross_attention_dim, config.text.path)
         self.text_encoder = text_encoder
@@ -103,7 +110,8 @@ class X2VideoModel:
 
     @classmethod
     def from_pretrained(cls, directory: str | os.PathLike, *, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32,
-                        text_encoder: TextEncoder | None = None, encoder_dtype: torch.dtype | None = None) -> "X2VideoModel":
+                        text_encoder: TextEncoder | None = None, encoder_dtype: torch.dtype | None = None,
+                        channel_encoder: str = DEFAULT_CHANNEL_ENCODER) -> "X2VideoModel":
         """Load a checkpoint directory written by `save_pretrained` (shapes validated by name).
 
         `encoder_dtype` (default: `dtype`) runs the VAE's encoder alone in another precision: bfloat16
@@ -112,7 +120,12 @@ class X2VideoModel:
         LCM-2's speed-up, and a convolution stack that gains most from bf16 on CPUs with native bf16
         (AVX512-BF16, AMX; on others bf16 is emulated and slower). On the shipped model it moved the
         held-out PSNR by at most 0.01 dB and TC by 0.3 % (model card, table d); the decoder is left in
-        float32 because decoding in bf16 too cost 1.5 % TC."""
+        float32 because decoding in bf16 too cost 1.5 % TC.
+
+        `channel_encoder` picks what encodes the conditioning channels: "vae" (the VAE's encoder, what
+        the UNet was trained on) or "distilled" (the folder's `channel_encoder.safetensors`: the same
+        encoder without its mid-block attention, trained to reproduce the full encoder's latents; see
+        `x2video.model.channel_encoder`). "auto": the distilled one when the folder has it."""
         directory = Path(directory)
         cfg = read_config(directory)
         unet, vae = build_unet(cfg), build_vae(cfg.vae)
@@ -122,7 +135,17 @@ class X2VideoModel:
         if (directory / "lcm_unet.safetensors").is_file():
             lcm = build_unet(cfg)
             load_into(lcm, directory / "lcm_unet.safetensors", "lcm_unet")
-        model = cls(cfg, unet, vae, text_encoder, lcm, device=device, dtype=dtype, encoder_dtype=encoder_dtype)
+        enc = None
+        if channel_encoder not in CHANNEL_ENCODERS:
+            raise ValueError(f"channel_encoder must be one of {CHANNEL_ENCODERS}, got {channel_encoder!r}")
+        enc_file = directory / "channel_encoder.safetensors"
+        if channel_encoder == "distilled" and not enc_file.is_file():
+            raise FileNotFoundError(f"{enc_file} is missing: this model has no distilled channel encoder "
+                                    f"(train one with `x2video train encoder --teacher {directory}`), or use --channel-encoder vae")
+        if channel_encoder != "vae" and enc_file.is_file():
+            enc = ChannelEncoder(cfg.vae)
+            load_into(enc, enc_file, "channel_encoder")
+        model = cls(cfg, unet, vae, text_encoder, lcm, device=device, dtype=dtype, encoder_dtype=encoder_dtype, channel_encoder=enc)
         model._content_key = None
         return model
 
@@ -131,6 +154,8 @@ class X2VideoModel:
         modules = {"unet": self.unet, "vae": self.vae}
         if self.lcm_unet is not None:
             modules["lcm_unet"] = self.lcm_unet
+        if self.channel_encoder is not None:
+            modules["channel_encoder"] = self.channel_encoder
         assert set(modules) <= set(PARTS)
         return save_checkpoint(directory, self.config, modules, dtype)
 
@@ -143,7 +168,7 @@ class X2VideoModel:
         cfg.video, cfg.shading_prior = True, sp
         unet = convert_image_to_video(self.unet, cfg.hybrid, sp)
         return X2VideoModel(cfg, unet, self.vae, self.text_encoder, device=self.device, dtype=self.dtype, untrained=self.is_untrained,
-                            encoder_dtype=self.encoder_dtype)
+                            encoder_dtype=self.encoder_dtype, channel_encoder=self.channel_encoder)
 
     # -- RenderModel ---------------------------------------------------------------
     @property
@@ -168,9 +193,11 @@ class X2VideoModel:
         if self._content_key is None:
             h = hashlib.sha256(self.config.to_json().encode())
             h.update(str(self.encoder_dtype).encode())  # a bf16 encoder gives other latents
-            for k, v in sorted(self.vae.state_dict().items()):
-                h.update(k.encode())
-                h.update(v.detach().to("cpu", torch.float32).contiguous().numpy().tobytes())
+            parts = [("", self.vae)] + ([("channel_encoder.", self.channel_encoder)] if self.channel_encoder is not None else [])
+            for prefix, module in parts:  # the distilled channel encoder gives other latents than the VAE
+                for k, v in sorted(module.state_dict().items()):
+                    h.update((prefix + k).encode())
+                    h.update(v.detach().to("cpu", torch.float32).contiguous().numpy().tobytes())
             self._content_key = ("untrained-" if self.is_untrained else "") + h.hexdigest()[:32]
         return self._content_key
 
@@ -200,7 +227,7 @@ class X2VideoModel:
             idx = [i for i, fr in enumerate(frames) if fr.channels.get(name) is not None]
             if idx:
                 imgs = [to_vae_range(name, self._checked(frames[i], name, H, W)) for i in idx]
-                z = self._encode(imgs) * scales[name]  # (n, 4, h, w)
+                z = self._encode_channels(imgs) * scales[name]  # (n, 4, h, w)
                 if name in _AMR:  # masked-out regions are zero latents, like a dropped channel
                     z = z * (1 - masks_lat[idx])
                 out[idx, slot : slot + 4] = z
@@ -212,7 +239,7 @@ class X2VideoModel:
             idx = [i for i, fr in enumerate(frames) if shading_available(fr.channels)]
             if idx:
                 imgs = [to_vae_range("shading", classical_shading(frames[i].channels, frames[i].amr_mask)) for i in idx]
-                z = self._encode(imgs) * scales["rgb"]  # (n, 4, h, w)
+                z = self._encode_channels(imgs) * scales["rgb"]  # (n, 4, h, w)
                 out[idx, _SHADING_SLOT : _SHADING_SLOT + 4] = z * (1 - masks_lat[idx])  # zero where A|M|R masked out
         return out
 
@@ -293,6 +320,15 @@ class X2VideoModel:
         """(H, W, 3) arrays in [-1, 1] -> (n, 4, h, w) unscaled posterior-mode latents."""
         z = encode_mode(self.vae, images_to_tensor(images, self.device, self.encoder_dtype), self.encode_batch)
         return z.to(self.dtype)
+
+    @torch.no_grad()
+    def _encode_channels(self, images: list[np.ndarray]) -> torch.Tensor:
+        """Like `_encode`, through the distilled channel encoder when the model has one."""
+        if self.channel_encoder is None:
+            return self._encode(images)
+        x = images_to_tensor(images, self.device, self.encoder_dtype)
+        b = self.encode_batch
+        return torch.cat([self.channel_encoder(x[i : i + b]) for i in range(0, x.shape[0], b)]).to(self.dtype)
 
     @staticmethod
     def _checked(frame: FrameConditioning, name: str, H: int, W: int) -> np.ndarray:
