@@ -145,6 +145,7 @@ class X2VideoModel:
         if channel_encoder != "vae" and enc_file.is_file():
             enc = ChannelEncoder(cfg.vae)
             load_into(enc, enc_file, "channel_encoder")
+            log.info("channels encoded by the distilled encoder %s (channel_encoder='vae': the full VAE encoder)", enc_file)
         model = cls(cfg, unet, vae, text_encoder, lcm, device=device, dtype=dtype, encoder_dtype=encoder_dtype, channel_encoder=enc)
         model._content_key = None
         return model
