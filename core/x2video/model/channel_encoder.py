@@ -22,6 +22,7 @@ from diffusers import AutoencoderKL
 from torch import nn
 
 from x2video.model.config import VAEConfig
+from x2video.model.vae import build_vae
 
 
 class ChannelEncoder(nn.Module):
@@ -30,12 +31,7 @@ class ChannelEncoder(nn.Module):
 
     def __init__(self, cfg: VAEConfig) -> None:
         super().__init__()
-        k = len(cfg.block_out_channels)
-        vae = AutoencoderKL(
-            in_channels=3, out_channels=3, down_block_types=("DownEncoderBlock2D",) * k, up_block_types=("UpDecoderBlock2D",) * k,
-            block_out_channels=cfg.block_out_channels, layers_per_block=cfg.layers_per_block, latent_channels=cfg.latent_channels,
-            norm_num_groups=cfg.norm_num_groups, mid_block_add_attention=False,
-        )
+        vae = build_vae(cfg, mid_attention=False)
         self.encoder, self.quant_conv = vae.encoder, vae.quant_conv  # the decoder is not needed
         self.latent_channels = cfg.latent_channels
         self.factor = cfg.downsample

@@ -26,8 +26,9 @@ from x2video.channels import linear_to_srgb, srgb_to_linear, tonemap
 from x2video.model.config import LATENT_SCALE_KEYS, VAEConfig
 
 
-def build_vae(cfg: VAEConfig) -> AutoencoderKL:
-    """A freshly initialised `AutoencoderKL` (3-channel images in [-1, 1], `latent_channels` latents)."""
+def build_vae(cfg: VAEConfig, mid_attention: bool = True) -> AutoencoderKL:
+    """A freshly initialised `AutoencoderKL` (3-channel images in [-1, 1], `latent_channels` latents);
+    `mid_attention=False` leaves out the mid-blocks' self-attention (the distilled channel encoder)."""
     k = len(cfg.block_out_channels)
     return AutoencoderKL(
         in_channels=3,
@@ -38,6 +39,7 @@ def build_vae(cfg: VAEConfig) -> AutoencoderKL:
         layers_per_block=cfg.layers_per_block,
         latent_channels=cfg.latent_channels,
         norm_num_groups=cfg.norm_num_groups,
+        mid_block_add_attention=mid_attention,
     )
 
 

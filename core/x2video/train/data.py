@@ -79,6 +79,12 @@ def resize_channel(name: str, x: np.ndarray, size: tuple[int, int] | None) -> np
     return y
 
 
+def even_frames(shot: Shot, count: int) -> list[int]:
+    """Up to `count` evenly spaced frame indices of `shot`, first and last included (the pools of the
+    VAE and encoder stages)."""
+    return [int(t) for t in np.unique(np.linspace(0, shot.num_frames - 1, min(count, shot.num_frames)).round().astype(int))]
+
+
 def read_frame(shot: Shot, t: int, names: tuple[str, ...], size: tuple[int, int] | None) -> dict[str, np.ndarray]:
     """The named channels of frame t at `size`; a missing channel raises naming the shot and frame."""
     out = {}

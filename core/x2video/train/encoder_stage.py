@@ -34,7 +34,7 @@ from x2video.model.config import ModelConfig
 from x2video.model.shading import classical_shading
 from x2video.model.vae import encode_mode, to_vae_range
 from x2video.shot import Shot
-from x2video.train.data import read_frame
+from x2video.train.data import even_frames, read_frame
 from x2video.train.loop import LoopConfig, StepLog, process_index, train
 from x2video.train.runs import load_vae, model_dir, write_results
 
@@ -78,9 +78,8 @@ def build_pool(shots: Sequence[Shot], frames_per_room: int, size: tuple[int, int
     rng = np.random.default_rng(seed)
     images, kinds, sizes = [], [], set()
     for shot in shots:
-        ts = np.unique(np.linspace(0, shot.num_frames - 1, min(frames_per_room, shot.num_frames)).round().astype(int))
-        for t in ts:
-            for kind, img in frame_images(read_frame(shot, int(t), _READ, size), rng):
+        for t in even_frames(shot, frames_per_room):
+            for kind, img in frame_images(read_frame(shot, t, _READ, size), rng):
                 images.append(img.astype(np.float16))
                 kinds.append(kind)
                 sizes.add(img.shape[:2])

@@ -23,7 +23,7 @@ from x2video.model.checkpoint import save_checkpoint
 from x2video.model.config import ModelConfig, VAEConfig, preset
 from x2video.model.vae import build_vae, encode_mode, to_vae_range
 from x2video.shot import Shot
-from x2video.train.data import read_frame
+from x2video.train.data import even_frames, read_frame
 from x2video.train.loop import LoopConfig, StepLog, process_index, train
 from x2video.train.runs import write_results
 
@@ -71,9 +71,8 @@ def build_pool(shots: Sequence[Shot], frames_per_room: int, size: tuple[int, int
     pool: dict[str, list[np.ndarray]] = {c: [] for c in VAE_CHANNELS}
     sizes = set()
     for shot in shots:
-        ts = np.unique(np.linspace(0, shot.num_frames - 1, min(frames_per_room, shot.num_frames)).round().astype(int))
-        for t in ts:
-            fr = read_frame(shot, int(t), VAE_CHANNELS, size)
+        for t in even_frames(shot, frames_per_room):
+            fr = read_frame(shot, t, VAE_CHANNELS, size)
             for c in VAE_CHANNELS:
                 pool[c].append(to_vae_range(c, fr[c]).astype(np.float16))
                 sizes.add(pool[c][-1].shape[:2])
@@ -120,9 +119,8 @@ def reconstruction_psnr(vae: AutoencoderKL, shots: Sequence[Shot], frames_per_ro
     f = 2 ** (len(vae.config.block_out_channels) - 1)
     per: dict[str, list[float]] = {c: [] for c in VAE_CHANNELS}
     for shot in shots:
-        ts = np.unique(np.linspace(0, shot.num_frames - 1, min(frames_per_room, shot.num_frames)).round().astype(int))
-        for t in ts:
-            fr = read_frame(shot, int(t), VAE_CHANNELS, size)
+        for t in even_frames(shot, frames_per_room):
+            fr = read_frame(shot, t, VAE_CHANNELS, size)
             for c in VAE_CHANNELS:
                 img = to_vae_range(c, fr[c])
                 if img.shape[0] % f or img.shape[1] % f:
