@@ -84,7 +84,8 @@ def back_to_back(renderers: dict, shots: list, args: argparse.Namespace) -> dict
             for reference in (False, True):
                 r = renderers[sampler]
                 settings = RenderSettings(sampler=sampler, steps=steps[sampler], seed=args.seed, window=args.window,  # type: ignore[arg-type]
-                                          replace_refs=args.replace_refs, noise=args.noise, noise_shared=args.noise_shared)
+                                          replace_refs=args.replace_refs, noise=args.noise, noise_shared=args.noise_shared,
+                                          ref_dc=args.ref_dc, resample=args.resample)
                 secs = enc = 0.0
                 frames = 0
                 for s in shots:

@@ -95,7 +95,7 @@ def measure(args: argparse.Namespace) -> dict:
                 per_seed = {}
                 for seed in seeds:
                     rs = RenderSettings(sampler="ddim", steps=args.steps, seed=seed, window=window, replace_refs=args.replace_refs,  # type: ignore[arg-type]
-                                        noise=noise, noise_shared=shared)  # type: ignore[arg-type]
+                                        noise=noise, noise_shared=shared, ref_dc=args.ref_dc, resample=args.resample)  # type: ignore[arg-type]
                     ps, pe, ge = [], [], []
                     for s in shots:
                         frames, _ = render_shot(renderer, s, edits[s.name], rs)

@@ -16,8 +16,14 @@ that made the later frame read the earlier one (every sequential seam), "end" wh
 made the earlier frame read the later one (the frame before an interpolation window's end reference).
 
 Writes {"format": "x2video-recursive-seams", "command", "machine", "weights", "data", "condition",
-"schemes": {scheme: {"tc", "psnr", "classes": {class: {"tc", "pairs"}}, "sides": {side: {"tc", "pairs"}},
+"schemes": {scheme: {"tc", "psnr", "classes": {class: {"tc", "pairs", "brightness_jump"}},
+"frame_offsets": {"level k": {"mean_abs", "per_shot"}}, "sides": {side: {"tc", "pairs"}},
 "shots": {name: {class: {"tc", "pairs"}}}}}}.
+
+A seam's TC can come from a global disagreement of the two windows: `brightness_jump` is, per pair class,
+the mean |change of the prediction's mean brightness - the ground truth's| (tone-mapped units), and
+`frame_offsets` the prediction's mean brightness minus the ground truth's per frame, by the level of the
+window that made it (where the lighting must be inferred, each level infers its own).
 """
 from __future__ import annotations
 
@@ -66,6 +72,20 @@ def pair_sides(windows: list, num_frames: int) -> list[str]:
     return out
 
 
+def frame_levels(windows: list, num_frames: int) -> list[str]:
+    """For each frame: "level k", the level of the window that made it last (keyframes: the top level)."""
+    made_by = _made_by(windows)
+    return [f"level {made_by[t].level}" for t in range(num_frames)]
+
+
+def brightness_jumps(pred: list[np.ndarray], gt: list[np.ndarray]) -> np.ndarray:
+    """(T-1,) per pair (t, t+1): |change of the prediction's mean brightness - that of the ground truth|,
+    the part of a seam a global (DC) disagreement between two windows makes, in tone-mapped units."""
+    mp = np.array([float(f.mean()) for f in pred])
+    mg = np.array([float(f.mean()) for f in gt])
+    return np.abs(np.diff(mp) - np.diff(mg))
+
+
 def _tc(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> dict:
     ok = mask & np.isfinite(pred) & np.isfinite(gt)
     return {"tc": float(pred[ok].mean() / gt[ok].mean()) if ok.any() else None, "pairs": int(ok.sum())}
@@ -89,16 +109,18 @@ def measure(args: argparse.Namespace) -> dict:
     size, _ = resolve_size(args, weights_dir, models.video.downsample)
     shots = load_eval_shots(args.data, args.split, args.rooms, args.frames, size)
     renderer = Renderer(models.video)
-    per: dict[str, dict] = {s: {"pred": [], "gt": [], "classes": [], "sides": [], "shots": {}, "psnr": []} for s in SCHEMES}
+    per: dict[str, dict] = {s: {"pred": [], "gt": [], "classes": [], "sides": [], "shots": {}, "psnr": [],
+                                        "jumps": [], "levels": [], "offsets": []} for s in args.schemes}
     for shot in shots:
         edits, _ = build_edits(shot.shot, shot.name, condition, args.seed)
         gt = [tonemap(g) for g in shot.gt]
         flows, _ = ground_truth_flows(gt, shot.motion)
         gt_err = warping_errors(gt, flows).errors
         ref = resolve_reference(shot.shot, edits) if edits is not None else None  # where the Renderer anchors the plan
-        for scheme in SCHEMES:
+        for scheme in args.schemes:
             settings = RenderSettings(sampler="ddim", steps=args.steps, seed=args.seed, window=args.window, scheme=scheme,  # type: ignore[arg-type]
-                                      replace_refs=args.replace_refs, seams=args.seams, max_levels=args.max_levels, noise=args.noise, noise_shared=args.noise_shared)
+                                      replace_refs=args.replace_refs, seams=args.seams, max_levels=args.max_levels, noise=args.noise, noise_shared=args.noise_shared,
+                                      resample=args.resample, ref_dc=args.ref_dc)
             windows = renderer.plan(shot.shot, settings, None if ref is None else ref[0])
             classes = np.array(pair_classes(windows, shot.num_frames))
             sides = np.array(pair_sides(windows, shot.num_frames))
@@ -107,6 +129,9 @@ def measure(args: argparse.Namespace) -> dict:
             err = warping_errors(shown, flows).errors
             p = per[scheme]
             p["psnr"].extend(psnr(a, b) for a, b in zip(shown, gt))
+            p["jumps"].append(brightness_jumps(shown, gt))
+            p["levels"].append(np.array(frame_levels(windows, shot.num_frames)))
+            p["offsets"].append(np.array([float((a - b).mean()) for a, b in zip(shown, gt)]))
             p["pred"].append(err)
             p["gt"].append(gt_err)
             p["classes"].append(classes)
@@ -115,9 +140,17 @@ def measure(args: argparse.Namespace) -> dict:
             print(f"{shot.name} {scheme}: " + ", ".join(f"{c} TC {v['tc']:.2f} ({v['pairs']})" for c, v in p["shots"][shot.name].items()), file=sys.stderr)
     schemes = {}
     for scheme, p in per.items():
-        pred, gt, classes, sides = (np.concatenate(p[k]) for k in ("pred", "gt", "classes", "sides"))
+        pred, gt, classes, sides, jumps = (np.concatenate(p[k]) for k in ("pred", "gt", "classes", "sides", "jumps"))
+        # per frame, by the level of the window that made it: the mean brightness offset from the ground
+        # truth, shot by shot (its sign differs between shots) and its mean magnitude
+        levels = sorted(set(np.concatenate(p["levels"])))
+        offsets = {lv: {"mean_abs": float(np.mean(np.concatenate([np.abs(o[lvs == lv]) for o, lvs in zip(p["offsets"], p["levels"])]))),
+                        "per_shot": [float(o[lvs == lv].mean()) if (lvs == lv).any() else None for o, lvs in zip(p["offsets"], p["levels"])]}
+                   for lv in levels}
         schemes[scheme] = {"tc": _tc(pred, gt, np.ones_like(pred, bool))["tc"], "psnr": float(np.mean(p["psnr"])),
-                           "classes": {c: _tc(pred, gt, classes == c) for c in sorted(set(classes))},
+                           "classes": {c: {**_tc(pred, gt, classes == c), "brightness_jump": float(jumps[classes == c].mean())}
+                                       for c in sorted(set(classes))},
+                           "frame_offsets": offsets,
                            "sides": {c: _tc(pred, gt, sides == c) for c in sorted(set(sides))},
                            "shots": p["shots"]}
     return {
@@ -133,11 +166,19 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(frames=65)
     p.add_argument("--condition", default="drop_irradiance+ref", help="KIND[+text][+ref] as in x2video eval --long-conditions")
     p.add_argument("--steps", type=int, default=20, help="DDIM steps (default 20)")
+    p.add_argument("--schemes", type=lambda v: tuple(v.split(",")), default=SCHEMES,
+                   help="comma-separated subset of sequential,recursive (default both; sequential ignores the recursive-only options)")
     p.add_argument("--out", type=Path, default=RESULTS, help=f"JSON path (default {RESULTS})")
     args = p.parse_args(argv)
+    if not args.schemes or set(args.schemes) - set(SCHEMES):
+        p.error(f"--schemes: a comma-separated subset of {','.join(SCHEMES)}, got {','.join(args.schemes)}")
     result = run_measure(args, measure)
     for scheme, r in result["schemes"].items():
         print(f"{scheme:>10}: PSNR {r['psnr']:.3f} dB, TC {r['tc']:.3f}; " + "; ".join(f"{c} {v['tc']:.3f} ({v['pairs']} pairs)" for c, v in r["classes"].items()))
+        print(" " * 12 + "brightness jump not in the ground truth: " + "; ".join(f"{c} {v['brightness_jump']:.4f}" for c, v in r["classes"].items()))
+        print(" " * 12 + "frame offset from the ground truth, by the level that made it: "
+              + "; ".join(f"{lv} |{v['mean_abs']:.4f}| (" + ", ".join(f"{x:+.4f}" for x in v["per_shot"] if x is not None) + ")"
+                          for lv, v in r["frame_offsets"].items()))
         print(" " * 12 + "by side of the seam: " + "; ".join(f"{c} {v['tc']:.3f} ({v['pairs']} pairs)" for c, v in r["sides"].items()))
     print(f"wrote {args.out}")
     return 0

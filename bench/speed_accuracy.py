@@ -24,7 +24,7 @@ import sys
 import time
 from pathlib import Path
 
-from x2video.cli.args import BF16_ENCODER_HELP, CHANNEL_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, SEAMS_HELP, size_arg
+from x2video.cli.args import BF16_ENCODER_HELP, CHANNEL_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, REF_DC_HELP, RESAMPLE_HELP, SEAMS_HELP, size_arg
 from x2video.model.config import CHANNEL_ENCODERS, DEFAULT_CHANNEL_ENCODER
 
 RESULTS = Path(__file__).resolve().parent / "results" / "speed_accuracy.json"
@@ -60,7 +60,8 @@ def measure(args: argparse.Namespace) -> dict:
         warm_up(renderer, shots[0], sampler)  # untimed: first-call costs stay out of the first preset
         renderer.cache.clear()  # every preset pays its own encoding, as in `x2video eval`
         settings = RenderSettings(sampler=sampler, steps=steps, seed=args.seed, window=args.window, detail=detail,  # type: ignore[arg-type]
-                                  replace_refs=args.replace_refs, seams=args.seams, max_levels=args.max_levels, noise=args.noise, noise_shared=args.noise_shared)
+                                  replace_refs=args.replace_refs, seams=args.seams, max_levels=args.max_levels, noise=args.noise, noise_shared=args.noise_shared,
+                                  ref_dc=args.ref_dc, resample=args.resample)
         preds, secs = {}, {}
         for s in shots:
             preds[s.name], secs[s.name] = render_shot(renderer, s, None, settings)
@@ -185,6 +186,8 @@ def add_render_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-levels", type=int, default=RenderSettings.max_levels, help=MAX_LEVELS_HELP)
     p.add_argument("--noise", choices=("window", "frame"), default=RenderSettings.noise, help=NOISE_HELP)
     p.add_argument("--noise-shared", type=float, default=RenderSettings.noise_shared, help=NOISE_SHARED_HELP)
+    p.add_argument("--ref-dc", type=float, default=RenderSettings.ref_dc, help=REF_DC_HELP)
+    p.add_argument("--resample", type=int, default=RenderSettings.resample, help=RESAMPLE_HELP)
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
 
 

@@ -91,11 +91,14 @@ class FakeModel:
         return rgb.permute(0, 2, 3, 1).numpy().astype(np.float32)
 
 
-def make_shot(num_frames: int = 9, height: int = 16, width: int = 24, seed: int = 0) -> ArrayShot:
-    """A tiny shot whose albedo differs per frame."""
+def make_shot(num_frames: int = 9, height: int = 16, width: int = 24, seed: int = 0, irradiance: bool = True) -> ArrayShot:
+    """A tiny shot whose albedo differs per frame (without an irradiance channel if not `irradiance`)."""
     rng = np.random.default_rng(seed)
     albedo = rng.uniform(0, 1, (num_frames, height, width, 3)).astype(np.float32)
     irr = np.ones((num_frames, height, width, 3), np.float32)
     normal = np.zeros((num_frames, height, width, 3), np.float32)
     normal[..., 2] = 1
-    return ArrayShot({"albedo": albedo, "irradiance": irr, "normal": normal}, fps=10.0)
+    channels = {"albedo": albedo, "irradiance": irr, "normal": normal}
+    if not irradiance:
+        del channels["irradiance"]
+    return ArrayShot(channels, fps=10.0)

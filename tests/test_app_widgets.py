@@ -137,7 +137,9 @@ def test_render_panel_seam_pass_only_with_the_recursive_scheme(qtbot):
     qtbot.addWidget(panel)
     changed = []
     panel.sigSettingsChanged.connect(lambda: changed.append(1))
-    assert panel.values()["seams"] is False and panel.seams.isEnabled()
+    assert panel.values()["seams"] is True and panel.seams.isEnabled()  # RenderSettings' default
+    panel.seams.setChecked(False)
+    assert panel.values()["seams"] is False and changed
     panel.seams.setChecked(True)
     assert panel.values()["seams"] is True and changed
     settings = RenderController.settings(None, **panel.values())  # type: ignore[arg-type]  (does not touch self)

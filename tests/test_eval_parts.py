@@ -431,16 +431,24 @@ def test_eval_command_line_reproduces_every_setting():
     assert command_line(build_parser().parse_args(command_line(distilled).split()[1:])) == command_line(distilled)
     assert "--threads" not in command_line(a) and "--threads 1 --out o" in command_line(build_parser().parse_args(base + ["--threads", "1"]))
     assert command_line(build_parser().parse_args(command_line(a).split()[1:])) == command_line(a)  # a fixed point
-    assert " --no-seams" in command_line(a) and "--bf16-encoder" not in command_line(a)
-    on = build_parser().parse_args(base + ["--seams", "--bf16-encoder"])
-    assert on.seams and on.bf16_encoder and " --seams" in command_line(on) and " --bf16-encoder" in command_line(on)
+    assert " --seams" in command_line(a) and "--bf16-encoder" not in command_line(a)  # the seam pass is on by default
+    assert " --ref-dc 1 " in command_line(a)
+    on = build_parser().parse_args(base + ["--no-seams", "--bf16-encoder"])
+    assert not on.seams and on.bf16_encoder and " --no-seams" in command_line(on) and " --bf16-encoder" in command_line(on)
     assert command_line(build_parser().parse_args(command_line(on).split()[1:])) == command_line(on)
     assert " --noise frame --noise-shared 0.95 " in command_line(a)  # RenderSettings' defaults, written out
+    assert "--resample" not in command_line(a)  # off by default
+    dc = build_parser().parse_args(base + ["--ref-dc", "0.5"])
+    assert dc.ref_dc == 0.5 and " --ref-dc 0.5 " in command_line(dc)
+    assert command_line(build_parser().parse_args(command_line(dc).split()[1:])) == command_line(dc)
+    rs = build_parser().parse_args(base + ["--resample", "2"])
+    assert rs.resample == 2 and " --resample 2 " in command_line(rs)
+    assert command_line(build_parser().parse_args(command_line(rs).split()[1:])) == command_line(rs)
     win = build_parser().parse_args(base + ["--noise", "window"])
     assert " --noise window " in command_line(win) and "--noise-shared" not in command_line(win)
     half = build_parser().parse_args(base + ["--noise-shared", "0.5"])
     assert half.noise_shared == 0.5 and command_line(build_parser().parse_args(command_line(half).split()[1:])) == command_line(half)
     assert "--max-levels" not in command_line(a)  # None: as many levels as the shot needs
     capped = build_parser().parse_args(base + ["--max-levels", "2"])
-    assert capped.max_levels == 2 and " --no-seams --max-levels 2 " in command_line(capped)
+    assert capped.max_levels == 2 and " --seams --max-levels 2 " in command_line(capped)
     assert command_line(build_parser().parse_args(command_line(capped).split()[1:])) == command_line(capped)

@@ -48,7 +48,7 @@ def frames_of(events: list) -> dict[int, np.ndarray]:
 @pytest.mark.parametrize("scheme", ["recursive", "sequential"])
 def test_event_order(scheme: str) -> None:
     shot = make_shot(18)
-    settings = RenderSettings(steps=3, window=5, scheme=scheme)
+    settings = RenderSettings(steps=3, window=5, scheme=scheme, seams=False)  # the seam pass re-makes frames: its own test
     events = run(Renderer(FakeModel()), shot, settings)
     assert isinstance(events[0], RenderStarted) and isinstance(events[-1], RenderFinished)
     assert events[0].num_frames == 18 and events[-1].num_frames == 18
@@ -401,3 +401,96 @@ def test_max_levels_caps_the_plan_the_renderer_runs() -> None:
     assert sorted(made) == list(range(17)) and events[0].num_windows == len(windows)
     with pytest.raises(ValueError, match="max_levels"):
         run(renderer, shot, dataclasses.replace(settings, max_levels=0))
+
+
+def test_resample_repeats_steps_only_in_windows_with_references() -> None:
+    """RePaint resampling (`RenderSettings.resample`): with DDIM-4 and r = 3, a window with references
+    takes steps 2 and 3 three times (8 network passes), the keyframe window without one still 4; the
+    same seed gives the same frames, LCM ignores it, and r < 1 is refused."""
+    shot = make_shot(9, height=16, width=24)
+    settings = RenderSettings(steps=4, window=5, resample=3)
+    model = FakeModel()
+    renderer = Renderer(model)
+    windows = renderer.plan(shot, settings)
+    events = run(renderer, shot, settings)
+    passes = sum(8 if w.refs else 4 for w in windows)  # Known positions: frames earlier windows made
+    assert any(w.refs for w in windows) and model.predict_calls == passes
+    again = frames_of(run(Renderer(FakeModel()), shot, settings))
+    assert all(np.array_equal(again[f], frames_of(events)[f]) for f in range(9))
+    off = frames_of(run(Renderer(FakeModel()), shot, dataclasses.replace(settings, resample=1)))
+    assert any(not np.allclose(off[f], again[f]) for f in range(9))  # the repeats change the generated frames
+    lcm = FakeModel(has_lcm=True)
+    run(Renderer(lcm), shot, dataclasses.replace(settings, sampler="lcm", steps=2))
+    assert lcm.predict_calls == 2 * len(windows)
+    with pytest.raises(ValueError, match="resample must be at least 1"):
+        run(Renderer(FakeModel()), shot, dataclasses.replace(settings, resample=0))
+
+
+@pytest.mark.parametrize("sampler", ["ddim", "lcm"])
+def test_ref_dc_puts_inferred_frames_on_the_line_between_their_references(sampler: str) -> None:
+    """`ref_dc` = 1 on a shot without irradiance (the lighting must be inferred): each generated frame of
+    an interpolation window leaves with the per-channel latent mean linearly interpolated, by position,
+    between its two references'; 0 leaves them off it, and frames that have their shading are left alone."""
+    full = make_shot(17, height=16, width=24)
+    dark = make_shot(17, height=16, width=24, irradiance=False)
+
+    def latents_by_frame(shot, ref_dc: float) -> tuple[list, dict[int, torch.Tensor]]:
+        model = FakeModel(has_lcm=True)
+        renderer = Renderer(model)
+        settings = RenderSettings(sampler=sampler, steps=3 if sampler == "ddim" else 2, window=5, ref_dc=ref_dc)  # type: ignore[arg-type]
+        windows = renderer.plan(shot, settings)
+        run(renderer, shot, settings)
+        made = {f: z for w, dec in zip(windows, model.decoded) for f, z in zip(w.generate, dec)}
+        return windows, made
+
+    def off_line(windows: list, made: dict[int, torch.Tensor]) -> float:
+        worst = 0.0
+        for w in windows:
+            if w.mode != "interp":
+                continue
+            m0, m1 = (made[f].mean(dim=(-2, -1)) for f in w.refs)
+            for p, f in zip(w.generate_positions, w.generate):
+                lam = p / (len(w.frames) - 1)
+                worst = max(worst, float(((1 - lam) * m0 + lam * m1 - made[f].mean(dim=(-2, -1))).abs().max()))
+        return worst
+
+    windows, made = latents_by_frame(dark, 1.0)
+    assert any(w.mode == "interp" for w in windows) and off_line(windows, made) < 1e-5
+    assert off_line(*latents_by_frame(dark, 0.0)) > 1e-2
+    with_shading, without = latents_by_frame(full, 1.0)[1], latents_by_frame(full, 0.0)[1]
+    assert all(torch.equal(with_shading[f], without[f]) for f in range(17))
+    with pytest.raises(ValueError, match="ref_dc must lie in"):
+        latents_by_frame(dark, 1.5)
+
+
+def test_mean_anchor_moves_only_the_region_to_infer() -> None:
+    """With an A|M|R-style region, the anchor moves the generated frames only inside it, to the
+    interpolation of the references' means over their own regions; outside it nothing changes."""
+    from x2video.sampling.planner import Window
+    from x2video.sampling.renderer import mean_anchor
+
+    g = torch.Generator().manual_seed(0)
+    window = Window(frames=(0, 1, 2, 3, 4), generate=(1, 2, 3), refs=(0, 4), mode="interp", level=1)
+    ref = torch.zeros(5, 4, 6, 8)
+    ref[0], ref[4] = torch.randn(4, 6, 8, generator=g) + 1.0, torch.randn(4, 6, 8, generator=g) - 1.0
+    regions = [torch.zeros(6, 8) for _ in range(5)]
+    for p in range(5):
+        regions[p][1:4, 2 + p // 2 : 5 + p // 2] = 1.0  # a moving 3x3 object
+    offset = torch.randn(5, 4, 6, 8, generator=g) * 0.1
+    fn = mean_anchor(window, 1.0, ref, offset, regions)
+    x0 = torch.randn(5, 4, 6, 8, generator=g)
+    out = fn(x0, 0)
+
+    def mean_in(z, w):
+        return (z * w).sum(dim=(-2, -1)) / w.sum()
+
+    m0, m1 = mean_in(ref[0], regions[0]), mean_in(ref[4], regions[4])
+    for p in (1, 2, 3):
+        lam = p / 4
+        assert torch.allclose(mean_in(out[p] + offset[p], regions[p]), (1 - lam) * m0 + lam * m1, atol=1e-5)
+        assert torch.equal(out[p][:, regions[p] == 0], x0[p][:, regions[p] == 0])
+    assert torch.equal(out[[0, 4]], x0[[0, 4]])  # reference positions are the Known's business
+    assert mean_anchor(window, 1.0, ref, offset, [torch.zeros(6, 8)] * 5) is None  # nothing to infer
+    assert mean_anchor(window, 0.0, ref, offset, regions) is None
+    key = Window(frames=(0, 4, 8), generate=(0, 4, 8), refs=(), mode="key", level=2)
+    assert mean_anchor(key, 1.0, ref[:3], offset[:3], regions[:3]) is None

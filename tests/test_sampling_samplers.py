@@ -144,3 +144,59 @@ def test_lcm_renoise_supplies_the_noise_between_steps() -> None:
             assert torch.allclose(seen[i + 1][1], ac[t_next].sqrt() * denoised[i] + (1 - ac[t_next]).sqrt() * z[i], atol=1e-5)
         runs.append(out)
     assert torch.equal(runs[0], runs[1])
+
+
+def test_ddim_resample_goes_back_one_step_and_repeats_it() -> None:
+    """RePaint resampling: with known positions, every step but the first and last is taken r times;
+    between takes the sample is carried back from the next step's level to this step's by the forward
+    process with `jump_noise(i, j)`, and the known positions are set to this step's level."""
+    x0, eps = _data()
+    ref = torch.randn(1, 4, 6, 8, generator=torch.Generator().manual_seed(5))
+    target = torch.cat([ref, x0[1:]])  # the oracle's clean sample agrees with the known frame
+    ac = alphas_cumprod().float()
+    draws: dict = {}
+
+    def jump_noise(i: int, j: int) -> torch.Tensor:
+        draws[(i, j)] = torch.randn(3, 4, 6, 8, generator=torch.Generator().manual_seed(100 * i + j))
+        return draws[(i, j)]
+
+    seen: list = []
+    known = Known((0,), ref, eps[[0]])
+    out = sample_ddim(_oracle(target, seen), eps, 4, known=known, resample=3, jump_noise=jump_noise)
+    assert [t for t, _ in seen] == [999, 749, 749, 749, 499, 499, 499, 249]
+    assert sorted(draws) == [(1, 1), (1, 2), (2, 1), (2, 2)]
+    # the second take of step 1 (t=749) starts from step 1's output (level 499) carried back to 749
+    a_t, a_next = ac[749], ac[499]
+    after = a_next.sqrt() * target + (1 - a_next).sqrt() * eps  # the oracle keeps DDIM on the forward process
+    back = (a_t / a_next).sqrt() * after + (1 - a_t / a_next).sqrt() * draws[(1, 1)]
+    assert torch.allclose(seen[2][1][1:], back[1:], atol=1e-5)
+    assert torch.allclose(seen[2][1][0], a_t.sqrt() * ref[0] + (1 - a_t).sqrt() * eps[0], atol=1e-5)  # known at this level
+    assert torch.allclose(out, target, atol=1e-4)  # an exact model still lands on its clean sample
+    # without known positions there is nothing to harmonise with: one take per step
+    plain: list = []
+    sample_ddim(_oracle(x0, plain), eps, 4, resample=3, jump_noise=jump_noise)
+    assert len(plain) == 4
+    with pytest.raises(ValueError, match="resample must be at least 1"):
+        sample_ddim(_oracle(x0), eps, 4, known=known, resample=0)
+    with pytest.raises(ValueError, match="needs jump_noise"):
+        sample_ddim(_oracle(x0), eps, 4, known=known, resample=2)
+
+
+def test_ddim_denoised_fn_moves_the_clean_estimate_and_keeps_the_noise() -> None:
+    """`denoised_fn` corrects x0 at each step: the next input is sqrt(a) x0' + sqrt(1 - a) eps with the
+    step's own noise estimate, and the last step returns the corrected estimate."""
+    x0, eps = _data()
+    ac = alphas_cumprod().float()
+    calls: list = []
+
+    def shift(z: torch.Tensor, i: int) -> torch.Tensor:
+        calls.append(i)
+        return z + 0.25
+
+    seen: list = []
+    out = sample_ddim(_oracle(x0, seen), eps, 4, denoised_fn=shift)
+    assert calls == [0, 1, 2, 3]
+    t1 = seen[1][0]
+    assert t1 == 749 and torch.allclose(seen[1][1], ac[t1].sqrt() * (x0 + 0.25) + (1 - ac[t1]).sqrt() * eps, atol=1e-5)
+    # the oracle keeps answering with x0, so each step's estimate is x0 again and its correction x0 + 0.25
+    assert torch.allclose(out, x0 + 0.25, atol=1e-5)

@@ -108,7 +108,7 @@ class RenderController(QObject):
     def running(self) -> bool:
         return self.worker is not None
 
-    def settings(self, preset: str, seed: int, window: int, scheme: str, seams: bool = False,
+    def settings(self, preset: str, seed: int, window: int, scheme: str, seams: bool = RenderSettings.seams,
                  noise_shared: float = RenderSettings.noise_shared, max_levels: int | None = None) -> RenderSettings:
         return RenderSettings(preset=preset, seed=seed, window=window, scheme=scheme, seams=seams, noise="frame", noise_shared=noise_shared,
                               max_levels=max_levels)

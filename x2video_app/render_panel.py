@@ -45,6 +45,7 @@ class RenderPanel(QWidget):
         self.scheme.addItem("recursive (keyframes first)", "recursive")
         self.scheme.addItem("sequential (baseline)", "sequential")
         self.seams = QCheckBox("Seam pass")
+        self.seams.setChecked(RenderSettings.seams)
         self.seams.setToolTip("Recursive, 18 frames or more at N=5: make each keyframe again with its neighbours after the "
                               "first interpolation level. Steadier where the model generates (a channel missing or masked), "
                               "slightly less faithful to a reference frame; about 1.2x the windows on 65 frames.")

@@ -69,6 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=RenderSettings.replace_refs)
     p.add_argument("--noise", choices=("window", "frame"), default=RenderSettings.noise)
     p.add_argument("--noise-shared", type=float, default=RenderSettings.noise_shared)
+    p.add_argument("--ref-dc", type=float, default=RenderSettings.ref_dc)
+    p.add_argument("--resample", type=int, default=RenderSettings.resample)
     p.add_argument("--out", type=Path, required=True)
     a = p.parse_args(argv)
     from x2video.eval.runner import EvalModels

@@ -28,6 +28,14 @@ NOISE_HELP = ("seed the initial noise per 'window' or per 'frame' of the shot (a
               "window that holds it; `RenderSettings.noise`)")
 NOISE_SHARED_HELP = ("with --noise frame: the fraction of the noise's variance every frame shares, in [0, 1] (a mixed "
                      "noise prior; `RenderSettings.noise_shared`; ignored with --noise window)")
+#: help of `--ref-dc` (x2video render, x2video eval, the benches)
+REF_DC_HELP = ("interpolation windows: at every denoising step pull the generated frames' latent mean per channel "
+               "(global colour and brightness) this fraction of the way to the linear interpolation of the two "
+               "references' means, in [0, 1] (`RenderSettings.ref_dc`); 0 = off")
+#: help of `--resample` (x2video render, x2video eval, the benches)
+RESAMPLE_HELP = ("DDIM, windows with reference frames: take each denoising step but the first and last R times, "
+                 "going back one step's noise in between (RePaint's resampling; `RenderSettings.resample`); "
+                 "1 = off (default), R costs those windows about R times the network passes; LCM ignores it")
 #: help of `--max-levels` (x2video render, x2video eval, the benches)
 MAX_LEVELS_HELP = ("recursive scheme: at most K levels (default: the fewest that let one keyframe window span the shot, "
                    "K = 3 at 65 frames); fewer put the keyframes (N-1)^(K-1) frames apart in chained keyframe windows "

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from x2video.cli.args import BF16_ENCODER_HELP, CHANNEL_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, SEAMS_HELP, size_arg
+from x2video.cli.args import BF16_ENCODER_HELP, CHANNEL_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, REF_DC_HELP, RESAMPLE_HELP, SEAMS_HELP, size_arg
 from x2video.model.config import CHANNEL_ENCODERS, DEFAULT_CHANNEL_ENCODER
 
 log = logging.getLogger(__name__)
@@ -87,6 +87,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "training; default on)")
     g.add_argument("--seams", action=argparse.BooleanOptionalAction, default=d.seams, help=SEAMS_HELP)
     g.add_argument("--max-levels", type=int, default=d.max_levels, help=MAX_LEVELS_HELP)
+    g.add_argument("--ref-dc", type=float, default=d.ref_dc, help=REF_DC_HELP + f" (default {d.ref_dc:g})")
+    g.add_argument("--resample", type=int, default=d.resample, help=RESAMPLE_HELP)
     g.add_argument("--noise", choices=("window", "frame"), default=d.noise, help=NOISE_HELP + f" (default {d.noise})")
     g.add_argument("--noise-shared", type=float, default=d.noise_shared, help=NOISE_SHARED_HELP + f" (default {d.noise_shared})")
     g.add_argument("--no-fid", action="store_true", help="skip FID (Inception features of every frame)")
@@ -124,6 +126,9 @@ def command_line(a: argparse.Namespace) -> str:
     parts.append("--seams" if a.seams else "--no-seams")
     if a.max_levels is not None:
         parts += ["--max-levels", str(a.max_levels)]
+    parts += ["--ref-dc", f"{getattr(a, 'ref_dc', 0.0):g}"]  # explicit: it changes every recursive row
+    if getattr(a, "resample", 1) != 1:
+        parts += ["--resample", str(a.resample)]
     parts += ["--noise", a.noise] + (["--noise-shared", f"{a.noise_shared:g}"] if a.noise == "frame" else [])
     parts += ["--channel-encoder", getattr(a, "channel_encoder", DEFAULT_CHANNEL_ENCODER)]  # explicit: the timings depend on it
     for flag, on in (("--no-fid", a.no_fid), ("--no-tc", a.no_tc), ("--fp16", a.fp16), ("--bf16-encoder", getattr(a, "bf16_encoder", False))):
@@ -251,7 +256,8 @@ def run(a: argparse.Namespace) -> int:
     frames = None if a.frames == 0 else a.frames
     config = EvalConfig(tables=a.tables, split=a.split, rooms=a.rooms, frames=frames, long_frames=a.long_frames, long_conditions=a.long_conditions, size=a.size,
                         steps=a.steps, lcm_steps=a.lcm_steps, seed=a.seed, window=a.window, masks=a.masks, fid=not a.no_fid,
-                        tc=not a.no_tc, replace_refs=a.replace_refs, seams=a.seams, max_levels=a.max_levels, noise=a.noise, noise_shared=a.noise_shared)
+                        tc=not a.no_tc, replace_refs=a.replace_refs, seams=a.seams, max_levels=a.max_levels, noise=a.noise, noise_shared=a.noise_shared,
+                        resample=a.resample, ref_dc=a.ref_dc)
     if a.renders and "a" not in config.tables:
         raise ValueError("--renders uses table (a)'s renders; add a to --tables")
     for flag, path in (("--data", a.data), ("--long-data", a.long_data)):

@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from x2video.cli.args import BF16_ENCODER_HELP, CHANNEL_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, SEAMS_HELP
+from x2video.cli.args import BF16_ENCODER_HELP, CHANNEL_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, REF_DC_HELP, RESAMPLE_HELP, SEAMS_HELP
 from x2video.model.config import CHANNEL_ENCODERS, DEFAULT_CHANNEL_ENCODER
 from x2video.sampling.events import (
     FramesReady,
@@ -50,6 +50,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "training (default on; --no-replace-refs lets each window re-estimate them)")
     p.add_argument("--seams", action=argparse.BooleanOptionalAction, default=d.seams, help=SEAMS_HELP)
     p.add_argument("--max-levels", type=int, default=d.max_levels, help=MAX_LEVELS_HELP)
+    p.add_argument("--ref-dc", type=float, default=d.ref_dc, help=REF_DC_HELP + f" (default {d.ref_dc:g})")
+    p.add_argument("--resample", type=int, default=d.resample, help=RESAMPLE_HELP)
     p.add_argument("--noise", choices=("window", "frame"), default=d.noise, help=NOISE_HELP + f" (default {d.noise})")
     p.add_argument("--noise-shared", type=float, default=d.noise_shared, help=NOISE_SHARED_HELP + f" (default {d.noise_shared})")
     p.add_argument("--weights", type=Path, help="model checkpoint folder (default: the weights shipped in resources/)")
@@ -168,6 +170,8 @@ def run(args: argparse.Namespace) -> int:
         detail=args.detail,
         replace_refs=args.replace_refs,
         seams=args.seams,
+        resample=args.resample,
+        ref_dc=args.ref_dc,
         max_levels=args.max_levels,
         noise=args.noise,
         noise_shared=args.noise_shared,

@@ -43,6 +43,10 @@ class EvalConfig:
     """recursive rows: the seam pass that re-generates keyframes with their neighbours (`RenderSettings.seams`)"""
     max_levels: int | None = RenderSettings.max_levels
     """recursive rows: at most this many levels (`RenderSettings.max_levels`; None: as many as the shot needs)"""
+    ref_dc: float = RenderSettings.ref_dc
+    """interpolation windows: pull the generated frames' latent mean toward the references' (`RenderSettings.ref_dc`)"""
+    resample: int = RenderSettings.resample
+    """DDIM rows, windows with references: RePaint's resampling, each step taken this many times (`RenderSettings.resample`)"""
     noise: str = RenderSettings.noise
     """how the initial noise is seeded, 'window' or 'frame' (`RenderSettings.noise`); every row alike"""
     noise_shared: float = RenderSettings.noise_shared

@@ -107,7 +107,8 @@ def _settings(spec: RowSpec, config: EvalConfig, num_frames: int) -> RenderSetti
     window = max(2, min(num_frames, config.image_window)) if spec.model == "image" else config.window
     return RenderSettings(sampler=spec.sampler, steps=spec.steps, seed=config.seed, window=window, scheme=spec.scheme,  # type: ignore[arg-type]
                           replace_refs=config.replace_refs, seams=config.seams, max_levels=config.max_levels, noise=config.noise,  # type: ignore[arg-type]
-                          noise_shared=config.noise_shared)
+                          noise_shared=config.noise_shared, resample=config.resample,
+                          ref_dc=config.ref_dc)
 
 
 def evaluate(

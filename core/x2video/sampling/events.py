@@ -31,13 +31,14 @@ class RenderSettings:
     produced) at their latent noised to the step's level, as in training, instead of letting the
     window re-estimate them (`x2video.sampling.samplers.Known`). On by default (the editor, the
     CLI and the model card's evaluations); False (`--no-replace-refs`) is the ablation."""
-    seams: bool = False
+    seams: bool = True
     """The seam pass, for the recursive scheme with three levels or more (18 frames or more at
     N = 5): after the first interpolation level, make each keyframe again with its neighbours in a
     window of that level (`x2video.sampling.planner.seam_windows`), so the finer levels
     interpolate between frames that agree. One more window per keyframe; the frames it makes
-    again arrive twice (`FramesReady.replaces`). Off by default: on `ship_h` it lowered TC where
-    the model generates but cost PSNR with a reference frame (model card, Evaluations 7-8)."""
+    again arrive twice (`FramesReady.replaces`). On by default since the model card's "Mean
+    anchoring" (with `ref_dc` it raised PSNR and lowered TC on the validation rooms; on `ship_h`
+    alone it had cost PSNR with a reference frame, Evaluations 7-8); False (`--no-seams`) is off."""
     max_levels: int | None = None
     """Recursive scheme only: at most this many levels K. None (default): the fewest that let one
     keyframe window span the shot (65 frames at N = 5: K = 3, keyframes 16 apart, the paper's
@@ -55,6 +56,23 @@ class RenderSettings:
     it cut TC by a quarter with all channels, at a PSNR within seed-to-seed chance, and by 40-60 %
     where a channel is missing or masked, at 0.8-1.4 dB of PSNR there (3 seeds, bench/noise_prior.py;
     model card, "Noise shared across frames"); 0 gives independent per-frame noise."""
+    ref_dc: float = 1.0
+    """Interpolation windows (both ends given), where a frame's lighting must be inferred (the whole
+    frame without albedo or irradiance, as there is no classical shading to anchor it; else inside
+    its A|M|R mask): at every denoising step pull that region's latent mean per channel (its colour
+    and brightness) this fraction of the way to the linear interpolation, by window position, of the
+    two references' means over their own regions (statistics matching to the keyframes, as AdaIN on
+    latents in Rerender-A-Video, Yang et al. 2023). Where each level
+    infers the lighting on its own, the windows disagree on it and every seam of an interpolation
+    window shows a brightness jump (`bench/recursive_seams.py`). Default 1 (model card, "Mean
+    anchoring"); 0: off. Frames with their shading are left alone: there it cost 0.3 dB on the
+    validation rooms for a little TC."""
+    resample: int = 1
+    """DDIM only: RePaint's resampling (Lugmayr et al. 2022) in windows that hold references: each
+    denoising step but the first and last is taken this many times, going back one step's worth of
+    noise in between, so the generated frames are denoised again against the references pasted in
+    at that level (`x2video.sampling.samplers.sample_ddim`). 1 (default): off; r costs those
+    windows about r times the network passes."""
     preset: Literal["fast", "quality"] | None = None
     """Overrides sampler and steps when set: 'fast' = LCM-2 if distilled weights are loaded, else
     DDIM-4; 'quality' = DDIM-20 (`x2video.sampling.renderer.select_steps`)."""

@@ -22,6 +22,7 @@ import torch
 from x2video.channels import INTRINSIC
 from x2video.conditioning import FrameConditioning, Prompts
 from x2video.model.api import RenderModel, WindowInputs
+from x2video.model.shading import shading_available
 from x2video.sampling.cache import CacheStats, ConditioningCache, conditioning_key
 from x2video.sampling.events import (
     CancelToken,
@@ -89,6 +90,54 @@ def frame_noise(seed: int, frames: Sequence[int], shape: tuple[int, ...], shared
     sqrt(shared) e + sqrt(1 - shared) e_f with e and e_f independent N(0, I)."""
     x = torch.stack([torch.randn(*shape, generator=_seeded(seed, 1, draw, f)) for f in frames])
     return mix_noise(x, torch.randn(*shape, generator=_seeded(seed, 2, draw)), shared) if shared > 0.0 else x
+
+
+def inferred_region(cond: FrameConditioning, size: tuple[int, int]) -> torch.Tensor:
+    """(h, w) weights in [0, 1] of where a frame's lighting must be inferred, at latent size (h, w):
+    everywhere without albedo or irradiance (no classical shading), else the A|M|R mask, area-averaged."""
+    if not shading_available(cond.channels):
+        return torch.ones(size)
+    m = torch.from_numpy(np.asarray(cond.amr_mask, np.float32))[None, None]  # (1, 1, H, W)
+    return torch.nn.functional.adaptive_avg_pool2d(m, size)[0, 0]
+
+
+def mean_anchor(window: Window, strength: float, ref: torch.Tensor, offset: torch.Tensor,
+                regions: Sequence[torch.Tensor]) -> Callable[[torch.Tensor, int], torch.Tensor] | None:
+    """`RenderSettings.ref_dc` for one window: a sampler's `denoised_fn` that moves the clean estimate
+    of each generated frame inside the region where its lighting must be inferred (`regions[p]`, (h, w)
+    weights, `inferred_region`) so that the region's RGB latent mean per channel goes `strength` of
+    the way to the linear interpolation, by window position, of the two references' means over their
+    own regions; None unless the window interpolates between two references, strength > 0 and some
+    frame of it has such a region (less than one latent pixel counts as none).
+
+    ref: (n, 4, h, w) the window's reference RGB latents; offset: (n, 4, h, w) what
+    `sample_to_latents` adds to a sample at each position (the shading prior's latent, or 0)."""
+    if strength <= 0 or window.mode != "interp" or len(window.refs) != 2:
+        return None
+    p0, p1 = (window.frames.index(f) for f in window.refs)
+    if min(float(regions[p0].sum()), float(regions[p1].sum())) < 1.0:
+        return None
+    gen = [p for p in window.generate_positions if float(regions[p].sum()) >= 1.0]
+    if not gen:
+        return None
+
+    def region_mean(z: torch.Tensor, w: torch.Tensor) -> torch.Tensor:  # (..., 4, h, w), (..., h, w) -> (..., 4)
+        w = w.to(z.device, torch.float32)[..., None, :, :]
+        return (z.float() * w).sum(dim=(-2, -1)) / w.sum(dim=(-2, -1))
+
+    w_gen = torch.stack([regions[p] for p in gen])  # (G, h, w)
+    m0, m1 = region_mean(ref[p0], regions[p0]), region_mean(ref[p1], regions[p1])  # (4,)
+    lam = torch.tensor([(p - p0) / (p1 - p0) for p in gen], device=ref.device)[:, None]  # (G, 1)
+    target = (1 - lam) * m0 + lam * m1  # (G, 4)
+
+    def anchor(x0: torch.Tensor, i: int) -> torch.Tensor:
+        x0 = x0.clone()
+        now = region_mean(x0[gen] + offset[gen], w_gen)  # (G, 4)
+        shift = strength * (target - now)[..., None, None] * w_gen.to(x0.device)[:, None]  # (G, 4, h, w)
+        x0[gen] += shift.to(x0.dtype)
+        return x0
+
+    return anchor
 
 
 class Renderer:
@@ -168,6 +217,10 @@ class Renderer:
             raise ValueError(f"unknown noise seeding {settings.noise!r} (use 'window' or 'frame')")
         if not 0.0 <= settings.noise_shared <= 1.0:
             raise ValueError(f"noise_shared must lie in [0, 1], got {settings.noise_shared}")
+        if not 0.0 <= settings.ref_dc <= 1.0:
+            raise ValueError(f"ref_dc must lie in [0, 1] (0 = off), got {settings.ref_dc}")
+        if settings.resample < 1:
+            raise ValueError(f"resample must be at least 1 (1 = off), got {settings.resample}")
         h, w = shot.size
         d = self.model.downsample
         if h % d or w % d:
@@ -329,6 +382,9 @@ class Renderer:
         def model_fn(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
             return model.predict_v(x, t, inputs, lcm=lcm)
 
+        denoised_fn = mean_anchor(window, settings.ref_dc, ref, model.sample_to_latents(torch.zeros_like(x_T), cond),
+                                  [inferred_region(c, (h, w)) for c in conds])
+
         def callback(info: dict[str, Any]) -> None:
             emit(StepDone(window=index, step=info["i"] + 1, steps=info["steps"]))
 
@@ -337,7 +393,14 @@ class Renderer:
             if settings.noise == "frame":
                 def renoise(i: int) -> torch.Tensor:
                     return frame_noise(settings.seed, window.frames, (model.latent_channels, h, w), settings.noise_shared, i + 1)
-            x0 = sample_lcm(model_fn, x_T, settings.steps, callback=callback, cancel=cancel, generator=gen, known=known, renoise=renoise)
+            x0 = sample_lcm(model_fn, x_T, settings.steps, callback=callback, cancel=cancel, generator=gen, known=known, renoise=renoise,
+                            denoised_fn=denoised_fn)
         else:
-            x0 = sample_ddim(model_fn, x_T, settings.steps, callback=callback, cancel=cancel, known=known)
+            def jump_noise(i: int, j: int) -> torch.Tensor:
+                if settings.noise == "frame":  # per frame, so a frame's noise does not depend on its window
+                    return frame_noise(settings.seed, window.frames, (model.latent_channels, h, w), settings.noise_shared, 1000 + 64 * i + j)
+                return torch.randn(n, model.latent_channels, h, w, generator=gen)
+
+            x0 = sample_ddim(model_fn, x_T, settings.steps, callback=callback, cancel=cancel, known=known,
+                             resample=settings.resample, jump_noise=jump_noise, denoised_fn=denoised_fn)
         return x0, conds, keys, cond

@@ -47,7 +47,11 @@ class Known:
         step's level; the last step's output is returned as is."""
         if not self.positions or i >= len(sched.timesteps) - 1:
             return x
-        a = sched.alphas_cumprod[int(sched.timesteps[i + 1])].to(x.device, torch.float32)
+        return self.at_level(x, sched.alphas_cumprod[int(sched.timesteps[i + 1])])
+
+    def at_level(self, x: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        """`x` with the known positions set to their latent noised to alpha_cumprod `a`."""
+        a = a.to(x.device, torch.float32)
         x = x.clone()
         x[list(self.positions)] = (a.sqrt() * self.x0.float() + (1 - a).sqrt() * self.eps.float()).to(x.dtype)
         return x
@@ -106,8 +110,22 @@ def sample_ddim(
     cancel: CancelToken | None = None,
     scheduler: DDIMScheduler | None = None,
     known: Known | None = None,
+    resample: int = 1,
+    jump_noise: Callable[[int, int], torch.Tensor] | None = None,
+    denoised_fn: Callable[[torch.Tensor, int], torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """DDIM (Song et al. 2021, eta = 0) with v-prediction, zero-terminal-SNR, trailing spacing.
+
+    `resample` r > 1 (with `known` positions): RePaint's resampling (Lugmayr et al. 2022), each
+    step but the first and the last is taken r times; between takes the sample goes back from the
+    next step's noise level to this step's by the forward process with fresh noise
+    `jump_noise(i, j)` ((N, C, h, w), standard normal) and the known positions are set to this
+    step's level, so the generated positions are denoised again against them. Without it the known
+    positions are only pasted in after each step, which RePaint found leaves the generated part
+    out of harmony with the known part at its boundary (here: frames next to a reference).
+
+    `denoised_fn(x0, i) -> x0'` corrects the model's clean-sample estimate at step i before the
+    update; the step keeps its noise estimate, so x_prev moves by sqrt(alpha_prev) (x0' - x0).
 
     The last step returns the x0 estimate (DDIM's update with alpha_prev = 1): diffusers derives
     the previous timestep as ``t - 1000 // steps``, which for step counts that do not divide
@@ -117,14 +135,35 @@ def sample_ddim(
         raise ValueError(f"DDIM needs at least 1 step, got {steps}")
     sched = scheduler if scheduler is not None else ddim_scheduler()
     sched.set_timesteps(steps, device=x_T.device)
+    if resample < 1:
+        raise ValueError(f"resample must be at least 1, got {resample}")
     x = x_T * sched.init_noise_sigma  # (N, C, h, w)
     for i, t in enumerate(sched.timesteps):
-        _check_cancel(cancel, i)
-        v = model_fn(x, t)  # (N, C, h, w)
-        out = sched.step(v, t, x)
-        x = out.prev_sample if i < steps - 1 else out.pred_original_sample
-        if known is not None:
-            x = known.after_step(x, sched, i)
+        takes = resample if known is not None and known.positions and 0 < i < steps - 1 else 1
+        for j in range(takes):
+            if j > 0:  # back from step i+1's level to step i's, then step i again
+                if jump_noise is None:
+                    raise ValueError("resample > 1 needs jump_noise")
+                a_t = sched.alphas_cumprod[int(t)].to(x.device, torch.float32)
+                a_next = sched.alphas_cumprod[int(sched.timesteps[i + 1])].to(x.device, torch.float32)
+                ratio = a_t / a_next
+                x = (ratio.sqrt() * x.float() + (1 - ratio).sqrt() * jump_noise(i, j).to(x.device, torch.float32)).to(x.dtype)
+                x = known.at_level(x, a_t)  # type: ignore[union-attr]
+            _check_cancel(cancel, i)
+            v = model_fn(x, t)  # (N, C, h, w)
+            out = sched.step(v, t, x)
+            x = out.prev_sample if i < steps - 1 else out.pred_original_sample
+            if denoised_fn is not None:
+                x0 = out.pred_original_sample
+                fixed = denoised_fn(x0, i)
+                if i == steps - 1:
+                    x = fixed
+                else:  # DDIM's x_prev = sqrt(a_prev) x0 + sqrt(1 - a_prev) eps, eps unchanged (diffusers' a_prev)
+                    prev_t = int(t) - sched.config.num_train_timesteps // sched.num_inference_steps
+                    a_prev = sched.alphas_cumprod[prev_t] if prev_t >= 0 else sched.final_alpha_cumprod
+                    x = x + a_prev.to(x.device, torch.float32).sqrt().to(x.dtype) * (fixed - x0)
+            if known is not None:
+                x = known.after_step(x, sched, i)
         if callback is not None:
             callback({"x": x, "i": i, "t": int(t), "denoised": out.pred_original_sample, "steps": steps})
     return x
@@ -142,12 +181,15 @@ def sample_lcm(
     scheduler: LCMScheduler | None = None,
     known: Known | None = None,
     renoise: Callable[[int], torch.Tensor] | None = None,
+    denoised_fn: Callable[[torch.Tensor, int], torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """Latent Consistency Model multistep sampling (Luo et al. 2023, Alg. 1) with v-prediction.
 
     Between steps LCM re-noises its x0 estimate; `generator` makes that noise reproducible, or
     `renoise(i)` supplies it ((N, C, h, w), standard normal) after step i: the Renderer's per-frame
     noise (`RenderSettings.noise`), so that a frame's re-noising does not depend on its window.
+    `denoised_fn(x0, i) -> x0'` corrects the consistency estimate at step i before it is re-noised
+    (or returned, after the last step).
     """
     if steps < 1:
         raise ValueError(f"LCM needs at least 1 step, got {steps}")
@@ -159,11 +201,20 @@ def sample_lcm(
         v = model_fn(x, t)  # (N, C, h, w)
         out = sched.step(v, t, x, generator=generator)
         x = out.prev_sample
-        if renoise is not None and i < len(sched.timesteps) - 1:  # LCMScheduler.step's update with our noise
+        denoised = out.denoised
+        last = i == len(sched.timesteps) - 1
+        if denoised_fn is not None:
+            denoised = denoised_fn(out.denoised, i)
+            if last:
+                x = denoised
+            elif renoise is None:  # the scheduler's re-noising, moved with its estimate
+                a = sched.alphas_cumprod[int(sched.timesteps[i + 1])].to(x.device, torch.float32)
+                x = x + (a.sqrt() * (denoised.float() - out.denoised.float())).to(x.dtype)
+        if renoise is not None and not last:  # LCMScheduler.step's update with our noise
             a = sched.alphas_cumprod[int(sched.timesteps[i + 1])].to(x.device, torch.float32)
-            x = (a.sqrt() * out.denoised.float() + (1 - a).sqrt() * renoise(i).to(x.device, torch.float32)).to(x.dtype)
+            x = (a.sqrt() * denoised.float() + (1 - a).sqrt() * renoise(i).to(x.device, torch.float32)).to(x.dtype)
         if known is not None:
             x = known.after_step(x, sched, i)
         if callback is not None:
-            callback({"x": x, "i": i, "t": int(t), "denoised": out.denoised, "steps": steps})
+            callback({"x": x, "i": i, "t": int(t), "denoised": denoised, "steps": steps})
     return x
