@@ -26,14 +26,11 @@ def patched(window, strength, ref, offset, regions):
         gen = [p for p in window.generate_positions if p != p0 and float(regions[p].sum()) >= 1.0]
         if not gen:
             return None
-        def rmean(z, w):
-            w = w.to(z.device, torch.float32)[..., None, :, :]
-            return (z.float() * w).sum(dim=(-2, -1)) / w.sum(dim=(-2, -1))
         w_gen = torch.stack([regions[p] for p in gen])
-        target = rmean(ref[p0], regions[p0])[None]
+        target = R.region_mean(ref[p0], regions[p0])[None]
         def anchor(x0, i):
             x0 = x0.clone()
-            now = rmean(x0[gen] + offset[gen], w_gen)
+            now = R.region_mean(x0[gen] + offset[gen], w_gen)
             x0[gen] += (KS * (target - now)[..., None, None] * w_gen.to(x0.device)[:, None]).to(x0.dtype)
             return x0
         return anchor

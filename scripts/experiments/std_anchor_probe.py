@@ -19,24 +19,17 @@ import torch
 import x2video.sampling.renderer as R
 
 STD = float(os.environ.get("STD_STRENGTH", "1"))
-orig = R.mean_anchor
+
 
 def mean_std_anchor(window, strength, ref, offset, regions):
-    if strength <= 0 or window.mode != "interp" or len(window.refs) != 2:
+    where = R.anchor_positions(window, strength, regions)
+    if where is None:
         return None
-    p0, p1 = (window.frames.index(f) for f in window.refs)
-    if min(float(regions[p0].sum()), float(regions[p1].sum())) < 1.0:
-        return None
-    gen = [p for p in window.generate_positions if float(regions[p].sum()) >= 1.0]
-    if not gen:
-        return None
+    p0, p1, gen = where
 
-    def stats(z, w):  # (..., 4, h, w), (..., h, w)
-        w = w.to(z.device, torch.float32)[..., None, :, :]
-        n = w.sum(dim=(-2, -1))
-        m = (z.float() * w).sum(dim=(-2, -1)) / n
-        v = (((z.float() - m[..., None, None]) ** 2) * w).sum(dim=(-2, -1)) / n
-        return m, v.clamp_min(1e-8).sqrt()
+    def stats(z, w):  # (..., 4, h, w), (..., h, w) -> mean and standard deviation, (..., 4) each
+        m = R.region_mean(z, w)
+        return m, R.region_mean((z.float() - m[..., None, None]) ** 2, w).clamp_min(1e-8).sqrt()
 
     w_gen = torch.stack([regions[p] for p in gen])
     m0, s0 = stats(ref[p0], regions[p0]); m1, s1 = stats(ref[p1], regions[p1])

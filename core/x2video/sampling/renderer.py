@@ -101,30 +101,41 @@ def inferred_region(cond: FrameConditioning, size: tuple[int, int]) -> torch.Ten
     return torch.nn.functional.adaptive_avg_pool2d(m, size)[0, 0]
 
 
-def mean_anchor(window: Window, strength: float, ref: torch.Tensor, offset: torch.Tensor,
-                regions: Sequence[torch.Tensor]) -> Callable[[torch.Tensor, int], torch.Tensor] | None:
-    """`RenderSettings.ref_dc` for one window: a sampler's `denoised_fn` that moves the clean estimate
-    of each generated frame inside the region where its lighting must be inferred (`regions[p]`, (h, w)
-    weights, `inferred_region`) so that the region's RGB latent mean per channel goes `strength` of
-    the way to the linear interpolation, by window position, of the two references' means over their
-    own regions; None unless the window interpolates between two references, strength > 0 and some
-    frame of it has such a region (less than one latent pixel counts as none).
+def region_mean(z: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """(..., 4) weighted mean per channel of latents z (..., 4, h, w) over region weights w (..., h, w)."""
+    w = w.to(z.device, torch.float32)[..., None, :, :]
+    return (z.float() * w).sum(dim=(-2, -1)) / w.sum(dim=(-2, -1))
 
-    ref: (n, 4, h, w) the window's reference RGB latents; offset: (n, 4, h, w) what
-    `sample_to_latents` adds to a sample at each position (the shading prior's latent, or 0)."""
+
+def anchor_positions(window: Window, strength: float,
+                     regions: Sequence[torch.Tensor]) -> tuple[int, int, list[int]] | None:
+    """Where `mean_anchor` acts in a window: (p0, p1, gen), the positions of its two references and of
+    the generated frames with an inferred region (`regions[p]`, (h, w) weights); None unless the window
+    interpolates between two references, strength > 0 and some frame of it has such a region (less
+    than one latent pixel counts as none)."""
     if strength <= 0 or window.mode != "interp" or len(window.refs) != 2:
         return None
     p0, p1 = (window.frames.index(f) for f in window.refs)
     if min(float(regions[p0].sum()), float(regions[p1].sum())) < 1.0:
         return None
     gen = [p for p in window.generate_positions if float(regions[p].sum()) >= 1.0]
-    if not gen:
+    return (p0, p1, gen) if gen else None
+
+
+def mean_anchor(window: Window, strength: float, ref: torch.Tensor, offset: torch.Tensor,
+                regions: Sequence[torch.Tensor]) -> Callable[[torch.Tensor, int], torch.Tensor] | None:
+    """`RenderSettings.ref_dc` for one window: a sampler's `denoised_fn` that moves the clean estimate
+    of each generated frame inside the region where its lighting must be inferred (`regions[p]`, (h, w)
+    weights, `inferred_region`) so that the region's RGB latent mean per channel goes `strength` of
+    the way to the linear interpolation, by window position, of the two references' means over their
+    own regions; None where `anchor_positions` finds nothing to anchor.
+
+    ref: (n, 4, h, w) the window's reference RGB latents; offset: (n, 4, h, w) what
+    `sample_to_latents` adds to a sample at each position (the shading prior's latent, or 0)."""
+    where = anchor_positions(window, strength, regions)
+    if where is None:
         return None
-
-    def region_mean(z: torch.Tensor, w: torch.Tensor) -> torch.Tensor:  # (..., 4, h, w), (..., h, w) -> (..., 4)
-        w = w.to(z.device, torch.float32)[..., None, :, :]
-        return (z.float() * w).sum(dim=(-2, -1)) / w.sum(dim=(-2, -1))
-
+    p0, p1, gen = where
     w_gen = torch.stack([regions[p] for p in gen])  # (G, h, w)
     m0, m1 = region_mean(ref[p0], regions[p0]), region_mean(ref[p1], regions[p1])  # (4,)
     lam = torch.tensor([(p - p0) / (p1 - p0) for p in gen], device=ref.device)[:, None]  # (G, 1)
