@@ -317,6 +317,51 @@ def test_video_stage_moves_the_zero_initialised_alphas_at_their_own_rate(runs, t
     assert max(v for k, v in moved.items() if k not in alphas) <= 1.01 * lr
 
 
+def test_ref_shift_moves_target_and_references_alike_per_object(runs):
+    """--ref-shift-p: a window with references gets one offset per object (constant over the object's
+    pixels, following it from frame to frame) plus one for the window, added to its target and its
+    references alike; windows without references, and p = 0, stay the ground truth."""
+    from x2video.model.checkpoint import read_config
+    from x2video.model.vae import area_downsample
+    from x2video.train.batches import AugmentConfig, LatentData, object_shift
+
+    cfg = read_config(runs["root"] / "cache" / "model")
+    data = LatentData(runs["root"] / "cache", "train", cfg.latent_scales, shading_prior=True)
+    room = data.rooms[0]
+    windows = [[room["start"] + i for i in (0, 2, 4)], [room["start"] + i for i in (4, 6, 8)]]
+    rows = torch.as_tensor([r for w in windows for r in w])
+    gt = data.lat["rgb"][rows].float()  # (6, 4, h, w)
+    plain = AugmentConfig(channel_drop_p=0.0, prompt_drop_p=0.0, mask_p=0.0)
+    shifted = AugmentConfig(channel_drop_p=0.0, prompt_drop_p=0.0, mask_p=0.0, ref_shift_p=1.0, ref_shift_std=0.5)
+    for aug, refs in ((plain, (0, 2)), (shifted, ())):
+        b = data.sample(np.random.default_rng(3), windows, aug, mode="interp", level=2, ref_positions=refs)
+        torch.testing.assert_close(b.x0, gt)
+    b = data.sample(np.random.default_rng(3), windows, shifted, mode="interp", level=2, ref_positions=(0, 2))
+    d = b.x0 - gt  # (6, 4, h, w)
+    assert float(d.abs().mean()) > 0.01  # moved...
+    for p in (0, 2, 3, 5):  # ...and the references carry the same shift as the target
+        torch.testing.assert_close(b.ref[p], b.x0[p])
+    assert not torch.equal(d[:3], d[3:])  # each window draws its own offsets
+    # the shift is exactly a per-object offset spread by the objects' area-downsampled coverage
+    ids = data.ids[rows[:3]].long()  # (3, H, W)
+    uniq = torch.unique(ids)
+    cover = area_downsample((ids[:, None] == uniq[None, :, None, None]).float(), data.latent_size)  # (3, K, h, w)
+    design = torch.cat([cover, torch.ones_like(cover[:, :1])], dim=1).permute(0, 2, 3, 1).reshape(-1, uniq.numel() + 1)
+    target = d[:3].permute(0, 2, 3, 1).reshape(-1, 4)
+    coef = torch.linalg.lstsq(design, target).solution
+    torch.testing.assert_close(design @ coef, target, atol=1e-4, rtol=0)
+    # a pure latent pixel of one object moves by that object's offset (+ the window's) in every frame
+    full = cover.amax(dim=1) > 0.999  # (3, h, w) latent pixels covered by one object
+    k = cover.argmax(dim=1)  # (3, h, w)
+    for obj in range(uniq.numel()):
+        sel = full & (k == obj)
+        if int(sel.sum()) >= 2:
+            vals = d[:3].permute(0, 2, 3, 1)[sel]  # (S, 4)
+            torch.testing.assert_close(vals, vals[:1].expand_as(vals), atol=1e-5, rtol=0)
+    z = object_shift(ids, data.latent_size, 0.0, np.random.default_rng(0))
+    assert z.shape == (3, 4, *data.latent_size) and z.abs().max() == 0  # std 0: no shift
+
+
 def test_video_stage_train_only_interp_leaves_the_keyframe_path_bit_identical(runs, tmp_path):
     """--train-only interp: only the temporal interp<k> and reference r1 LoRA branches move, so
     keyframe-mode and sequential windows render exactly as before; it refuses keyframe batches and

@@ -43,6 +43,10 @@ def _aug_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--prompt-drop", type=float, default=0.3, help='probability the global prompt is ""')
     g.add_argument("--mask-p", type=float, default=0.5, help="probability a sample has A|M|R-masked objects")
     g.add_argument("--max-masks", type=int, default=5, help="most masked objects (local prompts) per sample")
+    g.add_argument("--ref-shift-p", type=float, default=0.0,
+                   help="probability a window with references has them and its target shifted alike by a random latent offset per "
+                        "object, so the model learns to carry what its references show (0: off)")
+    g.add_argument("--ref-shift-std", type=float, default=0.3, help="largest standard deviation of those offsets, as a fraction of each latent channel's")
 
 
 def _window_args(p: argparse.ArgumentParser) -> None:
@@ -72,7 +76,12 @@ def _loop_cfg(a: argparse.Namespace):
 def _aug(a: argparse.Namespace):
     from x2video.train.batches import AugmentConfig
 
-    return AugmentConfig(channel_drop_p=a.channel_drop, prompt_drop_p=a.prompt_drop, mask_p=a.mask_p, max_masks=a.max_masks)
+    if not 0.0 <= a.ref_shift_p <= 1.0:
+        raise ValueError(f"--ref-shift-p must be a probability in [0, 1], got {a.ref_shift_p}")
+    if a.ref_shift_std < 0:
+        raise ValueError(f"--ref-shift-std must be >= 0, got {a.ref_shift_std}")
+    return AugmentConfig(channel_drop_p=a.channel_drop, prompt_drop_p=a.prompt_drop, mask_p=a.mask_p, max_masks=a.max_masks,
+                         ref_shift_p=a.ref_shift_p, ref_shift_std=a.ref_shift_std)
 
 
 def _window(a: argparse.Namespace):

@@ -42,6 +42,14 @@ class AugmentConfig:
     """Probability a masked object carries its caption as a local prompt."""
     min_object_frac: float = 0.01
     """Objects covering less of the first frame than this are not picked for masks."""
+    ref_shift_p: float = 0.0
+    """Probability a window with references has its target and its references shifted alike by a random
+    latent offset per object (and one for the whole window), so that what the references show beyond
+    the channels is what the other frames must show too (`object_shift`); 0: off, as the shipped
+    weights were trained. Windows without references are never shifted."""
+    ref_shift_std: float = 0.3
+    """Largest standard deviation of those offsets, as a fraction of each RGB latent channel's standard
+    deviation over the split (each window draws its own fraction in [0, this])."""
 
 
 @dataclass
@@ -99,6 +107,7 @@ class LatentData:
         self.lat = {k: (t[k].float() * latent_scales[k]).half() for k in ("albedo", "normal", "roughness", "metallic", "rgb")}
         if shading_prior:
             self.lat.update({k: (t[k].float() * latent_scales["rgb"]).half() for k in SHADING_KEYS})
+        self.rgb_std = self.lat["rgb"].float().std(dim=(0, 2, 3))  # (4,) per latent channel, for `object_shift`
         self.irradiance = t["irradiance"]  # (F, 3, h, w) float16
         self.ids = t["ids"]  # (F, H, W) int16
         self.row_room = t["room"].long()
@@ -166,6 +175,11 @@ class LatentData:
         all_rows = torch.as_tensor([r for rows in windows for r in rows], dtype=torch.long)
         x0 = self.lat["rgb"][all_rows].float()  # (BN, 4, h, w)
         ref = None
+        if ref_positions and aug.ref_shift_p > 0:
+            for b, rows in enumerate(windows):
+                if rng.random() < aug.ref_shift_p:
+                    std = float(rng.uniform(0.0, aug.ref_shift_std)) * self.rgb_std  # (4,)
+                    x0[b * n : (b + 1) * n] += object_shift(self.ids[torch.as_tensor(rows, dtype=torch.long)], self.latent_size, std, rng)
         if ref_positions:
             ref = torch.zeros_like(x0).view(len(windows), n, *x0.shape[1:])  # (B, n, 4, h, w)
             ref[:, list(ref_positions)] = x0.view(len(windows), n, *x0.shape[1:])[:, list(ref_positions)]
@@ -219,6 +233,22 @@ class LatentData:
         else:
             refs = (0,) if rng.random() < wc.ref_p_key else ()
         return windows, mode, k if mode == "interp" else wc.levels, refs
+
+
+def object_shift(ids: torch.Tensor, size: tuple[int, int], std: torch.Tensor | float, rng: np.random.Generator) -> torch.Tensor:
+    """(n, 4, h, w) latent offset of one window whose frames have object ids (n, H, W): one N(0, std^2)
+    offset per latent channel (std: (4,) or a number) for the window and one per object id, each object's spread over its
+    area-downsampled pixels. It follows the objects as the camera moves, as a generated keyframe's
+    departures from the ground truth (a sofa a shade off, a warmer wall) follow them into the frames
+    interpolated from it; training on targets shifted with their references teaches the
+    interpolation mode to carry such departures instead of falling back to what the channels say."""
+    uniq = torch.unique(ids)  # (K,)
+    onehot = (ids[:, None] == uniq[None, :, None, None]).float()  # (n, K, H, W)
+    cover = area_downsample(onehot, size)  # (n, K, h, w)
+    std = torch.as_tensor(std, dtype=torch.float32).expand(4)  # (4,)
+    per_object = torch.from_numpy(rng.standard_normal((uniq.numel(), 4))).float() * std  # (K, 4)
+    whole = torch.from_numpy(rng.standard_normal(4)).float() * std  # (4,)
+    return torch.einsum("nkhw,kc->nchw", cover, per_object) + whole[None, :, None, None]  # (n, 4, h, w)
 
 
 class _Draws(torch.utils.data.IterableDataset):
