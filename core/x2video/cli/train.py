@@ -45,7 +45,8 @@ def _aug_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--max-masks", type=int, default=5, help="most masked objects (local prompts) per sample")
     g.add_argument("--ref-shift-p", type=float, default=0.0,
                    help="probability a window with references has them and its target shifted alike by a random latent offset per "
-                        "object, so the model learns to carry what its references show (0: off)")
+                        "object, meant to teach the model to carry what its references show (0: off; measured worse on the CPU, "
+                        "docs/TRAINING.md)")
     g.add_argument("--ref-shift-std", type=float, default=0.3, help="largest standard deviation of those offsets, as a fraction of each latent channel's")
 
 

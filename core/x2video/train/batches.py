@@ -46,7 +46,8 @@ class AugmentConfig:
     """Probability a window with references has its target and its references shifted alike by a random
     latent offset per object (and one for the whole window), so that what the references show beyond
     the channels is what the other frames must show too (`object_shift`); 0: off, as the shipped
-    weights were trained. Windows without references are never shifted."""
+    weights were trained (on the CPU it made recursive sampling worse, docs/TRAINING.md). Windows
+    without references are never shifted."""
     ref_shift_std: float = 0.3
     """Largest standard deviation of those offsets, as a fraction of each RGB latent channel's standard
     deviation over the split (each window draws its own fraction in [0, this])."""
@@ -240,8 +241,10 @@ def object_shift(ids: torch.Tensor, size: tuple[int, int], std: torch.Tensor | f
     offset per latent channel (std: (4,) or a number) for the window and one per object id, each object's spread over its
     area-downsampled pixels. It follows the objects as the camera moves, as a generated keyframe's
     departures from the ground truth (a sofa a shade off, a warmer wall) follow them into the frames
-    interpolated from it; training on targets shifted with their references teaches the
-    interpolation mode to carry such departures instead of falling back to what the channels say."""
+    interpolated from it; training on targets shifted with their references was meant to teach the
+    interpolation mode to carry such departures instead of falling back to what the channels say.
+    Measured against a control fine-tune it made recursive sampling worse in PSNR and TC
+    (docs/TRAINING.md), so `AugmentConfig.ref_shift_p` is off by default."""
     uniq = torch.unique(ids)  # (K,)
     onehot = (ids[:, None] == uniq[None, :, None, None]).float()  # (n, K, H, W)
     cover = area_downsample(onehot, size)  # (n, K, h, w)
