@@ -12,6 +12,7 @@ window length and reference positions (one `run_unet` call).
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -108,7 +109,6 @@ class LatentData:
         self.lat = {k: (t[k].float() * latent_scales[k]).half() for k in ("albedo", "normal", "roughness", "metallic", "rgb")}
         if shading_prior:
             self.lat.update({k: (t[k].float() * latent_scales["rgb"]).half() for k in SHADING_KEYS})
-        self.rgb_std = self.lat["rgb"].float().std(dim=(0, 2, 3))  # (4,) per latent channel, for `object_shift`
         self.irradiance = t["irradiance"]  # (F, 3, h, w) float16
         self.ids = t["ids"]  # (F, H, W) int16
         self.row_room = t["room"].long()
@@ -120,6 +120,12 @@ class LatentData:
             raise ValueError(f"{cache_dir}: the {split} split holds no rooms")
         self.num_rows = int(self.ids.shape[0])
         self.latent_size = tuple(self.info.latent_size)
+
+    @functools.cached_property
+    def rgb_std(self) -> torch.Tensor:
+        """(4,) standard deviation of each RGB latent channel over the split (the scale of `object_shift`;
+        computed on first use, so runs without --ref-shift-p never pay for it)."""
+        return self.lat["rgb"].float().std(dim=(0, 2, 3))
 
     # -- conditioning of given rows --------------------------------------------------
     def conditioning(self, rows: torch.Tensor, keep: dict[str, bool], amr_mask: torch.Tensor | None) -> torch.Tensor:
