@@ -216,6 +216,10 @@ def test_cli_image_stage_runs_and_resumes(runs, tmp_path, capsys):
     assert res["step"] == 2 and res["shading_prior"] is False and res["speed"]["first_step"] == 1
     assert main(["train", "image", "--cache", str(tmp_path / "nope"), "--out", str(tmp_path / "x")]) == 2
     assert "nope" in capsys.readouterr().err
+    for flag in ("--channel-drop", "--mask-p", "--ref-shift-p"):  # every augmentation probability is checked, by name
+        assert main(args + ["--steps", "3", flag, "1.5"]) == 2
+        assert f"{flag} must be a probability in [0, 1], got 1.5" in capsys.readouterr().err
+    assert json.loads((tmp_path / "img" / "results.json").read_text())["image"]["step"] == 2  # and nothing trained
 
 
 def test_ship_writes_fp16_model_with_training_size(runs):
@@ -358,7 +362,7 @@ def test_ref_shift_moves_target_and_references_alike_per_object(runs):
         if int(sel.sum()) >= 2:
             vals = d[:3].permute(0, 2, 3, 1)[sel]  # (S, 4)
             torch.testing.assert_close(vals, vals[:1].expand_as(vals), atol=1e-5, rtol=0)
-    z = object_shift(ids, data.latent_size, 0.0, np.random.default_rng(0))
+    z = object_shift(ids, data.latent_size, torch.zeros(gt.shape[1]), np.random.default_rng(0))
     assert z.shape == (3, 4, *data.latent_size) and z.abs().max() == 0  # std 0: no shift
 
 

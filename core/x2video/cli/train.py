@@ -77,8 +77,10 @@ def _loop_cfg(a: argparse.Namespace):
 def _aug(a: argparse.Namespace):
     from x2video.train.batches import AugmentConfig
 
-    if not 0.0 <= a.ref_shift_p <= 1.0:
-        raise ValueError(f"--ref-shift-p must be a probability in [0, 1], got {a.ref_shift_p}")
+    for flag, v in (("--channel-drop", a.channel_drop), ("--prompt-drop", a.prompt_drop), ("--mask-p", a.mask_p),
+                    ("--ref-shift-p", a.ref_shift_p)):
+        if not 0.0 <= v <= 1.0:
+            raise ValueError(f"{flag} must be a probability in [0, 1], got {v}")
     if a.ref_shift_std < 0:
         raise ValueError(f"--ref-shift-std must be >= 0, got {a.ref_shift_std}")
     return AugmentConfig(channel_drop_p=a.channel_drop, prompt_drop_p=a.prompt_drop, mask_p=a.mask_p, max_masks=a.max_masks,

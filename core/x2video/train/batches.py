@@ -123,7 +123,7 @@ class LatentData:
 
     @functools.cached_property
     def rgb_std(self) -> torch.Tensor:
-        """(4,) standard deviation of each RGB latent channel over the split (the scale of `object_shift`;
+        """(C,) standard deviation of each RGB latent channel over the split (the scale of `object_shift`;
         computed on first use, so runs without --ref-shift-p never pay for it)."""
         return self.lat["rgb"].float().std(dim=(0, 2, 3))
 
@@ -185,7 +185,7 @@ class LatentData:
         if ref_positions and aug.ref_shift_p > 0:
             for b, rows in enumerate(windows):
                 if rng.random() < aug.ref_shift_p:
-                    std = float(rng.uniform(0.0, aug.ref_shift_std)) * self.rgb_std  # (4,)
+                    std = float(rng.uniform(0.0, aug.ref_shift_std)) * self.rgb_std  # (C,)
                     x0[b * n : (b + 1) * n] += object_shift(self.ids[torch.as_tensor(rows, dtype=torch.long)], self.latent_size, std, rng)
         if ref_positions:
             ref = torch.zeros_like(x0).view(len(windows), n, *x0.shape[1:])  # (B, n, 4, h, w)
@@ -242,9 +242,9 @@ class LatentData:
         return windows, mode, k if mode == "interp" else wc.levels, refs
 
 
-def object_shift(ids: torch.Tensor, size: tuple[int, int], std: torch.Tensor | float, rng: np.random.Generator) -> torch.Tensor:
-    """(n, 4, h, w) latent offset of one window whose frames have object ids (n, H, W): one N(0, std^2)
-    offset per latent channel (std: (4,) or a number) for the window and one per object id, each object's spread over its
+def object_shift(ids: torch.Tensor, size: tuple[int, int], std: torch.Tensor, rng: np.random.Generator) -> torch.Tensor:
+    """(n, C, h, w) latent offset of one window whose frames have object ids (n, H, W): one N(0, std^2)
+    offset per latent channel (std: (C,), C the latent's channels) for the window and one per object id, each object's spread over its
     area-downsampled pixels. It follows the objects as the camera moves, as a generated keyframe's
     departures from the ground truth (a sofa a shade off, a warmer wall) follow them into the frames
     interpolated from it; training on targets shifted with their references was meant to teach the
@@ -254,10 +254,10 @@ def object_shift(ids: torch.Tensor, size: tuple[int, int], std: torch.Tensor | f
     uniq = torch.unique(ids)  # (K,)
     onehot = (ids[:, None] == uniq[None, :, None, None]).float()  # (n, K, H, W)
     cover = area_downsample(onehot, size)  # (n, K, h, w)
-    std = torch.as_tensor(std, dtype=torch.float32).expand(4)  # (4,)
-    per_object = torch.from_numpy(rng.standard_normal((uniq.numel(), 4))).float() * std  # (K, 4)
-    whole = torch.from_numpy(rng.standard_normal(4)).float() * std  # (4,)
-    return torch.einsum("nkhw,kc->nchw", cover, per_object) + whole[None, :, None, None]  # (n, 4, h, w)
+    std = std.float()  # (C,)
+    per_object = torch.from_numpy(rng.standard_normal((uniq.numel(), std.numel()))).float() * std  # (K, C)
+    whole = torch.from_numpy(rng.standard_normal(std.numel())).float() * std  # (C,)
+    return torch.einsum("nkhw,kc->nchw", cover, per_object) + whole[None, :, None, None]  # (n, C, h, w)
 
 
 class _Draws(torch.utils.data.IterableDataset):
