@@ -30,13 +30,18 @@ def room_seed(seed: int, index: int) -> int:
     return int(seed) * 1_000_003 + int(index)
 
 
-def room_split(index: int, test_every: int) -> str:
-    """Rooms are split, never frames: every `test_every`-th room (index % test_every == test_every - 1) is a test room."""
-    return "test" if test_every > 0 and index % test_every == test_every - 1 else "train"
+def room_split(index: int, test_every: int, val: bool = False) -> str:
+    """Rooms are split, never frames: every `test_every`-th room (index % test_every == test_every - 1) is a test
+    room; with `val`, the room before it (index % test_every == test_every - 2) is a validation room."""
+    if test_every > 0 and index % test_every == test_every - 1:
+        return "test"
+    if val and test_every > 1 and index % test_every == test_every - 2:
+        return "val"
+    return "train"
 
 
-def room_dir(out: Path, index: int, test_every: int) -> Path:
-    return out / room_split(index, test_every) / f"room_{index:05d}"
+def room_dir(out: Path, index: int, test_every: int, val: bool = False) -> Path:
+    return out / room_split(index, test_every, val) / f"room_{index:05d}"
 
 
 def is_done(path: Path) -> bool:
@@ -76,6 +81,10 @@ def make(args: argparse.Namespace) -> int:
     from x2video.io.atomic import write_json_atomic
 
     width, height = parse_size(args.size)
+    if getattr(args, "renderer", "raster") == "cycles":
+        from x2video.cycles.dataset import make_cycles
+
+        return make_cycles(args, width, height)
     if args.rooms < 1 or args.frames < 1:
         raise ValueError(f"--rooms and --frames must be at least 1 (got {args.rooms}, {args.frames})")
     out = Path(args.out)
@@ -136,6 +145,10 @@ def register(subparsers) -> None:
     m.add_argument("--out", required=True, help="output folder")
     m.add_argument("--workers", type=int, default=1, help="parallel processes (one EGL context each)")
     m.add_argument("--test-every", type=int, default=10, help="every N-th room goes to the test split (0: no test split)")
+    m.add_argument("--renderer", choices=("raster", "cycles"), default="raster",
+                   help="raster: the fast moderngl renderer (shot folders); cycles: Blender's path tracer through bpy (Blender"
+                        " multi-layer EXR shots with a val split; needs `pip install 'x2video-studio[cycles]'`)")
+    m.add_argument("--samples", type=int, default=64, help="cycles: path-tracing samples per pixel (Combined is denoised)")
     m.set_defaults(func=make)
     d = sub.add_parser("demo", help="write the small demo shot (1 room, 33 frames, 320x224, deterministic)")
     d.add_argument("out", help="output shot folder")

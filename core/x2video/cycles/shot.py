@@ -1,0 +1,197 @@
+"""Render one procedural room with Cycles into a Blender multi-layer EXR shot (frames + cameras.json + shot.json).
+
+The frames are what a Blender user would hand us (passes + AOVs, `x2video.cycles.passes`), so the
+training input goes through the user's input path (`x2video.io.multilayer`). Frames are written
+one by one, atomically, and skipped when present: an interrupted shot resumes; shot.json is
+written last and marks the shot finished. Needs `bpy` (run in a process of its own).
+"""
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import bpy
+import numpy as np
+
+from x2video.cycles.passes import compositor_output, configure_view_layer, wire_all_materials
+from x2video.cycles.room import build_room, extras_for
+from x2video.io.atomic import write_json_atomic
+from x2video.io.shotdir import FORMAT_NAME, FORMAT_VERSION, cameras_json
+from x2video.procedural.camera import PathConfig, camera_path
+from x2video.procedural.scene import generate_scene
+from x2video.shot import CameraPose
+
+log = logging.getLogger(__name__)
+
+GENERATOR = "x2video.cycles v1"
+
+
+@dataclass
+class CyclesConfig:
+    """How Cycles renders a shot."""
+
+    #: path-tracing samples per pixel of the final frames
+    samples: int = 32
+    #: OpenImageDenoise on Combined (the target) and, in the compositor, on the light passes (the sampled
+    #: diffuse light passes are kept beside them as ``NoisyDiffDir/NoisyDiffInd`` for noise augmentation)
+    denoise: bool = True
+    #: CPU threads of this Blender process (one process per core is fastest for many small frames)
+    threads: int = 1
+    #: light bounces in all (diffuse at most 2 of them, glossy 3)
+    bounces: int = 4
+    #: the exposure aims the 98th percentile of max(R, G, B) of Combined (windows excluded) at this
+    target: float = 0.85
+
+
+def setup_render(width: int, height: int, cfg: CyclesConfig) -> "bpy.types.Scene":
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = int(cfg.samples)
+    scene.cycles.use_adaptive_sampling = True
+    scene.cycles.use_denoising = bool(cfg.denoise)
+    if cfg.denoise:
+        scene.cycles.denoiser = "OPENIMAGEDENOISE"
+    scene.cycles.max_bounces = int(cfg.bounces)
+    scene.cycles.diffuse_bounces = min(2, int(cfg.bounces))
+    scene.cycles.glossy_bounces = min(3, int(cfg.bounces))
+    scene.cycles.transmission_bounces = int(cfg.bounces)
+    scene.cycles.sample_clamp_indirect = 10.0  # fireflies from small bright paths
+    scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = int(width), int(height), 100
+    scene.render.threads_mode, scene.render.threads = "FIXED", max(1, int(cfg.threads))
+    scene.render.film_transparent = False
+    scene.view_settings.view_transform = "Standard"
+    configure_view_layer(scene)
+    return scene
+
+
+def add_camera(poses: list[CameraPose]) -> "bpy.types.Object":
+    """A camera keyed on every frame (frame t = pose t), so the Vector pass has motion. Our world is y-up,
+    Blender's z-up: cam_to_world is conjugated by the axis change (x, y, z) -> (x, -z, y)."""
+    from mathutils import Matrix
+
+    data = bpy.data.cameras.new("camera")
+    data.sensor_fit = "VERTICAL"
+    data.clip_start, data.clip_end = 0.05, 100.0
+    ob = bpy.data.objects.new("camera", data)
+    bpy.context.scene.collection.objects.link(ob)
+    bpy.context.scene.camera = ob
+    axes = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], float)  # ours -> Blender
+    for t, p in enumerate(poses):
+        ob.matrix_world = Matrix((axes @ np.asarray(p.cam_to_world, float)).tolist())
+        ob.keyframe_insert("location", frame=t)
+        ob.keyframe_insert("rotation_euler", frame=t)
+        if p.fov_y_deg is not None:
+            data.angle_y = np.radians(p.fov_y_deg)
+    return ob
+
+
+def blender_poses(poses: list[CameraPose]) -> list[CameraPose]:
+    """The poses in Blender's world (z up), as cameras.json beside Blender frames must hold them."""
+    axes = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], float)
+    return [CameraPose(axes @ np.asarray(p.cam_to_world, float), p.fov_y_deg) for p in poses]
+
+
+def _render_to(path: Path) -> None:
+    bpy.context.scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True)
+
+
+def _read_combined(path: Path) -> np.ndarray:
+    """(H, W, 3) linear Combined of a single-layer EXR written by Blender (read back with Blender itself)."""
+    img = bpy.data.images.load(str(path))
+    w, h = img.size
+    px = np.empty(w * h * 4, np.float32)
+    img.pixels.foreach_get(px)
+    bpy.data.images.remove(img)
+    return px.reshape(h, w, 4)[..., :3]
+
+
+def exposure_gain(scene: "bpy.types.Scene", frames: list[int], target: float) -> float:
+    """A gain on every light that puts the 98th percentile of max(R, G, B) of the lit image at `target`:
+    a quick low-resolution, low-sample render of a few frames, windows (no geometry behind) excluded."""
+    r, c = scene.render, scene.cycles
+    keep = (r.resolution_percentage, c.samples, c.use_denoising, r.image_settings.file_format, r.image_settings.color_depth)
+    r.resolution_percentage, c.samples, c.use_denoising = 25, 16, False
+    r.image_settings.file_format, r.image_settings.color_depth = "OPEN_EXR", "32"
+    vals = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for t in frames:
+            scene.frame_set(t)
+            f = Path(tmp) / f"probe_{t}.exr"
+            _render_to(f)
+            vals.append(_read_combined(f).max(-1).ravel())
+    r.resolution_percentage, c.samples, c.use_denoising = keep[0], keep[1], keep[2]
+    r.image_settings.file_format, r.image_settings.color_depth = keep[3], keep[4]
+    v = np.concatenate(vals)
+    p98 = float(np.percentile(v[v > 1e-6], 98)) if np.any(v > 1e-6) else 1.0
+    return target / max(p98, 1e-6)
+
+
+def scale_lights(gain: float) -> None:
+    """Multiply every light, emitter and the world by `gain` (the exposure lives in the scene, as a user's would)."""
+    for light in bpy.data.lights:
+        if not light.cycles.is_portal:
+            light.energy *= gain
+    for mat in bpy.data.materials:
+        if mat.use_nodes:
+            for n in mat.node_tree.nodes:
+                s = n.inputs.get("Emission Strength") if n.bl_idname == "ShaderNodeBsdfPrincipled" else None
+                if s is not None:
+                    s.default_value *= gain
+    world = bpy.context.scene.world
+    if world is not None and world.use_nodes:
+        for n in world.node_tree.nodes:
+            if n.bl_idname == "ShaderNodeBackground":
+                n.inputs["Strength"].default_value *= gain
+
+
+def frame_path(out: Path, t: int) -> Path:
+    return out / f"frame_{t:04d}.exr"
+
+
+def write_room_shot(out_dir: str | Path, seed: int, num_frames: int, width: int, height: int, *, cfg: CyclesConfig | None = None,
+                    path_cfg: PathConfig | None = None, fps: float = 10.0, progress: Callable[[int, float], None] | None = None) -> Path:
+    """Generate room `seed`, draw its camera path and render it with Cycles into the shot folder `out_dir` (resumable)."""
+    cfg = cfg or CyclesConfig()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    scene_desc = generate_scene(seed)
+    poses = camera_path(scene_desc, num_frames, width / height, seed, path_cfg)
+    extras = extras_for(scene_desc, seed)
+    built = build_room(scene_desc, extras)
+    scene = setup_render(width, height, cfg)
+    add_camera(poses)
+    wire_all_materials()
+    scene.frame_start, scene.frame_end = 0, num_frames - 1
+    gain = exposure_gain(scene, sorted({0, num_frames // 2, num_frames - 1}), cfg.target)
+    scale_lights(gain)
+    write_json_atomic(out / "cameras.json", cameras_json(blender_poses(poses)))
+    file_out = compositor_output(scene, denoise_passes=cfg.denoise)
+    for t in range(num_frames):
+        dst = frame_path(out, t)
+        if dst.is_file():
+            continue
+        t0 = time.perf_counter()
+        scene.frame_set(t)
+        with tempfile.TemporaryDirectory(dir=out, prefix=".tmp_") as tmp:
+            file_out.base_path = str(Path(tmp) / "frame_")
+            bpy.ops.render.render(write_still=False)
+            os.replace(Path(tmp) / f"frame_{t:04d}.exr", dst)
+        if progress is not None:
+            progress(t, time.perf_counter() - t0)
+    light = scene_desc.lighting
+    write_json_atomic(out / "shot.json", {
+        "format": FORMAT_NAME, "version": FORMAT_VERSION, "num_frames": num_frames, "width": width, "height": height, "fps": fps,
+        "caption": scene_desc.caption, "objects": {str(k): v for k, v in sorted(built["captions"].items())},
+        "irradiance_normalized": False,
+        "extra": {"room_seed": int(seed), "light_mood": light.mood, "room_type": scene_desc.room_type, "style": scene_desc.style,
+                  "generator": GENERATOR, "renderer": f"Cycles (Blender {bpy.app.version_string})", "samples": cfg.samples,
+                  "denoise": cfg.denoise, "light_gain": gain, "path_traced": built["extras"]},
+    })
+    return out
