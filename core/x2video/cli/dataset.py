@@ -148,7 +148,8 @@ def register(subparsers) -> None:
     m.add_argument("--renderer", choices=("raster", "cycles"), default="raster",
                    help="raster: the fast moderngl renderer (shot folders); cycles: Blender's path tracer through bpy (Blender"
                         " multi-layer EXR shots with a val split; needs `pip install 'x2video-studio[cycles]'`)")
-    m.add_argument("--samples", type=int, default=64, help="cycles: path-tracing samples per pixel (Combined is denoised)")
+    m.add_argument("--samples", type=int, default=32, help="cycles: path-tracing samples per pixel (Combined and the light passes are denoised)")
+    m.add_argument("--splits", default=None, help="cycles: render only these splits, e.g. 'test' (comma-separated; default all)")
     m.set_defaults(func=make)
     d = sub.add_parser("demo", help="write the small demo shot (1 room, 33 frames, 320x224, deterministic)")
     d.add_argument("out", help="output shot folder")

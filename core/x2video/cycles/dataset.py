@@ -89,6 +89,11 @@ def make_cycles(args: argparse.Namespace, width: int, height: int) -> int:
             for i in range(args.rooms)]
     # test and validation rooms first: a build stopped early can still be measured
     jobs.sort(key=lambda j: (room_split(j.index, args.test_every, True) == "train", j.index))
+    wanted = set(args.splits.split(",")) if getattr(args, "splits", None) else {"train", "val", "test"}
+    bad = wanted - {"train", "val", "test"}
+    if bad:
+        raise ValueError(f"--splits: unknown split(s) {sorted(bad)}; expected train, val, test")
+    jobs = [j for j in jobs if room_split(j.index, args.test_every, True) in wanted]
     todo = [j for j in jobs if not is_done(Path(j.out))]
     log.info("%d rooms, %d already done, %d to path-trace with %d worker(s)", len(jobs), len(jobs) - len(todo), len(todo), args.workers)
     bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), unit="room", desc="rooms (cycles)")
@@ -104,7 +109,7 @@ def make_cycles(args: argparse.Namespace, width: int, height: int) -> int:
         pool.terminate()
     seconds = time.perf_counter() - t0
     rooms: dict[str, list[str]] = {"train": [], "val": [], "test": []}
-    for j in sorted(jobs, key=lambda j: j.index):
+    for j in sorted(jobs, key=lambda j: j.index):  # the splits asked for
         rooms[room_split(j.index, args.test_every, True)].append(os.path.relpath(j.out, out))
     write_json_atomic(meta, {**settings, "format": FORMAT, "complete": True, "splits": rooms,
                              "build_seconds_this_run": round(seconds, 1), "frames_this_run": frames})
