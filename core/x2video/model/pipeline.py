@@ -94,6 +94,9 @@ class X2VideoModel:
         self.latent_channels = config.vae.latent_channels
         self.num_train_timesteps = config.num_train_timesteps
         self._content_key: str | None = None
+        #: the tier-1 network (`x2video.model.residual`), or None; `from_pretrained` loads the folder's
+        #: residual.safetensors. The Renderer runs it for frames with nothing to generate (`x2video.sampling.tiers`).
+        self.residual_net = None
         if is_video_unet(unet) != config.video:
             raise ValueError(f"config says video={config.video} but the UNet has {unet.config.in_channels} input channels")
 
@@ -148,6 +151,10 @@ class X2VideoModel:
             log.info("channels encoded by the distilled encoder %s (channel_encoder='vae': the full VAE encoder)", enc_file)
         model = cls(cfg, unet, vae, text_encoder, lcm, device=device, dtype=dtype, encoder_dtype=encoder_dtype, channel_encoder=enc)
         model._content_key = None
+        if (directory / "residual.safetensors").is_file():
+            from x2video.model.residual import load as load_residual
+
+            model.residual_net = load_residual(directory, model.device)
         return model
 
     def save_pretrained(self, directory: str | os.PathLike, *, dtype: torch.dtype = torch.float32) -> Path:

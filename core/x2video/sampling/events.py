@@ -73,6 +73,14 @@ class RenderSettings:
     noise in between, so the generated frames are denoised again against the references pasted in
     at that level (`x2video.sampling.samplers.sample_ddim`). 1 (default): off; r costs those
     windows about r times the network passes."""
+    quality: Literal["auto", "formula", "residual", "diffusion"] = "auto"
+    """Which tier renders (`x2video.sampling.tiers`): 'formula' = the classical shading of the channels
+    (albedo x irradiance plus a GGX term); 'residual' = one pass of the tier-1 network over it (needs
+    residual.safetensors beside the weights); 'diffusion' = the video diffusion sampler. 'auto'
+    (default): the tier-1 network where nothing must be generated, the diffusion sampler where
+    something must (a dropped channel, a masked A|M|R region, a local prompt, a reference) and,
+    when only some regions must be generated, tier 1 around them with a feathered seam; a model
+    without the tier-1 network renders with the diffusion sampler. The log says what ran and why."""
     preset: Literal["fast", "quality"] | None = None
     """Overrides sampler and steps when set: 'fast' = LCM-2 if distilled weights are loaded, else
     DDIM-4; 'quality' = DDIM-20 (`x2video.sampling.renderer.select_steps`)."""
@@ -101,6 +109,8 @@ class RenderStarted:
     num_frames: int
     num_windows: int
     levels: list[int]  # levels in the order they will run (top level = keyframes first)
+    tier: str = "diffusion"  # what renders (`x2video.sampling.tiers`): formula, residual or diffusion
+    reason: str = ""  # why that tier (quality 'auto'), for the log and the status bar
 
 
 @dataclass

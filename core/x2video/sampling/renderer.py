@@ -38,6 +38,7 @@ from x2video.sampling.events import (
     StepDone,
     WindowStarted,
 )
+from x2video.sampling import tiers
 from x2video.sampling.planner import Window, last_use, plan, shift
 from x2video.sampling.samplers import Known, alphas_cumprod, mix_noise, sample_ddim, sample_lcm
 from x2video.shot import Shot
@@ -249,8 +250,12 @@ class Renderer:
         done: set[int],
     ) -> None:
         t0 = time.perf_counter()
-        settings = self._validate(shot, settings)
         model = self.model
+        net = getattr(model, "residual_net", None)
+        reasons, only_regions = tiers.generation_reasons(shot, edits)
+        choice = tiers.choose_tier(settings.quality, reasons, only_regions, net is not None, "" if edits is None else edits.global_prompt)
+        self.last_tier = choice
+        log.info("quality %s: tier %s (%s)", settings.quality, choice.tier, choice.reason)
         if edits is None:
             prompts, reference = Prompts(), None
             conditioning: Callable[[int], FrameConditioning] = lambda t: plain_conditioning(shot, t)
@@ -258,8 +263,14 @@ class Renderer:
             from x2video.edits import apply_edits, resolve_reference
 
             prompts = edits.prompts()
-            reference = resolve_reference(shot, edits, base_dir)
+            reference = resolve_reference(shot, edits, base_dir) if choice.tier == "diffusion" else None
             conditioning = lambda t: apply_edits(shot, edits, t)
+        if choice.tier in ("formula", "residual"):
+            self._render_direct(shot, settings, choice, conditioning, emit, cancel, done, t0)
+            return
+        settings = self._validate(shot, settings)
+        if choice.regions:
+            emit = self._composite(emit, conditioning, net)
         windows = self.plan(shot, settings, None if reference is None else reference[0])
         keep_until = last_use(windows)
 
@@ -268,7 +279,8 @@ class Renderer:
             text_local = model.encode_prompts(list(prompts.local))  # (P, L, D)
             ref_latent = None if reference is None else model.encode_image(reference[1])  # (4, h, w)
             levels = sorted({w.level for w in windows}, reverse=True)
-            emit(RenderStarted(num_frames=len({f for w in windows for f in w.generate}), num_windows=len(windows), levels=levels))
+            emit(RenderStarted(num_frames=len({f for w in windows for f in w.generate}), num_windows=len(windows), levels=levels,
+                               tier=choice.tier, reason=choice.reason))
             latents: dict[int, torch.Tensor] = {}  # frame -> (4, h, w), only while a later window reads it
             self.peak_latents = 0
             for index, window in enumerate(windows):
@@ -297,6 +309,45 @@ class Renderer:
                 emit(FramesReady(window=index, frames=frames, level=window.level, mode=window.mode, seconds=time.perf_counter() - tw,
                                  replaces=again))
         emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))
+
+    def _render_direct(self, shot: Shot, settings: RenderSettings, choice: tiers.TierChoice, conditioning: Callable[[int], FrameConditioning],
+                       emit: Callable[[RenderEvent], None], cancel: CancelToken | None, done: set[int], t0: float) -> None:
+        """Tiers 0 and 1: every frame on its own, coarse to fine (the timeline fills evenly), a few per event."""
+        start, stop = self._range(shot, settings)
+        order = tiers.coarse_to_fine(start, stop)
+        emit(RenderStarted(num_frames=len(order), num_windows=0, levels=[0], tier=choice.tier, reason=choice.reason))
+        net = getattr(self.model, "residual_net", None)
+        batch = 4
+        for i in range(0, len(order), batch):
+            if cancel is not None and cancel.cancelled:
+                raise Cancelled(f"cancelled after {len(done)} frames")
+            tw = time.perf_counter()
+            fs = order[i:i + batch]
+            conds = [conditioning(f) for f in fs]
+            if choice.tier == "residual":
+                images = tiers.residual_frames(net, conds, self.model.device, batch)
+            else:
+                images = [tiers.formula_frame(c) for c in conds]
+            done.update(fs)
+            emit(FramesReady(window=i // batch, frames=dict(zip(fs, images)), level=0, mode=choice.tier, seconds=time.perf_counter() - tw))
+        emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))
+
+    def _composite(self, emit: Callable[[RenderEvent], None], conditioning: Callable[[int], FrameConditioning], net) -> Callable[[RenderEvent], None]:
+        """Wrap `emit` so each generated frame keeps tier 2 only inside its A|M|R regions (feathered), tier 1 elsewhere."""
+
+        def wrapped(event: RenderEvent) -> None:
+            if isinstance(event, FramesReady):
+                fs = list(event.frames)
+                conds = [conditioning(f) for f in fs]
+                base = tiers.residual_frames(net, conds, self.model.device)
+                frames = {}
+                for f, c, b in zip(fs, conds, base):
+                    w = tiers.feathered(c.amr_mask)[..., None]  # (H, W, 1)
+                    frames[f] = (w * event.frames[f] + (1 - w) * b).astype(np.float32)
+                event = dataclasses.replace(event, frames=frames)
+            emit(event)
+
+        return wrapped
 
     def _cached(self, keys: list[str], compute: Callable[[list[int]], torch.Tensor]) -> torch.Tensor:
         """Stack of the cache's tensors for `keys`; `compute(positions)` makes the missing ones (each

@@ -1,0 +1,179 @@
+"""Accuracy on path-traced shots nobody trained on: each tier beside the formula, per material class, and seconds per frame.
+
+For every shot folder of `--data DATA/<split>/` (Cycles multi-layer EXR shots from `x2video dataset
+make --renderer cycles` or `x2video dataset outside`, or any shot with rgb ground truth) and every
+`--tiers` entry, the shot is rendered with `x2video.Renderer` (all channels, or with `--conditions
+drop_irradiance` the irradiance dropped) and scored in the shot's own units (the renderer's frames
+divided by the shot's exposure normalisation) against its ground truth:
+
+- PSNR and SSIM on display images (`x2video.channels.tonemap`), TC with OpenCV DIS flow on the
+  ground truth (as for outside footage: DESIGN.md "Measuring it");
+- PSNR per material class, from Cycles' own passes where the file has them: window/sky (no
+  geometry), emitter (Emit), glass (TransCol), metal (metallic AOV > 0.5), glossy (roughness < 0.25),
+  diffuse (the rest);
+- seconds per frame of the render (model loaded, conditioning encoded inside the render).
+
+"formula" is tier 0 (albedo x irradiance as the renderer computes it, zero inside masked regions);
+"albedo_x_irradiance" is the plain product the channels give, measured beside every row.
+
+    python bench/pathtraced.py --data DATA --split test [--tiers formula,residual,diffusion] [--weights DIR] [--out JSON]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from x2video.channels import INTRINSIC, tonemap
+from x2video.io import load_shot
+from x2video.io.atomic import write_json_atomic
+from x2video.io.image import read_image
+from x2video.metrics.image import psnr, ssim
+from x2video.metrics.temporal import temporal_consistency
+from x2video.sampling.events import FramesReady, RenderSettings
+from x2video.sampling.renderer import Renderer
+
+CLASSES = ("diffuse", "glossy", "metal", "glass", "emitter", "window")
+
+
+def material_classes(frame_file: Path, fr: dict[str, np.ndarray]) -> np.ndarray:
+    """(H, W) index into CLASSES per pixel, from the frame's Cycles passes and our channels."""
+    h, w = fr["albedo"].shape[:2]
+    cls = np.zeros((h, w), np.int8)
+    cls[fr["roughness"][..., 0] < 0.25] = CLASSES.index("glossy")
+    cls[fr["metallic"][..., 0] > 0.5] = CLASSES.index("metal")
+    try:
+        img = read_image(frame_file)
+        names = set(img.channel_names)
+        for cname, pas in (("glass", "TransCol"), ("emitter", "Emit")):
+            comps = [n for n in img.channel_names if n.split(".")[-2:-1] == [pas] and n[-1] in "RGB"]
+            if len(comps) == 3:
+                v = img.stack(comps).max(-1)
+                cls[v > (0.1 if cname == "glass" else 0.02)] = CLASSES.index(cname)
+        del names
+    except (ValueError, OSError):
+        pass
+    cls[np.linalg.norm(fr["normal"], axis=-1) < 0.5] = CLASSES.index("window")
+    return cls
+
+
+def masked_psnr(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> tuple[float, int]:
+    """(sum of squared errors, pixel count) over `mask` of display images, for pooling."""
+    d = (pred[mask] - gt[mask]) ** 2
+    return float(d.sum() / 3.0), int(mask.sum())
+
+
+def render_tier(renderer: Renderer, shot, tier: str, condition: str) -> tuple[list[np.ndarray], float]:
+    from x2video.edits import Edits
+
+    edits = None
+    if condition == "drop_irradiance":
+        edits = Edits()
+        edits.dropped = {"irradiance"}
+    frames: dict[int, np.ndarray] = {}
+
+    def on_event(e) -> None:
+        if isinstance(e, FramesReady):
+            frames.update(e.frames)
+
+    settings = RenderSettings(quality=tier if tier != "diffusion" else "diffusion", preset="fast" if tier == "diffusion" else None)
+    t0 = time.perf_counter()
+    renderer.render(shot, edits, settings, on_event)
+    return [frames[t] for t in range(shot.num_frames)], time.perf_counter() - t0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", required=True, help="data set folder (DATA/<split>/<shot>/) or a folder of shots with --split ''")
+    ap.add_argument("--split", default="test")
+    ap.add_argument("--tiers", default="formula,residual,diffusion", help="comma-separated: formula, residual, diffusion")
+    ap.add_argument("--conditions", default="all", help="comma-separated: all, drop_irradiance")
+    ap.add_argument("--weights", default=None, help="model folder (default: the shipped weights)")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--max-shots", type=int, default=0)
+    ap.add_argument("--out", default=None, help="results JSON (default bench/results/pathtraced/<data name>_<split>.json)")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(args.threads)
+
+    from x2video.model.pipeline import X2VideoModel
+
+    weights = Path(args.weights) if args.weights else Path(__file__).resolve().parents[1] / "resources" / "x2video-tiny"
+    model = X2VideoModel.from_pretrained(weights)
+    renderer = Renderer(model)
+    root = Path(args.data) / args.split if args.split else Path(args.data)
+    shots = sorted(p for p in root.iterdir() if (p / "shot.json").is_file())
+    if args.max_shots:
+        shots = shots[: args.max_shots]
+    tiers = [t for t in args.tiers.split(",") if t]
+    conditions = [c for c in args.conditions.split(",") if c]
+    rows: dict[str, dict] = {}
+    per_shot = []
+    for sp in shots:
+        shot = load_shot(sp)
+        s = float(shot.info.irradiance_scale)
+        files = sorted(sp.glob("*.exr"))
+        gts, forms, classes = [], [], []
+        for t in range(shot.num_frames):
+            fr = shot.frame(t)
+            gts.append(tonemap(fr["rgb"]))
+            forms.append(tonemap(fr["albedo"] * fr["irradiance"] / s))
+            classes.append(material_classes(files[t], fr) if len(files) == shot.num_frames else np.zeros(gts[-1].shape[:2], np.int8))
+        tc_gt_ok = shot.num_frames >= 2
+        results = {"albedo_x_irradiance|all": (forms, 0.0)}
+        for cond in conditions:
+            for tier in tiers:
+                if tier != "diffusion" and cond != "all":
+                    continue
+                frames, secs = render_tier(renderer, shot, tier, cond)
+                results[f"{tier}|{cond}"] = ([tonemap(f / s) for f in frames], secs)
+        shot_row = {"shot": f"{sp.parent.name}/{sp.name}", "frames": shot.num_frames, "size": list(shot.size[::-1])}
+        for key, (disp, secs) in results.items():
+            r = rows.setdefault(key, {"psnr": [], "ssim": [], "tc": [], "sec_per_frame": [], "sse": np.zeros(len(CLASSES)), "npx": np.zeros(len(CLASSES))})
+            ps = [psnr(p, g) for p, g in zip(disp, gts)]
+            ss = [ssim(p, g) for p, g in zip(disp, gts)]
+            tc = temporal_consistency(disp, gts).tc if tc_gt_ok else None
+            for p, g, c in zip(disp, gts, classes):
+                for k in range(len(CLASSES)):
+                    e, n = masked_psnr(p, g, c == k)
+                    r["sse"][k] += e
+                    r["npx"][k] += n
+            r["psnr"].append(float(np.mean(ps)))
+            r["ssim"].append(float(np.mean(ss)))
+            if tc is not None:
+                r["tc"].append(float(tc))
+            r["sec_per_frame"].append(secs / shot.num_frames)
+            shot_row[key] = {"psnr": round(float(np.mean(ps)), 3), "ssim": round(float(np.mean(ss)), 4), "tc": None if tc is None else round(float(tc), 3)}
+        per_shot.append(shot_row)
+        print(json.dumps(shot_row), flush=True)
+    summary = {}
+    for key, r in rows.items():
+        summary[key] = {
+            "psnr": round(float(np.mean(r["psnr"])), 3), "ssim": round(float(np.mean(r["ssim"])), 4),
+            "tc": round(float(np.mean(r["tc"])), 3) if r["tc"] else None,
+            "sec_per_frame": round(float(np.mean(r["sec_per_frame"])), 4),
+            "psnr_by_material": {c: (round(10 * math.log10(n / max(e, 1e-12)), 2) if n else None) for c, e, n in zip(CLASSES, r["sse"], r["npx"])},
+            "pixel_share": {c: round(float(n / max(r["npx"].sum(), 1)), 4) for c, n in zip(CLASSES, r["npx"])},
+        }
+    out = {"data": Path(args.data).name, "split": args.split, "shots": len(shots), "weights": weights.name,
+           "machine": {"cpu": platform.processor() or platform.machine(), "threads": args.threads, "torch": torch.__version__},
+           "note": "PSNR/SSIM on tonemap (clip, sRGB) in the shot's units; TC = warping error / ground truth's, DIS flow; "
+                   "per-material PSNR pools squared errors over the class's pixels; 'formula' = tier 0 (classical shading), "
+                   "'albedo_x_irradiance' = the plain product",
+           "summary": summary, "shots_detail": per_shot}
+    dest = Path(args.out) if args.out else Path(__file__).resolve().parent / "results" / "pathtraced" / f"{Path(args.data).name}_{args.split or 'all'}.json"
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(dest, out)
+    for key, v in summary.items():
+        print(f"{key:28s} PSNR {v['psnr']:6.2f}  SSIM {v['ssim']:.4f}  TC {v['tc']}  s/frame {v['sec_per_frame']:.3f}  {v['psnr_by_material']}")
+    print(f"wrote {dest}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,142 @@
+"""Tiers: no more model than a scene needs (DESIGN.md, "Tiers").
+
+    0 formula    albedo x irradiance of the (edited) channels, exact for diffuse light, free;
+    1 residual   one deterministic pass of the tier-1 net (`x2video.model.residual`) over it: the
+                 glossy term, metals, emitters, windows; per frame, so it cannot flicker;
+    2 diffusion  the video diffusion sampler, for what must be generated: a dropped channel,
+                 a region whose albedo/material is masked out (A|M|R), a local prompt, a reference.
+
+`choose_tier` decides for a render (quality "auto") and says why; `auto` composites per region:
+frames whose channels are all present take tier 1 outside the regions tier 2 must generate, and
+the two meet over a feathered seam (`feathered`). The user can force any tier.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from x2video.channels import INTRINSIC
+from x2video.conditioning import FrameConditioning
+
+log = logging.getLogger(__name__)
+
+QUALITIES = ("auto", "formula", "residual", "diffusion")
+#: pixels of the feather between a generated region (tier 2) and its surroundings (tier 1)
+FEATHER_PX = 6.0
+
+
+@dataclass(frozen=True)
+class TierChoice:
+    """What a render runs: `tier` for the frames, and `regions` True when tier 2 runs only inside
+    the generated regions of frames that otherwise have every channel (composited over `base`)."""
+
+    tier: str
+    reason: str
+    base: str = ""
+    regions: bool = False
+
+
+def generation_reasons(shot, edits) -> tuple[list[str], bool]:
+    """(why a render of `shot` with `edits` (or None) needs the diffusion sampler, whether that is only
+    inside masked regions of frames that otherwise have every channel). Read from the edits'
+    structure, not the pixels, so deciding costs nothing on a 1,000-frame shot."""
+    from x2video.edits.ops import MaskOut
+
+    why: list[str] = []
+    dropped = [n for n in INTRINSIC if not shot.has(n) or (edits is not None and n in edits.dropped)]
+    if dropped:
+        why.append(f"channel(s) {', '.join(dropped)} missing or dropped")
+    if edits is None:
+        return why, False
+    outs = [op for op in edits.ops if isinstance(op, MaskOut)]
+    if any(op.mask is None for op in outs):
+        why.append("albedo/material masked out on whole frames")
+    regional = [op for op in outs if op.mask is not None]
+    if regional:
+        why.append(f"albedo/material masked out (A|M|R) inside mask(s) {', '.join(sorted({op.mask for op in regional}))}")
+    local = edits.local_prompt_masks()
+    if local:
+        why.append(f"local prompt(s) on {', '.join(local)}")
+    if edits.reference is not None:
+        why.append("a reference frame to follow")
+    only_regions = bool(regional) and len(why) == 1
+    return why, only_regions
+
+
+def choose_tier(quality: str, reasons: list[str], only_regions: bool, has_residual: bool, global_prompt: str = "") -> TierChoice:
+    """The tier a render runs at `quality` ("auto" or a forced tier), given `generation_reasons`."""
+    if quality not in QUALITIES:
+        raise ValueError(f"unknown quality {quality!r} (use one of {', '.join(QUALITIES)})")
+    if quality == "residual" and not has_residual:
+        raise ValueError("quality 'residual' needs the tier-1 network (residual.safetensors beside the weights);"
+                         " the loaded model has none")
+    if quality != "auto":
+        return TierChoice(quality, "forced by the user")
+    if not has_residual:
+        return TierChoice("diffusion", "this model has no tier-1 network")
+    if not reasons:
+        note = "; a global prompt alone does not change that (quality 'diffusion' follows it)" if global_prompt else ""
+        return TierChoice("residual", f"every channel present, nothing to generate{note}")
+    if only_regions:
+        return TierChoice("diffusion", f"{reasons[0]}: generated there, tier 1 around it", base="residual", regions=True)
+    return TierChoice("diffusion", "; ".join(reasons))
+
+
+def formula_frame(cond: FrameConditioning) -> np.ndarray:
+    """Tier 0: (H, W, 3) linear albedo x irradiance of one frame's (edited) channels, zero inside A|M|R regions.
+
+    The plain product, not `x2video.model.shading.classical_shading`, whose grey-world GGX term
+    overshoots a path tracer's energy-conserving BSDF (`x2video.model.residual`)."""
+    from x2video.model.residual import formula
+
+    out = formula(cond.channels)
+    return out * (np.asarray(cond.amr_mask, np.float32) <= 0.5)[..., None] if cond.amr_mask.size else out
+
+
+@torch.inference_mode()
+def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.device | str = "cpu", batch: int = 4) -> list[np.ndarray]:
+    """Tier 1: (H, W, 3) linear frames from the tier-1 net, `batch` frames per pass."""
+    from x2video.model.residual import apply, features
+
+    out: list[np.ndarray] = []
+    for i in range(0, len(conds), batch):
+        feats = [features(c.channels) for c in conds[i:i + batch]]
+        x = torch.from_numpy(np.stack([f[0] for f in feats])).to(device)  # (B, C_in, H, W)
+        s = torch.from_numpy(np.stack([f[1] for f in feats])).to(device)  # (B, 3, H, W)
+        y = apply(net, x, s).permute(0, 2, 3, 1).float().cpu().numpy()  # (B, H, W, 3)
+        out.extend(np.ascontiguousarray(f) for f in y)
+    return out
+
+
+def feathered(mask: np.ndarray, px: float = FEATHER_PX) -> np.ndarray:
+    """(H, W) weights in [0, 1]: the mask grown by `px` pixels, then blurred within `px` (a Gaussian of
+    sigma px/2 truncated at 2 sigma): 1 inside the mask, exactly 0 farther than 2 px from it."""
+    import cv2
+
+    m = (np.asarray(mask, np.float32) > 0.5).astype(np.float32)
+    if px <= 0 or not m.any():
+        return m
+    k = int(2 * round(px) + 1)
+    grown = cv2.dilate(m, np.ones((k, k), np.uint8))
+    return np.clip(cv2.GaussianBlur(grown, (k, k), px / 2, borderType=cv2.BORDER_REPLICATE), 0, 1)
+
+
+def coarse_to_fine(start: int, stop: int) -> list[int]:
+    """Frames of [start, stop) in the order a timeline fills best: ends first, then halves recursively."""
+    order, seen = [], set()
+    span = 1
+    while span < stop - start:
+        span *= 2
+    while span >= 1:
+        for f in range(start, stop, span):
+            if f not in seen:
+                seen.add(f)
+                order.append(f)
+        span //= 2
+    if stop - 1 not in seen:
+        order.insert(1, stop - 1)
+    return order

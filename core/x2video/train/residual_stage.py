@@ -1,0 +1,219 @@
+"""`x2video train residual`: fit the tier-1 network (`x2video.model.residual`) to path-traced shots.
+
+Data: shot folders any loader reads (Cycles multi-layer EXR shots from `x2video dataset make
+--renderer cycles` go through the user's Blender loader) holding the five channels and the
+ground-truth ``rgb``. Irradiance is exposure-normalised once per shot by the loader; the target
+is scaled by the same factor, so the net works at one exposure and its output divided by the
+factor is in the input's units. Each shot's frames are read once into a float16 cache file.
+
+Loss, on random crops with horizontal flips (the normal's x flips too): L1 of the display images
+(`tonemap`, what PSNR measures) plus a quarter of L1 in log1p space (keeps highlights above
+display white). Channel dropout is off: tier 1 serves frames with all channels (tier 2, the
+diffusion sampler, generates the rest). Checkpoints every `ckpt_every` steps; a run resumes from
+its last one; the weights with the best validation PSNR are kept in `best/`.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+
+from x2video.channels import INTRINSIC
+from x2video.io.atomic import atomic_path, write_json_atomic
+from x2video.model import residual as R
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class ResidualTrainConfig:
+    """What `x2video train residual` does; field docstrings are its help."""
+
+    steps: int = 3000
+    """Optimiser steps (a run stops earlier at --minutes)."""
+    minutes: float = 0.0
+    """Wall-clock limit in minutes (0: none); a checkpoint is written when it is reached."""
+    batch: int = 8
+    """Crops per step."""
+    crop: int = 128
+    """Side of the square random crops (a multiple of the net's factor)."""
+    lr: float = 2e-3
+    """AdamW peak learning rate (cosine decay to 5 % over `steps`, 100 warm-up steps)."""
+    log_weight: float = 0.25
+    """Weight of the log1p-space L1 beside the display-space L1."""
+    val_every: int = 250
+    """Validate on the held-out shots (full frames) every this many steps."""
+    ckpt_every: int = 250
+    """Write a resumable checkpoint every this many steps."""
+    seed: int = 0
+    """Seed of the crops and the initial weights."""
+    widths: tuple[int, ...] = field(default_factory=lambda: R.ResidualConfig().widths)
+    """Channels per level of the net, finest first."""
+
+
+def _tonemap_t(x: torch.Tensor) -> torch.Tensor:
+    """`x2video.channels.tonemap` in torch: clip to [0, 1], sRGB encode."""
+    x = x.clamp(0, 1)
+    return torch.where(x <= 0.0031308, x * 12.92, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
+
+
+def cache_shot(shot_dir: Path, cache_dir: Path) -> Path:
+    """Read a shot once into `cache_dir/<name>.npz`: features (T, C, H, W), target (T, 3, H, W) float16, scale."""
+    from x2video.io import load_shot
+
+    out = cache_dir / f"{shot_dir.parent.name}_{shot_dir.name}.npz"
+    if out.is_file():
+        return out
+    shot = load_shot(shot_dir)
+    missing = [c for c in (*INTRINSIC, "rgb") if c not in shot.info.channels]
+    if missing:
+        raise ValueError(f"{shot_dir}: lacks {', '.join(missing)}; tier-1 training needs the five channels and rgb")
+    s = float(shot.info.irradiance_scale)
+    xs, ys = [], []
+    for t in range(shot.num_frames):
+        fr = shot.frame(t)
+        x, _ = R.features({k: fr[k] for k in INTRINSIC})
+        xs.append(x.astype(np.float16))
+        ys.append((np.asarray(fr["rgb"], np.float32) * s).transpose(2, 0, 1).astype(np.float16))
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, x=np.stack(xs), y=np.stack(ys), scale=np.float32(s))
+    return out
+
+
+def shot_dirs(data: Path, split: str) -> list[Path]:
+    """Finished shots (shot.json present) of `data/<split>/`, sorted."""
+    root = data / split
+    return sorted(p for p in root.iterdir() if (p / "shot.json").is_file()) if root.is_dir() else []
+
+
+class Frames:
+    """All cached frames of some shots in memory (float16), for crops and full-frame validation."""
+
+    def __init__(self, files: list[Path]):
+        self.x, self.y, self.scale, self.shot = [], [], [], []
+        for i, f in enumerate(files):
+            d = np.load(f)
+            for t in range(d["x"].shape[0]):
+                self.x.append(d["x"][t])
+                self.y.append(d["y"][t])
+                self.scale.append(float(d["scale"]))
+                self.shot.append(i)
+        if not self.x:
+            raise ValueError("no frames to train on")
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+    def crops(self, rng: np.random.Generator, n: int, size: int) -> tuple[torch.Tensor, torch.Tensor]:
+        xs, ys = [], []
+        for _ in range(n):
+            i = int(rng.integers(len(self.x)))
+            x, y = self.x[i], self.y[i]
+            h, w = x.shape[1:]
+            s = min(size, h, w)
+            r, c = int(rng.integers(h - s + 1)), int(rng.integers(w - s + 1))
+            x, y = x[:, r:r + s, c:c + s].astype(np.float32), y[:, r:r + s, c:c + s].astype(np.float32)
+            if rng.random() < 0.5:  # mirror left-right: the camera-space normal's x changes sign
+                x, y = x[:, :, ::-1].copy(), y[:, :, ::-1].copy()
+                x[3] = -x[3]
+            xs.append(x)
+            ys.append(y)
+        return torch.from_numpy(np.stack(xs)), torch.from_numpy(np.stack(ys))
+
+
+def loss_fn(pred: torch.Tensor, y: torch.Tensor, log_weight: float) -> torch.Tensor:
+    return F.l1_loss(_tonemap_t(pred), _tonemap_t(y)) + log_weight * F.l1_loss(torch.log1p(pred), torch.log1p(y.clamp_min(0)))
+
+
+@torch.no_grad()
+def validate(net: R.ResidualNet, frames: Frames) -> dict[str, float]:
+    """Mean PSNR (display, in the input's units: prediction and target divided by the shot's scale)
+    of the net and of the formula (albedo x irradiance) over every held-out frame."""
+    net.eval()
+    ps_net, ps_form = [], []
+    for x, y, s in zip(frames.x, frames.y, frames.scale):
+        xt = torch.from_numpy(x.astype(np.float32))[None]
+        shading = torch.expm1(xt[:, R.FORMULA_PLANES])
+        pred = R.apply(net, xt, shading)
+        gt = _tonemap_t(torch.from_numpy(y.astype(np.float32))[None] / s)
+        for v, acc in ((pred, ps_net), (shading, ps_form)):
+            mse = float(F.mse_loss(_tonemap_t(v / s), gt))
+            acc.append(10 * math.log10(1.0 / max(mse, 1e-12)))
+    net.train()
+    return {"psnr": float(np.mean(ps_net)), "psnr_formula": float(np.mean(ps_form)), "frames": len(ps_net)}
+
+
+def train(data: Path, out: Path, cfg: ResidualTrainConfig, *, threads: int = 2, progress: Callable[[dict], None] | None = None) -> dict:
+    """Train (or resume) a tier-1 net on `data/train`, validated on `data/val` (else `data/test`); returns the summary."""
+    torch.set_num_threads(max(1, threads))
+    cache = out / "cache"
+    train_files = [cache_shot(p, cache) for p in shot_dirs(data, "train")]
+    val_split = "val" if shot_dirs(data, "val") else "test"
+    val_files = [cache_shot(p, cache) for p in shot_dirs(data, val_split)]
+    if not train_files:
+        raise ValueError(f"{data}: no finished shots in train/ (make them with `x2video dataset make --renderer cycles`)")
+    tr, va = Frames(train_files), (Frames(val_files) if val_files else None)
+    torch.manual_seed(cfg.seed)
+    net = R.ResidualNet(R.ResidualConfig(widths=tuple(cfg.widths)))
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=1e-4)
+    step, best = 0, -1.0
+    ck = out / "checkpoint.pt"
+    if ck.is_file():
+        state = torch.load(ck, map_location="cpu", weights_only=False)
+        net.load_state_dict(state["net"])
+        opt.load_state_dict(state["opt"])
+        step, best = int(state["step"]), float(state.get("best", -1.0))
+        log.info("resuming %s at step %d", out, step)
+    rng = np.random.default_rng([cfg.seed, step])
+    sched = lambda s: min(1.0, (s + 1) / 100) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(s, cfg.steps) / cfg.steps)))  # noqa: E731
+    history: list[dict] = []
+    t0, seconds = time.perf_counter(), 0.0
+    summary = {"config": asdict(cfg), "train_frames": len(tr), "val_frames": len(va) if va else 0, "val_split": val_split}
+
+    def checkpoint() -> None:
+        with atomic_path(ck) as tmp:
+            torch.save({"net": net.state_dict(), "opt": opt.state_dict(), "step": step, "best": best}, tmp)
+
+    net.train()
+    while step < cfg.steps:
+        for g in opt.param_groups:
+            g["lr"] = cfg.lr * sched(step)
+        x, y = tr.crops(rng, cfg.batch, cfg.crop)
+        pred = R.apply(net, x, torch.expm1(x[:, R.FORMULA_PLANES]))
+        loss = loss_fn(pred, y, cfg.log_weight)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+        opt.step()
+        step += 1
+        over = cfg.minutes > 0 and (time.perf_counter() - t0) > cfg.minutes * 60
+        if va is not None and (step % cfg.val_every == 0 or step == cfg.steps or over):
+            v = validate(net, va)
+            v.update(step=step, loss=float(loss.detach()), seconds=round(time.perf_counter() - t0, 1))
+            history.append(v)
+            if progress is not None:
+                progress(v)
+            if v["psnr"] > best:
+                best = v["psnr"]
+                R.save(net, out / "best", {"step": step, "val": v, "trained_on": str(data.name)})
+        if step % cfg.ckpt_every == 0 or over:
+            checkpoint()
+        if over:
+            break
+    checkpoint()
+    seconds = time.perf_counter() - t0
+    R.save(net, out / "last", {"step": step})
+    summary.update(steps=step, seconds=round(seconds, 1), best_val_psnr=best, history=history)
+    prev = json.loads((out / "results.json").read_text()) if (out / "results.json").is_file() else {}
+    write_json_atomic(out / "results.json", {**prev, "residual": summary})
+    return summary

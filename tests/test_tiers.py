@@ -1,0 +1,162 @@
+"""Tiers (formula, tier-1 residual net, diffusion): auto's choices, forced tiers, the regional composite, the net itself."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from sampling_fake import FakeModel, make_shot
+
+from x2video.edits import Edits
+from x2video.edits.masks import Mask
+from x2video.edits.ops import MaskOut
+from x2video.model import residual as R
+from x2video.sampling import tiers
+from x2video.sampling.events import FramesReady, RenderSettings, RenderStarted, StepDone
+from x2video.sampling.renderer import Renderer
+from x2video.shot import ArrayShot
+
+
+def full_shot(num_frames: int = 5, h: int = 16, w: int = 24) -> ArrayShot:
+    """`make_shot` plus roughness and metallic: all five channels."""
+    base = make_shot(num_frames, h, w)
+    rng = np.random.default_rng(1)
+    arrays = {n: np.stack([base.channel(n, t) for t in range(num_frames)]) for n in base.channels}
+    arrays["roughness"] = rng.uniform(0, 1, (num_frames, h, w, 1)).astype(np.float32)
+    arrays["metallic"] = np.zeros((num_frames, h, w, 1), np.float32)
+    return ArrayShot(arrays)
+
+
+def render(model, shot, settings, edits=None):
+    events = []
+    Renderer(model).render(shot, edits, settings, events.append)
+    frames = {}
+    for e in events:
+        if isinstance(e, FramesReady):
+            frames.update(e.frames)
+    return events, frames
+
+
+def with_net(seed: int = 0) -> FakeModel:
+    m = FakeModel()
+    torch.manual_seed(seed)
+    m.residual_net = R.ResidualNet(R.ResidualConfig(widths=(8, 16))).eval()
+    torch.nn.init.normal_(m.residual_net.out.weight, std=0.1)  # not the zero init: the net must change frames
+    return m
+
+
+def test_choose_tier_says_why():
+    assert tiers.choose_tier("auto", [], False, True).tier == "residual"
+    assert tiers.choose_tier("auto", [], False, False).tier == "diffusion"  # no tier-1 net: the sampler, as before tiers
+    c = tiers.choose_tier("auto", ["channel(s) irradiance missing or dropped"], False, True)
+    assert c.tier == "diffusion" and "irradiance" in c.reason and not c.regions
+    c = tiers.choose_tier("auto", ["albedo/material masked out (A|M|R) inside mask(s) m"], True, True)
+    assert c.tier == "diffusion" and c.regions and c.base == "residual"
+    assert tiers.choose_tier("formula", ["x"], False, False).tier == "formula"
+    with pytest.raises(ValueError, match="tier-1 network"):
+        tiers.choose_tier("residual", [], False, False)
+    with pytest.raises(ValueError, match="unknown quality"):
+        tiers.choose_tier("best", [], False, True)
+
+
+def test_generation_reasons_from_edits():
+    shot = full_shot()
+    assert tiers.generation_reasons(shot, None) == ([], False)
+    e = Edits()
+    e.dropped = {"irradiance"}
+    why, regions = tiers.generation_reasons(shot, e)
+    assert "irradiance" in why[0] and not regions
+    e = Edits()
+    e.masks["m"] = Mask()
+    e.ops.append(MaskOut(mask="m"))
+    why, regions = tiers.generation_reasons(shot, e)
+    assert regions and "A|M|R" in why[0]
+    e.local_prompts["m"] = "a red sofa"
+    assert tiers.generation_reasons(shot, e)[1] is False  # a local prompt needs the sampler's frame context
+
+
+def test_auto_runs_the_residual_net_per_frame_deterministically():
+    shot, model = full_shot(), with_net()
+    events, frames = render(model, shot, RenderSettings())
+    started = next(e for e in events if isinstance(e, RenderStarted))
+    assert started.tier == "residual" and not any(isinstance(e, StepDone) for e in events)
+    assert sorted(frames) == list(range(5))
+    ch = shot.frame(2)
+    x, f = R.features(ch)
+    want = R.apply(model.residual_net, torch.from_numpy(x)[None], torch.from_numpy(f)[None])[0].permute(1, 2, 0).detach().numpy()
+    np.testing.assert_allclose(frames[2], want, atol=1e-5)
+    assert not np.allclose(frames[2], R.formula(ch), atol=1e-3)
+    _, again = render(model, shot, RenderSettings())
+    np.testing.assert_array_equal(again[2], frames[2])
+
+
+def test_forced_formula_and_diffusion():
+    shot, model = full_shot(), with_net()
+    _, f = render(model, shot, RenderSettings(quality="formula"))
+    ch = shot.frame(3)
+    np.testing.assert_allclose(f[3], ch["albedo"] * ch["irradiance"], atol=1e-6)
+    events, _ = render(model, shot, RenderSettings(quality="diffusion", steps=2))
+    assert any(isinstance(e, StepDone) for e in events)
+    assert next(e for e in events if isinstance(e, RenderStarted)).tier == "diffusion"
+
+
+def test_masked_region_is_generated_and_the_rest_is_tier_1():
+    shot, model = full_shot(h=48, w=64), with_net()
+    e = Edits()
+    m = np.zeros((48, 64), np.float32)
+    m[16:28, 24:40] = 1
+    e.masks["patch"] = Mask()
+    for t in range(shot.num_frames):
+        e.masks["patch"].paint(t, m)
+    e.ops.append(MaskOut(mask="patch"))
+    events, frames = render(model, shot, RenderSettings(steps=2), e)
+    assert next(x for x in events if isinstance(x, RenderStarted)).tier == "diffusion"
+    _, tier1 = render(model, shot, RenderSettings(quality="residual"), e)  # tier 1 of the same edited channels
+    far = np.ones((48, 64), bool)
+    far[16 - 12:28 + 12, 24 - 12:40 + 12] = False  # beyond grow + blur (2 x 6 px)
+    np.testing.assert_allclose(frames[1][far], tier1[1][far], atol=1e-5)
+    assert not np.allclose(frames[1][16:28, 24:40], tier1[1][16:28, 24:40], atol=1e-3)
+
+
+def test_residual_net_any_size_zero_init_and_fp16_round_trip(tmp_path):
+    net = R.ResidualNet(R.ResidualConfig(widths=(8, 16, 16)))
+    shot = full_shot(1, 37, 53)
+    x, f = R.features(shot.frame(0))
+    y = R.apply(net, torch.from_numpy(x)[None], torch.from_numpy(f)[None])
+    assert y.shape == (1, 3, 37, 53)
+    np.testing.assert_allclose(y[0].permute(1, 2, 0).detach().numpy(), R.formula(shot.frame(0)), rtol=1e-5, atol=1e-6)
+    torch.nn.init.normal_(net.out.weight, std=0.05)
+    R.save(net, tmp_path / "w", {"note": "test"})
+    assert json.loads((tmp_path / "w" / "residual.json").read_text())["config"]["widths"] == [8, 16, 16]
+    back = R.load(tmp_path / "w")
+    y1 = net(torch.from_numpy(x)[None, :, :32, :48])
+    y2 = back(torch.from_numpy(x)[None, :, :32, :48])
+    assert float((y1 - y2).abs().max()) < 1e-2  # fp16 weights
+
+
+def test_train_residual_learns_and_resumes(tmp_path):
+    from x2video.io import write_shot_folder
+    from x2video.train.residual_stage import ResidualTrainConfig, train
+
+    rng = np.random.default_rng(0)
+    for split, n in (("train", 2), ("val", 1)):
+        for i in range(n):
+            t, h, w = 2, 32, 48
+            al = rng.uniform(0.1, 0.9, (t, h, w, 3)).astype(np.float32)
+            irr = rng.uniform(0.2, 1.0, (t, h, w, 3)).astype(np.float32)
+            nrm = np.zeros((t, h, w, 3), np.float32)
+            nrm[..., 2] = 1
+            rough = rng.uniform(0, 1, (t, h, w, 1)).astype(np.float32)
+            met = np.zeros((t, h, w, 1), np.float32)
+            rgb = al * irr + 0.05 * (1 - rough)  # a "glossy" term the formula misses
+            write_shot_folder(ArrayShot({"albedo": al, "irradiance": irr, "normal": nrm, "roughness": rough, "metallic": met, "rgb": rgb}),
+                              tmp_path / "data" / split / f"s{i}")
+    cfg = ResidualTrainConfig(steps=30, batch=2, crop=32, lr=3e-3, val_every=30, ckpt_every=15, widths=(8, 16))
+    out = tmp_path / "run"
+    s = train(tmp_path / "data", out, cfg, threads=1)
+    assert s["steps"] == 30 and (out / "best" / "residual.safetensors").is_file()
+    last = s["history"][-1]
+    assert last["psnr"] > last["psnr_formula"]  # it learned some of the term the formula misses
+    s2 = train(tmp_path / "data", out, ResidualTrainConfig(**{**cfg.__dict__, "steps": 40}), threads=1)
+    assert s2["steps"] == 40 and len(s2["history"]) == 1  # resumed at 30, validated once at the end
