@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import os
 import platform
+import re
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -60,3 +61,39 @@ def machine_label(info: dict[str, Any]) -> str:
     if dev.startswith("cuda") and info.get("cuda"):
         return f"{info['cuda']} ({dev})"
     return f"{info.get('cpu')}, {info.get('cpu_cores')} cores, torch threads {info.get('torch_threads')} (cpu)"
+
+
+#: machine-specific path prefixes and the placeholders results and logs carry instead (a checked-in
+#: file names DATA/r160, never one engineer's disk)
+_PLACEHOLDERS = (
+    (re.compile(r"/work/(?:main|snap_wt\d*|wt/[\w.-]+)/"), ""),  # a checkout of this repository: repository-relative
+    (re.compile(r"/work/data/"), "DATA/"),
+    (re.compile(r"/work/runs/"), "RUNS/"),
+    (re.compile(r"/work/results/"), "RESULTS/"),
+    (re.compile(r"/work/exp/"), "RUNS/exp/"),
+    (re.compile(r"/work/gpu/"), "GPU/"),
+    (re.compile(r"/work/"), "WORK/"),
+    (re.compile(r"/tmp/"), "TMP/"),
+    (re.compile(r"/(?:root|home/[\w.-]+)/"), "~/"),
+)
+
+
+def scrub_paths(text: str) -> str:
+    """`text` with machine paths replaced by placeholders (DATA/, RUNS/, RESULTS/, TMP/, ~/) and
+    paths into a checkout of this repository made repository-relative."""
+    for pattern, placeholder in _PLACEHOLDERS:
+        text = pattern.sub(placeholder, text)
+    return text
+
+
+def portable_path(path: str | Path) -> str:
+    """A path as results files record it: relative to the current folder when inside it (the
+    repository root, where benches and `x2video eval` run), else with machine prefixes replaced
+    (`scrub_paths`)."""
+    p = Path(path)
+    if p.is_absolute():
+        try:
+            return p.resolve().relative_to(Path.cwd().resolve()).as_posix()
+        except ValueError:
+            pass
+    return scrub_paths(p.as_posix() if isinstance(path, Path) else str(path))
