@@ -9,8 +9,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-from x2video.cli.args import BF16_ENCODER_HELP, CHANNEL_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, REF_DC_HELP, RESAMPLE_HELP, SEAMS_HELP, size_arg
-from x2video.model.config import CHANNEL_ENCODERS, DEFAULT_CHANNEL_ENCODER
+from x2video.cli.args import size_arg
+from x2video.cli.fields import add_fields
+from x2video.model.config import DEFAULT_CHANNEL_ENCODER
+from x2video.weights import ModelOptions
 
 log = logging.getLogger(__name__)
 
@@ -55,21 +57,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     g = p.add_argument_group("weights")
     g.add_argument("--weights", type=Path, help="video model: a training run (newest step-*/model) or a model folder "
-                                                "(default: the weights shipped in resources/)")
+                                                "(default: the shipped weights)")
     g.add_argument("--image-weights", type=Path, help="image-stage run or model folder for table (a)'s per-frame row")
     g.add_argument("--lcm-weights", type=Path, help="LCM run or model folder (with lcm_unet.safetensors) for table (d)")
     g.add_argument("--untrained", action="store_true", help="untrained tiny video + image models (smoke test: numbers mean nothing)")
-    g.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
-    g.add_argument("--fp16", action="store_true", help="half precision (GPU)")
-    g.add_argument("--bf16-encoder", action="store_true", help=BF16_ENCODER_HELP)
-    g.add_argument("--channel-encoder", choices=CHANNEL_ENCODERS, default=DEFAULT_CHANNEL_ENCODER, help=CHANNEL_ENCODER_HELP)
+    add_fields(g, ModelOptions, only=("device", "fp16", "bf16_encoder", "channel_encoder"))
     g = p.add_argument_group("data")
     g.add_argument("--data", type=Path, required=True, help="data set folder from `x2video dataset make` (DATA/test/room_*)")
-    g.add_argument("--split", default=d.split, help=f"split of held-out rooms (default {d.split})")
-    g.add_argument("--rooms", type=int, default=d.rooms, help="first K rooms of the split (default: all)")
+    add_fields(g, EvalConfig, only=("split", "rooms"))
     g.add_argument("--frames", type=int, default=d.frames, help=f"first T frames per shot for tables a, b, d (default {d.frames}; 0 = all)")
     g.add_argument("--long-data", type=Path, help="data set with long shots for table (c) (make it with --frames 65; default: --data)")
-    g.add_argument("--long-frames", type=int, default=d.long_frames, help=f"frames per long shot (default {d.long_frames})")
+    add_fields(g, EvalConfig, only=("long_frames",))
     g.add_argument("--long-conditions", type=_conditions, default=d.long_conditions,
                    help="conditions table (c) compares recursive and sequential under: comma-separated KIND[+text][+ref], "
                    f"KIND one of {', '.join(KINDS)}; +ref gives the ground-truth frame 0 as reference, which sequential "
@@ -77,20 +75,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--size", type=size_arg, help="evaluate at WxH (default: the model's training size when recorded, else the data's)")
     g = p.add_argument_group("what to measure")
     g.add_argument("--tables", type=_choices(TABLES), default=d.tables, help="comma-separated subset of a,b,c,d (default all)")
-    g.add_argument("--steps", type=int, default=d.steps, help=f"DDIM steps (default {d.steps})")
-    g.add_argument("--lcm-steps", type=int, default=d.lcm_steps, help=f"LCM steps (default {d.lcm_steps})")
-    g.add_argument("--seed", type=int, default=d.seed, help="noise and mask seed")
-    g.add_argument("--window", type=int, default=d.window, help=f"frames per window N (default {d.window})")
-    g.add_argument("--masks", type=int, default=d.masks, help=f"objects masked in Mask A|M|R (default {d.masks})")
-    g.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=d.replace_refs,
-                   help="hold each window's reference frames at their noised latents between denoising steps (as in "
-                        "training; default on)")
-    g.add_argument("--seams", action=argparse.BooleanOptionalAction, default=d.seams, help=SEAMS_HELP)
-    g.add_argument("--max-levels", type=int, default=d.max_levels, help=MAX_LEVELS_HELP)
-    g.add_argument("--ref-dc", type=float, default=d.ref_dc, help=REF_DC_HELP + f" (default {d.ref_dc:g})")
-    g.add_argument("--resample", type=int, default=d.resample, help=RESAMPLE_HELP)
-    g.add_argument("--noise", choices=("window", "frame"), default=d.noise, help=NOISE_HELP + f" (default {d.noise})")
-    g.add_argument("--noise-shared", type=float, default=d.noise_shared, help=NOISE_SHARED_HELP + f" (default {d.noise_shared})")
+    add_fields(g, EvalConfig, only=("steps", "lcm_steps", "seed", "window", "masks", "replace_refs", "seams", "max_levels", "ref_dc",
+                                   "resample", "noise", "noise_shared"))
     g.add_argument("--no-fid", action="store_true", help="skip FID (Inception features of every frame)")
     g.add_argument("--no-tc", action="store_true", help="skip temporal consistency")
     g.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch's default)")
@@ -152,10 +138,10 @@ def load_models(a: argparse.Namespace, *, with_image: bool = True) -> Any:
     with a clear message. `with_image=False` skips the image model (--untrained builds one otherwise)."""
     import torch
 
-    from x2video.cli.render import shipped_weights
     from x2video.eval.runner import EvalModels
     from x2video.model.pipeline import X2VideoModel
     from x2video.train.runs import model_dir
+    from x2video.weights import shipped_weights
 
     dev = a.device or ("cuda" if torch.cuda.is_available() else "cpu")
     dtype = torch.float16 if a.fp16 else torch.float32
@@ -173,7 +159,7 @@ def load_models(a: argparse.Namespace, *, with_image: bool = True) -> Any:
     if weights is None:
         weights = shipped_weights()
         if weights is None:
-            raise FileNotFoundError("no --weights given and no trained weights in resources/ (a folder with config.json and "
+            raise FileNotFoundError("no --weights given and no shipped weights found (a folder with config.json and "
                                     "unet.safetensors); pass --weights RUN_OR_DIR, or --untrained for a smoke test")
 
     def load(path: Path, role: str, want_video: bool, want_lcm: bool = False) -> tuple[Any, dict, Path]:
