@@ -1,6 +1,6 @@
 """Benchmark: frames/s for loading a 640x448 shot folder and for exporting it as EXR (folder, multi-layer) and MP4.
 
-    .venv/bin/python bench/io.py [--frames 30] [--json out.json]
+    python -m bench.io [--frames 30] [--json out.json]
 """
 from __future__ import annotations
 

@@ -8,8 +8,8 @@ Sampling's keyframes come from the top level; sequential windows are all level 1
 mean warping error of the prediction / that of the ground truth over the class's pairs (exact motion, as
 the eval's TC).
 
-    python bench/recursive_seams.py --data DATA [--weights RUN_OR_DIR] [--rooms 2] [--frames 65]
-        [--condition drop_irradiance+ref] [--threads 1] [--out bench/results/recursive_seams.json]
+    python -m bench.recursive_seams --data DATA [--weights RUN_OR_DIR] [--rooms 2] [--frames 65]
+        [--condition drop_irradiance+ref] [--threads 1] [--out bench/results/recursive_seams/recursive_seams.json]
 
 Each seam is also classed by its side of the window boundary (`pair_sides`): "start" when the window
 that made the later frame read the earlier one (every sequential seam), "end" when the window that
@@ -33,10 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from speed_accuracy import add_render_arguments, result_header, run_measure  # noqa: E402  (a sibling script, not a package)
+from bench.common import add_render_arguments, load_models, result_header, results_path, run_measure
 
-RESULTS = Path(__file__).resolve().parent / "results" / "recursive_seams.json"
+RESULTS = results_path("recursive_seams")
 SCHEMES = ("sequential", "recursive")
 
 
@@ -94,7 +93,6 @@ def _tc(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> dict:
 def measure(args: argparse.Namespace) -> dict:
     from x2video.channels import tonemap
     from x2video.edits import resolve_reference
-    from x2video.cli.eval import load_models, resolve_size
     from x2video.eval.conditions import build_edits, parse_condition
     from x2video.eval.data import load_eval_shots
     from x2video.eval.runner import render_shot
@@ -103,10 +101,8 @@ def measure(args: argparse.Namespace) -> dict:
     from x2video.sampling.events import RenderSettings
     from x2video.sampling.renderer import Renderer
 
-    args.image_weights, args.untrained = None, False
     condition = parse_condition(args.condition)
-    models, weights_dir = load_models(args, with_image=False)
-    size, _ = resolve_size(args, weights_dir, models.video.downsample)
+    models, _, size, _ = load_models(args)
     shots = load_eval_shots(args.data, args.split, args.rooms, args.frames, size)
     renderer = Renderer(models.video)
     per: dict[str, dict] = {s: {"pred": [], "gt": [], "classes": [], "sides": [], "shots": {}, "psnr": [],
@@ -154,7 +150,7 @@ def measure(args: argparse.Namespace) -> dict:
                            "sides": {c: _tc(pred, gt, sides == c) for c in sorted(set(sides))},
                            "shots": p["shots"]}
     return {
-        **result_header("recursive-seams", "recursive_seams.py", args, models, shots, size),
+        **result_header("recursive-seams", "recursive_seams", args, models, shots, size),
         "condition": condition.to_dict(),
         "schemes": schemes,
     }

@@ -2,7 +2,7 @@
 Markdown, the model card from results + run folders, contact sheets, and the speed/accuracy chart."""
 from __future__ import annotations
 
-import importlib.util
+import importlib
 import json
 import math
 from pathlib import Path
@@ -294,7 +294,7 @@ def test_card_log_adds_dated_entries_and_the_card_quotes_them(tmp_path, capsys):
 
     res = tmp_path / "eval"
     res.mkdir()
-    (res / "results.json").write_text(json.dumps(dict(_results(), command="x2video eval --data /work/data/r160 --out eval")))
+    (res / "results.json").write_text(json.dumps(dict(_results(), command="x2video eval --data /mnt/data/r160 --out eval")))
     bench = tmp_path / "b.json"
     bench.write_text(json.dumps(dict(_speedup_bench([(5.6, 5.7, 8.5)], threads=2), weights={"video": {"encoder_dtype": "bfloat16"}})))
     log = tmp_path / "log"
@@ -306,7 +306,7 @@ def test_card_log_adds_dated_entries_and_the_card_quotes_them(tmp_path, capsys):
     assert entries == ["2026-01-01-evaluation-07.md", f"{date}-evaluation-08.md", f"{date}-speedup-01.md"]
     text = (log / f"{date}-evaluation-08.md").read_text()
     assert text.startswith(f"# Evaluation 8 ({date})\n\nAdded by `python -m x2video.eval.card ")
-    assert "--data DATA/r160" in text and "/work/" not in text and "| ordering | holds | measured |" in text
+    assert "--data DATA/r160" in text and "/mnt/" not in text and "| ordering | holds | measured |" in text
     assert "Speed-up 1" in (log / f"{date}-speedup-01.md").read_text()
     assert f"[{date}-evaluation-08]({date}-evaluation-08.md)" in (log / "README.md").read_text()
     source = tmp_path / "card.md"
@@ -356,9 +356,7 @@ def test_contact_sheet_and_mp4(tmp_path):
 
 
 def test_speed_accuracy_chart_and_editor_shape(tmp_path):
-    spec = importlib.util.spec_from_file_location("speed_accuracy", Path(__file__).resolve().parents[1] / "bench" / "speed_accuracy.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = importlib.import_module("bench.speed_accuracy")
     result = {"machine": {"cpu": "test cpu", "cpu_cores": 2, "torch_threads": 1, "device": "cpu"},
               "rows": [{"name": "DDIM-20", "seconds_per_frame": 2.0, "psnr": 24.0}, {"name": "DDIM-4", "seconds_per_frame": 0.5, "psnr": 23.0},
                        {"name": "classical shading", "seconds_per_frame": 0.03, "psnr": 20.0}],
@@ -409,9 +407,7 @@ def test_resolve_size_prefers_a_smaller_training_size(tmp_path):
 def test_recursive_seams_classifies_pairs_by_the_windows_that_made_them():
     from x2video.sampling.planner import plan
 
-    spec = importlib.util.spec_from_file_location("recursive_seams", Path(__file__).resolve().parents[1] / "bench" / "recursive_seams.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = importlib.import_module("bench.recursive_seams")
     # recursive, 17 frames, N = 5: one keyframe window (level 2) makes 0, 4, 8, 12, 16; level-1 windows the rest
     rec = mod.pair_classes(plan("recursive", 17, 5), 17)
     assert rec[:4] == ["seam, level 2", "same window", "same window", "seam, level 2"]
