@@ -26,15 +26,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Callable
 
 import torch
 import torch.nn.functional as F
-
-
 from diffusers.models.attention_processor import Attention, AttnProcessor2_0
 
 from x2video.model.config import HybridConfig

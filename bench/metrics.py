@@ -18,7 +18,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-
 from x2video.metrics.fid import fid_from_features, frechet_distance, gaussian_stats, inception_features, load_inception
 from x2video.metrics.image import psnr, ssim
 from x2video.metrics.temporal import temporal_consistency

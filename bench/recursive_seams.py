@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import add_render_arguments, load_models, result_header, results_path, run_measure
+from bench.common import settings as common_settings
 
 RESULTS = results_path("recursive_seams")
 SCHEMES = ("sequential", "recursive")
@@ -98,7 +99,6 @@ def measure(args: argparse.Namespace) -> dict:
     from x2video.eval.runner import render_shot
     from x2video.metrics.image import psnr
     from x2video.metrics.temporal import ground_truth_flows, warping_errors
-    from x2video.sampling.events import RenderSettings
     from x2video.sampling.renderer import Renderer
 
     condition = parse_condition(args.condition)
@@ -114,9 +114,7 @@ def measure(args: argparse.Namespace) -> dict:
         gt_err = warping_errors(gt, flows).errors
         ref = resolve_reference(shot.shot, edits) if edits is not None else None  # where the Renderer anchors the plan
         for scheme in args.schemes:
-            settings = RenderSettings(sampler="ddim", steps=args.steps, seed=args.seed, window=args.window, scheme=scheme,  # type: ignore[arg-type]
-                                      replace_refs=args.replace_refs, seams=args.seams, max_levels=args.max_levels, noise=args.noise, noise_shared=args.noise_shared,
-                                      resample=args.resample, ref_dc=args.ref_dc)
+            settings = common_settings(args, sampler="ddim", steps=args.steps, scheme=scheme)
             windows = renderer.plan(shot.shot, settings, None if ref is None else ref[0])
             classes = np.array(pair_classes(windows, shot.num_frames))
             sides = np.array(pair_sides(windows, shot.num_frames))
@@ -170,7 +168,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--schemes: a comma-separated subset of {','.join(SCHEMES)}, got {','.join(args.schemes)}")
     result = run_measure(args, measure)
     for scheme, r in result["schemes"].items():
-        print(f"{scheme:>10}: PSNR {r['psnr']:.3f} dB, TC {r['tc']:.3f}; " + "; ".join(f"{c} {v['tc']:.3f} ({v['pairs']} pairs)" for c, v in r["classes"].items()))
+        classes = "; ".join(f"{c} {v['tc']:.3f} ({v['pairs']} pairs)" for c, v in r["classes"].items())
+        print(f"{scheme:>10}: PSNR {r['psnr']:.3f} dB, TC {r['tc']:.3f}; {classes}")
         print(" " * 12 + "brightness jump not in the ground truth: " + "; ".join(f"{c} {v['brightness_jump']:.4f}" for c, v in r["classes"].items()))
         print(" " * 12 + "frame offset from the ground truth, by the level that made it: "
               + "; ".join(f"{lv} |{v['mean_abs']:.4f}| (" + ", ".join(f"{x:+.4f}" for x in v["per_shot"] if x is not None) + ")"

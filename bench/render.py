@@ -29,9 +29,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from x2video.io.atomic import write_json_atomic
-
 from bench.common import results_path
+from x2video.io.atomic import write_json_atomic
 from x2video.model.pipeline import X2VideoModel
 from x2video.sampling.events import FramesReady, RenderSettings, StepDone
 from x2video.sampling.renderer import Renderer, plain_conditioning
@@ -136,7 +135,8 @@ def main() -> None:
         if not lcm.has_lcm:
             raise SystemExit(f"{weights} has no lcm_unet.safetensors; LCM-2 cannot be timed (use --untrained for speed only)")
         base = lcm
-        weights_label = f"{weights} (vae {list(base.config.vae.block_out_channels)}, f={base.config.vae.downsample}; unet {list(base.config.unet.block_out_channels)})"
+        cfg = base.config
+        weights_label = f"{weights} (vae {list(cfg.vae.block_out_channels)}, f={cfg.vae.downsample}; unet {list(cfg.unet.block_out_channels)})"
     shot = synthetic_shot(args.frames, width, height)
     if args.threads:
         torch.set_num_threads(args.threads)

@@ -58,7 +58,8 @@ def measure(args: argparse.Namespace) -> dict:
             preds[s.name], secs[s.name] = render_shot(renderer, s, None, chosen)
             print(f"{name}: {s.name} {secs[s.name] / s.num_frames:.3f} s/frame", file=sys.stderr)
         m = scorer.score(preds, secs)
-        rows.append({"name": name, "sampler": sampler, "steps": steps, "detail": detail, **{k: m[k] for k in ("seconds_per_frame", "psnr", "ssim", "tc", "fid", "frames")}})
+        rows.append({"name": name, "sampler": sampler, "steps": steps, "detail": detail,
+                     **{k: m[k] for k in ("seconds_per_frame", "psnr", "ssim", "tc", "fid", "frames")}})
     frames, secs = {}, {}
     for s in shots:
         frames[s.name], secs[s.name] = classical_frames(s.shot, None)

@@ -8,8 +8,8 @@ import math
 from pathlib import Path
 
 import pytest
-
 from eval_fixtures import make_dataset, one_thread  # noqa: F401  (fixture)
+
 from x2video.cli import main
 
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from train_fixtures import tiny_room
+
 from x2video.eval.checks import orderings, orderings_markdown
 from x2video.eval.conditions import Condition, build_edits, pick_objects
 from x2video.eval.data import EvalView, resize_motion, training_size
@@ -388,6 +388,7 @@ def test_resolve_size_prefers_a_smaller_training_size(tmp_path):
     import argparse
 
     from eval_fixtures import make_dataset
+
     from x2video.cli.eval import resolve_size
 
     data = make_dataset(tmp_path / "d", frames=2, size=(64, 48))

@@ -34,12 +34,14 @@ _EXPORTS = {
 __all__ = sorted(_EXPORTS)
 
 if TYPE_CHECKING:
-    from x2video.edits.model import Edits
-    from x2video.io.load import load_shot
-    from x2video.sampling.events import CancelToken, RenderSettings
-    from x2video.sampling.renderer import Renderer
-    from x2video.sampling.sink import FrameSink
-    from x2video.weights import load_model, shipped_weights
+    from x2video.edits.model import Edits as Edits
+    from x2video.io.load import load_shot as load_shot
+    from x2video.sampling.events import CancelToken as CancelToken
+    from x2video.sampling.events import RenderSettings as RenderSettings
+    from x2video.sampling.renderer import Renderer as Renderer
+    from x2video.sampling.sink import FrameSink as FrameSink
+    from x2video.weights import load_model as load_model
+    from x2video.weights import shipped_weights as shipped_weights
 
 
 def __getattr__(name: str) -> Any:

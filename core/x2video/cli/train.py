@@ -200,8 +200,8 @@ def cmd_video(a: argparse.Namespace) -> int:
     loop = _loop_cfg(a)
     sp = None if a.shading_prior is None else a.shading_prior == "on"
     rp = None if a.residual_prior is None else a.residual_prior == "on"
-    stage = VideoStageConfig(batch=a.batch, shading_prior=sp, residual_prior=rp, prediction=a.prediction, seed=a.seed, heldout_batches=a.heldout_batches, augment=_aug(a),
-                             window=_window(a), alpha_lr_mult=a.alpha_lr_mult, train_only=a.train_only,
+    stage = VideoStageConfig(batch=a.batch, shading_prior=sp, residual_prior=rp, prediction=a.prediction, seed=a.seed, heldout_batches=a.heldout_batches,
+                             augment=_aug(a), window=_window(a), alpha_lr_mult=a.alpha_lr_mult, train_only=a.train_only,
                              noise_shared=a.noise_shared)
     _print_result(_run("video", loop.steps, lambda bar: run_video_stage(a.init, a.cache, a.out, stage, loop, bar)))
     return 0

@@ -11,6 +11,7 @@ or one shared Renderer driven from one thread at a time.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import time
 from pathlib import Path
@@ -25,8 +26,8 @@ from x2video.model.api import RenderModel, WindowInputs
 from x2video.model.shading import shading_available
 from x2video.sampling.cache import CacheStats, ConditioningCache, conditioning_key
 from x2video.sampling.events import (
-    CancelToken,
     Cancelled,
+    CancelToken,
     EventCallback,
     FramesReady,
     RenderCancelled,
@@ -253,13 +254,13 @@ class Renderer:
         model = self.model
         if edits is None:
             prompts, reference = Prompts(), None
-            conditioning: Callable[[int], FrameConditioning] = lambda t: plain_conditioning(shot, t)
+            conditioning: Callable[[int], FrameConditioning] = functools.partial(plain_conditioning, shot)
         else:
             from x2video.edits import apply_edits, resolve_reference
 
             prompts = edits.prompts()
             reference = resolve_reference(shot, edits, base_dir)
-            conditioning = lambda t: apply_edits(shot, edits, t)
+            conditioning = functools.partial(apply_edits, shot, edits)
         windows = self.plan(shot, settings, None if reference is None else reference[0])
         keep_until = last_use(windows)
 

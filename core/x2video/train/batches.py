@@ -20,11 +20,13 @@ from typing import Iterator
 import numpy as np
 import torch
 
+from x2video.channels import INTRINSIC, VAE_ENCODED
+from x2video.model.config import LATENT_SCALE_KEYS
 from x2video.model.vae import area_downsample
 from x2video.train.cache import SHADING_KEYS, load_split, load_text, read_info, shading_key
 from x2video.train.loop import process_index
 
-CHANNELS = ("albedo", "normal", "roughness", "metallic", "irradiance")
+CHANNELS = INTRINSIC
 AMR = ("albedo", "roughness", "metallic")
 
 
@@ -106,7 +108,7 @@ class LatentData:
         self.info = read_info(cache_dir)
         t = load_split(cache_dir, split)
         self.shading_prior = shading_prior
-        self.lat = {k: (t[k].float() * latent_scales[k]).half() for k in ("albedo", "normal", "roughness", "metallic", "rgb")}
+        self.lat = {k: (t[k].float() * latent_scales[k]).half() for k in LATENT_SCALE_KEYS}
         if shading_prior:
             self.lat.update({k: (t[k].float() * latent_scales["rgb"]).half() for k in SHADING_KEYS})
         self.irradiance = t["irradiance"]  # (F, 3, h, w) float16
@@ -134,7 +136,7 @@ class LatentData:
         h, w = self.latent_size
         m = area_downsample(amr_mask, (h, w)) if amr_mask is not None else torch.zeros(n, 1, h, w)  # (n, 1, h, w)
         parts = []
-        for name in ("albedo", "normal", "roughness", "metallic"):
+        for name in VAE_ENCODED:
             z = self.lat[name][rows].float() if keep[name] else torch.zeros(n, 4, h, w)
             parts.append(z * (1 - m) if name in AMR else z)
         parts.append(self.irradiance[rows].float() if keep["irradiance"] else torch.zeros(n, 3, h, w))
