@@ -36,7 +36,8 @@ from diffusers.models.attention_processor import Attention, AttnProcessor2_0
 
 from x2video.model.config import HybridConfig
 from x2video.model.context import AttnContext
-from x2video.model.hybrid_attention import HybridSelfAttnProcessor, heads_merge, heads_split
+from x2video.model.hybrid_attention import HybridSelfAttnProcessor
+from x2video.model.processor_io import heads_merge, heads_split
 
 
 def full_spatiotemporal(attn: Attention, x: torch.Tensor, n: int) -> torch.Tensor:

@@ -23,6 +23,7 @@ import sys
 from pathlib import Path
 
 from bench.common import add_render_arguments, load_models, result_header, results_path, run_measure, settings
+from x2video.io.atomic import atomic_path
 
 RESULTS = results_path("speed_accuracy")
 #: (sampler, steps, add the shading detail); the no-detail row is measured for residual-prior models only
@@ -85,8 +86,13 @@ def draw_chart(result: dict, path: Path) -> Path:
         raise ValueError("speed/accuracy chart: no row has both seconds per frame and PSNR")
     title = f"speed vs accuracy: {machine_label(result['machine'])}"
     below = labels_below(pts)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    with atomic_path(path) as tmp:
+        _draw(pts, below, title, tmp)
+    return path
+
+
+def _draw(pts: list, below: set, title: str, tmp: Path) -> None:
+    """The chart into the file `tmp`."""
     try:
         import matplotlib
 
@@ -136,8 +142,6 @@ def draw_chart(result: dict, path: Path) -> Path:
         exporter = pyqtgraph.exporters.ImageExporter(plot.plotItem)
         exporter.parameters()["width"] = 720
         exporter.export(str(tmp))
-    os.replace(tmp, path)
-    return path
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -21,6 +21,8 @@ from typing import Any, Callable, Iterator
 import torch
 from safetensors.torch import load_file, save_file
 
+from x2video.io.atomic import write_json_atomic
+
 log = logging.getLogger(__name__)
 
 CKPT_PREFIX = "step-"
@@ -223,7 +225,7 @@ def train(
         (tmp / "state.json").write_text(json.dumps({"step": step, "loop": asdict(cfg), "stage_config": stage_config}, indent=1))
         shutil.rmtree(ck, ignore_errors=True)
         os.replace(tmp, ck)
-        _write_json_atomic(out_dir / "log.json", history)
+        write_json_atomic(out_dir / "log.json", history, indent=None)
         for old in list_checkpoints(out_dir)[: -max(1, cfg.keep_ckpts)]:
             shutil.rmtree(old, ignore_errors=True)
 
@@ -312,11 +314,5 @@ def train(
             "device": str(accel.device),
         }
         if accel.is_main_process:
-            _write_json_atomic(out_dir / "summary.json", summary)
+            write_json_atomic(out_dir / "summary.json", summary, indent=None)
     return last_ck
-
-
-def _write_json_atomic(path: Path, obj: Any) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(obj))
-    os.replace(tmp, path)
