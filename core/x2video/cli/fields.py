@@ -69,38 +69,47 @@ def _default_text(value: Any) -> str:
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 
+def field_kwargs(cls: type, name: str, default: Any = dataclasses.MISSING) -> dict[str, Any]:
+    """`add_argument` keywords for the field `name` of the dataclass `cls`: type (choices for a Literal,
+    `--x/--no-x` for a bool), default (the field's, unless given) and help (its docstring and default)."""
+    tp = _unwrap_optional(typing.get_type_hints(cls)[name])
+    if default is dataclasses.MISSING:
+        default = getattr(cls(), name)
+    doc = field_docs(cls).get(name, "").rstrip(".").replace("%", "%%")  # argparse %-formats help
+    kwargs: dict[str, Any] = {"dest": name, "default": default}
+    if tp is bool:
+        kwargs["action"] = argparse.BooleanOptionalAction
+        kwargs["help"] = f"{doc} (default: {'on' if default else 'off'})"
+        return kwargs
+    if typing.get_origin(tp) is Literal:
+        kwargs["choices"] = typing.get_args(tp)
+        kwargs["type"] = type(typing.get_args(tp)[0])
+    else:
+        kwargs["type"], metavar = PARSERS[tp]
+        if metavar:
+            kwargs["metavar"] = metavar
+    kwargs["help"] = f"{doc} (default: {_default_text(default)})"
+    return kwargs
+
+
 def add_fields(parser: argparse.ArgumentParser | argparse._ArgumentGroup, cls: type, *, only: Iterable[str] | None = None,
                skip: Iterable[str] = (), defaults: Any = None) -> list[str]:
-    """Add one flag per field of the dataclass `cls` (all, or `only` those, less `skip`) and return their names.
-
-    The flag is `--field-name`; bool fields get `--x/--no-x`; Literal fields get their choices; the help is
-    the field's docstring with the default.
-    `defaults` (an instance) overrides the class's defaults.
-    """
-    hints = typing.get_type_hints(cls)
-    docs = field_docs(cls)
+    """Add one flag `--field-name` per field of the dataclass `cls` (all, or `only` those, less `skip`; see
+    `field_kwargs`) and return their names. `defaults` (an instance) overrides the class's defaults."""
     instance = defaults if defaults is not None else cls()
     names = [f.name for f in dataclasses.fields(cls)] if only is None else list(only)
     names = [n for n in names if n not in set(skip)]
     for name in names:
-        tp = _unwrap_optional(hints[name])
-        default = getattr(instance, name)
-        doc = docs.get(name, "").rstrip(".").replace("%", "%%")  # argparse %-formats help
-        kwargs: dict[str, Any] = {"dest": name, "default": default}
-        if tp is bool:
-            kwargs["action"] = argparse.BooleanOptionalAction
-            kwargs["help"] = f"{doc} (default: {'on' if default else 'off'})"
-        else:
-            if typing.get_origin(tp) is Literal:
-                kwargs["choices"] = typing.get_args(tp)
-                kwargs["type"] = type(typing.get_args(tp)[0])
-            else:
-                kwargs["type"], metavar = PARSERS[tp]
-                if metavar:
-                    kwargs["metavar"] = metavar
-            kwargs["help"] = f"{doc} (default: {_default_text(default)})"
-        parser.add_argument(flag(name), **kwargs)
+        parser.add_argument(flag(name), **field_kwargs(cls, name, getattr(instance, name)))
     return names
+
+
+def add_field(parser: argparse.ArgumentParser | argparse._ArgumentGroup, option: str, cls: type, name: str, **overrides: Any) -> None:
+    """One flag whose name is not its field's (`--channel-drop` for `AugmentConfig.channel_drop_p`): type, default
+    and help from the field; `overrides` replace any of them (dest stays the flag's own)."""
+    kwargs = field_kwargs(cls, name, overrides.pop("default", dataclasses.MISSING))
+    kwargs.pop("dest")
+    parser.add_argument(option, **{**kwargs, **overrides})
 
 
 def from_args(cls: type, args: argparse.Namespace, **overrides: Any) -> Any:

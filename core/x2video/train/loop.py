@@ -22,40 +22,11 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from x2video.io.atomic import write_json_atomic
+from x2video.train.config import LoopConfig
 
 log = logging.getLogger(__name__)
 
 CKPT_PREFIX = "step-"
-
-
-@dataclass
-class LoopConfig:
-    """Optimisation settings shared by every stage (field docstrings are CLI help)."""
-
-    steps: int = 1000
-    """Total optimiser steps (a resumed run continues up to this number)."""
-    lr: float = 1e-4
-    """Peak AdamW learning rate (after linear warm-up)."""
-    warmup: int = 50
-    """Linear warm-up steps."""
-    lr_half_every: int = 0
-    """Halve the learning rate every this many steps (paper: 20,000); 0 = constant."""
-    weight_decay: float = 0.0
-    grad_clip: float = 1.0
-    ema_decay: float = 0.999
-    """EMA decay of the weights that get saved for inference; 0 disables EMA."""
-    ckpt_every: int = 500
-    """Write a resumable `step-XXXXXXXXX/` checkpoint every this many steps (and at the end)."""
-    keep_ckpts: int = 2
-    """How many step checkpoints to keep on disk."""
-    time_limit_s: float = 0.0
-    """Stop (with a checkpoint) after this many seconds of training; 0 = no limit."""
-    seed: int = 0
-    mixed_precision: str = "no"
-    """accelerate mixed precision: "no", "fp16" or "bf16" (GPU)."""
-    workers: int = 0
-    """Processes drawing batches ahead of the optimiser (0: drawn in the training process). Not
-    part of what a run is: a run resumes with any number, with fresh batches either way."""
 
 
 @dataclass
