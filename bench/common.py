@@ -27,7 +27,7 @@ def results_path(bench: str, name: str | None = None, suffix: str = ".json") -> 
 
 def command(bench: str, argv: list[str] | None = None) -> str:
     """The command that reproduces a result: `python -m bench.BENCH ARGS`, machine paths replaced by placeholders."""
-    from x2video.eval.machine import scrub_paths
+    from x2video.io.paths import scrub_paths
 
     return scrub_paths(shlex.join(["python", "-m", f"bench.{bench}", *(sys.argv[1:] if argv is None else argv)]))
 
@@ -36,7 +36,8 @@ def result_header(kind: str, bench: str, args: argparse.Namespace, models: Any, 
                   argv: list[str] | None = None) -> dict:
     """The fields every accuracy bench's JSON starts with: format, the command that reproduces it, machine,
     weights, data (paths repository-relative or placeholders)."""
-    from x2video.eval.machine import machine_info, portable_path
+    from x2video.eval.machine import machine_info
+    from x2video.io.paths import portable_path
 
     return {
         "format": f"x2video-{kind}",

@@ -52,3 +52,15 @@ def test_the_wheel_ships_every_weights_file():
     assert any(f.endswith("unet.safetensors") for f in files)
     missing = [f for f in files if not any(fnmatch.fnmatch(f, g) for g in globs)]
     assert missing == []
+
+
+def test_paths_recorded_portably(monkeypatch, tmp_path):
+    from x2video.io.paths import portable_path, scrub_paths
+
+    monkeypatch.chdir(tmp_path)
+    assert portable_path(tmp_path / "bench" / "r.json") == "bench/r.json"  # inside the current folder: relative
+    assert portable_path("runs/video") == "runs/video"
+    assert portable_path("/mnt/data/r160") == "DATA/r160" and portable_path("/srv/runs/a/b") == "RUNS/a/b"
+    assert portable_path(Path.home() / "x") == "~/x"
+    text = "x2video eval --data /mnt/data/r160 --out /mnt/results/e1; see https://example.org/a/b; 1.2 s/frame; PATH=/usr/bin"
+    assert scrub_paths(text) == "x2video eval --data DATA/r160 --out RESULTS/e1; see https://example.org/a/b; 1.2 s/frame; PATH=/usr/bin"

@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import Any
 
 from x2video.eval.checks import orderings, orderings_markdown, speedup_checks
-from x2video.eval.machine import scrub_paths
 from x2video.eval.report import results_markdown
+from x2video.io.paths import scrub_paths
 
 
 def _read(path: Path) -> Any:

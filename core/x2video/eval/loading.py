@@ -9,8 +9,8 @@ import re
 from pathlib import Path
 from typing import Any
 
-from x2video.eval.machine import portable_path
 from x2video.eval.runner import EvalModels
+from x2video.io.paths import portable_path
 from x2video.weights import ModelOptions
 
 log = logging.getLogger(__name__)

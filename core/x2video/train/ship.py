@@ -25,7 +25,7 @@ import torch
 from safetensors.torch import load_file
 
 from x2video.eval.data import training_size
-from x2video.eval.machine import portable_path
+from x2video.io.paths import portable_path
 from x2video.model.checkpoint import PARTS, read_config, save_checkpoint
 from x2video.train.runs import model_dir
 
