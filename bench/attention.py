@@ -19,28 +19,25 @@ allocator; the live-bytes peak is replayed from its memory timeline
 `profile.export_memory_timeline`). Inputs and weights that exist before the call are not
 counted.
 
-    .venv/bin/python bench/attention.py                          # C=320, 5 heads, 40x28, N = 5, 9, 17
-    .venv/bin/python bench/attention.py --channels 64 --heads 8  # the tiny preset's first attention level width
+    python -m bench.attention                          # C=320, 5 heads, 40x28, N = 5, 9, 17
+    python -m bench.attention --channels 64 --heads 8  # the tiny preset's first attention level width
 """
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 from typing import Callable
 
 import torch
 import torch.nn.functional as F
+from diffusers.models.attention_processor import Attention, AttnProcessor2_0
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "core"))
-
-from diffusers.models.attention_processor import Attention, AttnProcessor2_0  # noqa: E402
-
-from x2video.model.config import HybridConfig  # noqa: E402
-from x2video.model.context import AttnContext  # noqa: E402
-from x2video.model.hybrid_attention import HybridSelfAttnProcessor, heads_merge, heads_split  # noqa: E402
+from x2video.model.config import HybridConfig
+from x2video.model.context import AttnContext
+from x2video.model.hybrid_attention import HybridSelfAttnProcessor
+from x2video.model.processor_io import heads_merge, heads_split
 
 
 def full_spatiotemporal(attn: Attention, x: torch.Tensor, n: int) -> torch.Tensor:

@@ -1,6 +1,6 @@
 """Benchmark: frames/s for loading a 640x448 shot folder and for exporting it as EXR (folder, multi-layer) and MP4.
 
-    .venv/bin/python bench/io.py [--frames 30] [--json out.json]
+    python -m bench.io [--frames 30] [--json out.json]
 """
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from x2video.channels import INTRINSIC
 from x2video.io import load_shot, write_shot_folder
 from x2video.io.writers import write_mp4, write_multilayer, write_png_sequence
 from x2video.shot import ArrayShot
@@ -21,7 +22,7 @@ from x2video.shot import ArrayShot
 def synthetic_shot(frames: int, height: int = 448, width: int = 640) -> ArrayShot:
     """A smooth, moving synthetic shot with every intrinsic channel plus rgb and ids (compresses like real renders)."""
     yy, xx = np.mgrid[:height, :width].astype(np.float32)
-    arrays: dict[str, list[np.ndarray]] = {k: [] for k in ("albedo", "normal", "roughness", "metallic", "irradiance", "rgb", "ids")}
+    arrays: dict[str, list[np.ndarray]] = {k: [] for k in (*INTRINSIC, "rgb", "ids")}
     for t in range(frames):
         u, v = (xx + 3 * t) / width, yy / height
         alb = np.stack([0.5 + 0.4 * np.sin(6 * u), 0.5 + 0.4 * np.cos(5 * v), 0.5 + 0.3 * np.sin(4 * (u + v))], -1)

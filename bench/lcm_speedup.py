@@ -6,8 +6,8 @@ shared VM) lands in the ratio. Here every repeat renders DDIM-20 and LCM-2 back 
 alternates between repeats), and the speed-up is reported per repeat and as the median over repeats, with
 the channel encoding (done once per shot; the editor caches it) both inside and outside the time.
 
-    python bench/lcm_speedup.py --data DATA [--weights RUN_OR_DIR] [--lcm-weights LCM_RUN] [--rooms 2]
-        [--frames 17] [--repeats 3] [--threads 1] [--out bench/results/lcm_speedup.json]
+    python -m bench.lcm_speedup --data DATA [--weights RUN_OR_DIR] [--lcm-weights LCM_RUN] [--rooms 2]
+        [--frames 17] [--repeats 3] [--threads 1] [--out bench/results/lcm_speedup/lcm_speedup.json]
 
 Writes {"format": "x2video-lcm-speedup", "command", "machine", "weights", "data", "load_average_before_after",
 "repeats": [{"order", "rows": [{"name", "sampler", "steps", "reference", "seconds_per_frame",
@@ -23,10 +23,9 @@ import statistics
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from speed_accuracy import add_render_arguments, result_header, run_measure  # noqa: E402  (a sibling script, not a package)
+from bench.common import add_render_arguments, load_models, result_header, results_path, run_measure
 
-RESULTS = Path(__file__).resolve().parent / "results" / "lcm_speedup.json"
+RESULTS = results_path("lcm_speedup")
 RATIOS = ("speedup", "speedup_ref", "speedup_no_encoding", "speedup_ref_no_encoding")
 
 
@@ -44,19 +43,16 @@ def _ratios(rows: list[dict]) -> dict[str, float]:
 
 
 def measure(args: argparse.Namespace) -> dict:
-    from x2video.cli.eval import load_models, resolve_size
     from x2video.eval.data import load_eval_shots
     from x2video.eval.runner import MISSING_LCM
     from x2video.sampling.renderer import Renderer
 
-    args.image_weights = None
-    models, weights_dir = load_models(args, with_image=False)
+    models, _, size, _ = load_models(args)
     if models.lcm is None:
         raise SystemExit(f"lcm_speedup: {MISSING_LCM}")
-    size, _ = resolve_size(args, weights_dir, models.video.downsample)
     shots = load_eval_shots(args.data, args.split, args.rooms, args.frames, size)
     return {
-        **result_header("lcm-speedup", "lcm_speedup.py", args, models, shots, size),
+        **result_header("lcm-speedup", "lcm_speedup", args, models, shots, size),
         **back_to_back({"ddim": Renderer(models.video), "lcm": Renderer(models.lcm)}, shots, args),
     }
 
@@ -109,7 +105,6 @@ def back_to_back(renderers: dict, shots: list, args: argparse.Namespace) -> dict
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     add_render_arguments(p)
-    p.add_argument("--untrained", action="store_true", help=argparse.SUPPRESS)  # load_models reads it; LCM needs weights
     p.add_argument("--steps", type=int, default=20, help="DDIM steps (default 20)")
     p.add_argument("--lcm-steps", type=int, default=2, help="LCM steps (default 2)")
     p.add_argument("--repeats", type=int, default=3, help="DDIM/LCM pairs, alternating which goes first (default 3)")

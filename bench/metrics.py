@@ -3,7 +3,7 @@
 Synthetic frames (a smooth moving pattern plus noise) at the shot format's 320x224 by default;
 the numbers do not depend on content except DIS, which barely does.
 
-    .venv/bin/python bench/metrics.py [--frames 9] [--width 320 --height 224] [--json out.json]
+    python -m bench.metrics [--frames 9] [--width 320 --height 224] [--json out.json]
 """
 from __future__ import annotations
 
@@ -18,11 +18,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "core"))
-
-from x2video.metrics.fid import fid_from_features, frechet_distance, gaussian_stats, inception_features, load_inception  # noqa: E402
-from x2video.metrics.image import psnr, ssim  # noqa: E402
-from x2video.metrics.temporal import temporal_consistency  # noqa: E402
+from x2video.metrics.fid import fid_from_features, frechet_distance, gaussian_stats, inception_features, load_inception
+from x2video.metrics.image import psnr, ssim
+from x2video.metrics.temporal import temporal_consistency
 
 
 def make_video(n: int, h: int, w: int, seed: int) -> list[np.ndarray]:

@@ -8,9 +8,9 @@ renders each condition with several seeds and pairs the settings seed by seed. T
 renders frames independently, so for it a seeding cannot change the expected PSNR of a frame at all:
 its rows (`--image`) show how far one seed's mean can stray by chance.
 
-    python bench/noise_prior.py --data DATA [--weights RUN_OR_DIR] [--rooms 4] [--frames 17]
+    python -m bench.noise_prior --data DATA [--weights RUN_OR_DIR] [--rooms 4] [--frames 17]
         [--conditions full,drop_irradiance,mask_amr] [--seeds 0,1,2] [--settings window,frame:0.95]
-        [--image] [--threads 1] [--out bench/results/noise_prior.json]
+        [--image] [--threads 1] [--out bench/results/noise_prior/noise_prior.json]
 
 A setting is `window` or `frame:F` (per-frame noise, fraction F shared). Masks of Mask A|M|R are drawn
 with seed 0 whatever the noise seed, so the conditions stay the same across seeds. PSNR: mean over
@@ -30,10 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from speed_accuracy import add_render_arguments, result_header, run_measure  # noqa: E402  (a sibling script, not a package)
+from bench.common import add_render_arguments, load_models, result_header, results_path, run_measure
 
-RESULTS = Path(__file__).resolve().parent / "results" / "noise_prior.json"
+RESULTS = results_path("noise_prior")
 
 
 def parse_setting(token: str) -> tuple[str, float]:
@@ -52,7 +51,6 @@ def parse_setting(token: str) -> tuple[str, float]:
 
 def measure(args: argparse.Namespace) -> dict:
     from x2video.channels import tonemap
-    from x2video.cli.eval import load_models, resolve_size
     from x2video.eval.conditions import build_edits, parse_condition
     from x2video.eval.data import load_eval_shots
     from x2video.eval.runner import render_shot
@@ -61,16 +59,14 @@ def measure(args: argparse.Namespace) -> dict:
     from x2video.sampling.events import RenderSettings
     from x2video.sampling.renderer import Renderer
 
-    args.untrained = False
     if not args.image:
         args.image_weights = None
     elif args.image_weights is None:  # the image model shipped beside the video model
-        from x2video.cli.render import shipped_weights
+        from x2video.weights import shipped_weights
 
         base = args.weights if args.weights is not None else shipped_weights()
         args.image_weights = None if base is None else Path(base) / "image"
-    models, weights_dir = load_models(args, with_image=args.image)
-    size, _ = resolve_size(args, weights_dir, models.video.downsample)
+    models, _, size, _ = load_models(args, with_image=args.image)
     shots = load_eval_shots(args.data, args.split, args.rooms, args.frames, size)
     settings = [parse_setting(s) for s in args.settings.split(",")]
     names = [s.strip() for s in args.settings.split(",")]
@@ -118,7 +114,7 @@ def measure(args: argparse.Namespace) -> dict:
                 r = [this[k]["tc"] / base[k]["tc"] for k in base]
                 pc[name] = {"psnr_diff": float(np.mean(d)), "tc_ratio": float(np.mean(r)), "per_seed_psnr_diff": d, "per_seed_tc_ratio": r}
     return {
-        **result_header("noise-prior", "noise_prior.py", args, models, shots, size),
+        **result_header("noise-prior", "noise_prior", args, models, shots, size),
         "settings": {"conditions": args.conditions.split(","), "seeds": seeds, "noise": names, "steps": args.steps,
                      "scheme": "recursive", "sampler": "ddim"},
         "results": results,

@@ -16,24 +16,26 @@ divided by the shot's exposure normalisation) against its ground truth:
 "formula" is tier 0 (albedo x irradiance as the renderer computes it, zero inside masked regions);
 "albedo_x_irradiance" is the plain product the channels give, measured beside every row.
 
-    python bench/pathtraced.py --data DATA --split test [--tiers formula,residual,diffusion] [--weights DIR] [--out JSON]
+    python -m bench.pathtraced --data DATA --split test [--tiers formula,residual,diffusion] [--weights DIR] [--name NAME]
 """
 from __future__ import annotations
 
 import argparse
 import json
 import math
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from x2video.channels import INTRINSIC, tonemap
+from bench.common import command, results_path
+from x2video.channels import tonemap
+from x2video.eval.machine import machine_info
 from x2video.io import load_shot
 from x2video.io.atomic import write_json_atomic
 from x2video.io.image import read_image
+from x2video.io.paths import portable_path
 from x2video.metrics.image import psnr, ssim
 from x2video.metrics.temporal import temporal_consistency
 from x2video.sampling.events import FramesReady, RenderSettings
@@ -97,14 +99,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--weights", default=None, help="model folder (default: the shipped weights)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--max-shots", type=int, default=0)
-    ap.add_argument("--out", default=None, help="results JSON (default bench/results/pathtraced/<data name>_<split>.json)")
+    ap.add_argument("--name", default=None, help="results file bench/results/pathtraced/NAME.json (default: <data name>_<split>)")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
 
-    from x2video.model.pipeline import X2VideoModel
+    from x2video.weights import load_model
 
-    weights = Path(args.weights) if args.weights else Path(__file__).resolve().parents[1] / "resources" / "x2video-tiny"
-    model = X2VideoModel.from_pretrained(weights)
+    model = load_model(args.weights)
+    weights = Path(args.weights) if args.weights else Path("shipped")
     renderer = Renderer(model)
     root = Path(args.data) / args.split if args.split else Path(args.data)
     shots = sorted(p for p in root.iterdir() if (p / "shot.json").is_file())
@@ -160,13 +162,14 @@ def main(argv: list[str] | None = None) -> int:
             "psnr_by_material": {c: (round(10 * math.log10(n / max(e, 1e-12)), 2) if n else None) for c, e, n in zip(CLASSES, r["sse"], r["npx"])},
             "pixel_share": {c: round(float(n / max(r["npx"].sum(), 1)), 4) for c, n in zip(CLASSES, r["npx"])},
         }
-    out = {"data": Path(args.data).name, "split": args.split, "shots": len(shots), "weights": weights.name,
-           "machine": {"cpu": platform.processor() or platform.machine(), "threads": args.threads, "torch": torch.__version__},
+    out = {"format": "x2video-pathtraced", "command": command("pathtraced", argv), "data": portable_path(args.data), "split": args.split,
+           "shots": len(shots), "weights": portable_path(weights) if args.weights else "shipped", "threads": args.threads,
+           "residual_net": model.residual_net is not None, "machine": machine_info(model.device),
            "note": "PSNR/SSIM on tonemap (clip, sRGB) in the shot's units; TC = warping error / ground truth's, DIS flow; "
                    "per-material PSNR pools squared errors over the class's pixels; 'formula' = tier 0 (classical shading), "
                    "'albedo_x_irradiance' = the plain product",
            "summary": summary, "shots_detail": per_shot}
-    dest = Path(args.out) if args.out else Path(__file__).resolve().parent / "results" / "pathtraced" / f"{Path(args.data).name}_{args.split or 'all'}.json"
+    dest = results_path("pathtraced", args.name or f"{Path(args.data).name}_{args.split or 'all'}")
     dest.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(dest, out)
     for key, v in summary.items():

@@ -1,8 +1,8 @@
 """Benchmark and contact sheet of the procedural interior renderer (issue 3).
 
-    python bench/procedural.py speed [--sizes 320x224 640x448] [--rooms 3] [--frames 20]
-    python bench/procedural.py sheet [--out docs/procedural_contact_sheet.png] [--rooms 8]
-    python bench/procedural.py flow [--rooms 10] [--frames 60] [--size 640x448]
+    python -m bench.procedural speed [--sizes 320x224 640x448] [--rooms 3] [--frames 20]
+    python -m bench.procedural sheet [--out docs/procedural_contact_sheet.png] [--rooms 8]
+    python -m bench.procedural flow [--rooms 10] [--frames 60] [--size 640x448]
 
 `speed` times the whole per-frame pipeline (render all channels + exact motion + EXR writing) and reports frames/s
 and the CPU time per frame (the wall clock is shared with other jobs on the dev machine). `flow` reports the mean

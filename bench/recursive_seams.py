@@ -8,8 +8,8 @@ Sampling's keyframes come from the top level; sequential windows are all level 1
 mean warping error of the prediction / that of the ground truth over the class's pairs (exact motion, as
 the eval's TC).
 
-    python bench/recursive_seams.py --data DATA [--weights RUN_OR_DIR] [--rooms 2] [--frames 65]
-        [--condition drop_irradiance+ref] [--threads 1] [--out bench/results/recursive_seams.json]
+    python -m bench.recursive_seams --data DATA [--weights RUN_OR_DIR] [--rooms 2] [--frames 65]
+        [--condition drop_irradiance+ref] [--threads 1] [--out bench/results/recursive_seams/recursive_seams.json]
 
 Each seam is also classed by its side of the window boundary (`pair_sides`): "start" when the window
 that made the later frame read the earlier one (every sequential seam), "end" when the window that
@@ -33,10 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from speed_accuracy import add_render_arguments, result_header, run_measure  # noqa: E402  (a sibling script, not a package)
+from bench.common import add_render_arguments, load_models, result_header, results_path, run_measure
+from bench.common import settings as common_settings
 
-RESULTS = Path(__file__).resolve().parent / "results" / "recursive_seams.json"
+RESULTS = results_path("recursive_seams")
 SCHEMES = ("sequential", "recursive")
 
 
@@ -94,19 +94,15 @@ def _tc(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> dict:
 def measure(args: argparse.Namespace) -> dict:
     from x2video.channels import tonemap
     from x2video.edits import resolve_reference
-    from x2video.cli.eval import load_models, resolve_size
     from x2video.eval.conditions import build_edits, parse_condition
     from x2video.eval.data import load_eval_shots
     from x2video.eval.runner import render_shot
     from x2video.metrics.image import psnr
     from x2video.metrics.temporal import ground_truth_flows, warping_errors
-    from x2video.sampling.events import RenderSettings
     from x2video.sampling.renderer import Renderer
 
-    args.image_weights, args.untrained = None, False
     condition = parse_condition(args.condition)
-    models, weights_dir = load_models(args, with_image=False)
-    size, _ = resolve_size(args, weights_dir, models.video.downsample)
+    models, _, size, _ = load_models(args)
     shots = load_eval_shots(args.data, args.split, args.rooms, args.frames, size)
     renderer = Renderer(models.video)
     per: dict[str, dict] = {s: {"pred": [], "gt": [], "classes": [], "sides": [], "shots": {}, "psnr": [],
@@ -118,9 +114,7 @@ def measure(args: argparse.Namespace) -> dict:
         gt_err = warping_errors(gt, flows).errors
         ref = resolve_reference(shot.shot, edits) if edits is not None else None  # where the Renderer anchors the plan
         for scheme in args.schemes:
-            settings = RenderSettings(sampler="ddim", steps=args.steps, seed=args.seed, window=args.window, scheme=scheme,  # type: ignore[arg-type]
-                                      replace_refs=args.replace_refs, seams=args.seams, max_levels=args.max_levels, noise=args.noise, noise_shared=args.noise_shared,
-                                      resample=args.resample, ref_dc=args.ref_dc)
+            settings = common_settings(args, sampler="ddim", steps=args.steps, scheme=scheme)
             windows = renderer.plan(shot.shot, settings, None if ref is None else ref[0])
             classes = np.array(pair_classes(windows, shot.num_frames))
             sides = np.array(pair_sides(windows, shot.num_frames))
@@ -154,7 +148,7 @@ def measure(args: argparse.Namespace) -> dict:
                            "sides": {c: _tc(pred, gt, sides == c) for c in sorted(set(sides))},
                            "shots": p["shots"]}
     return {
-        **result_header("recursive-seams", "recursive_seams.py", args, models, shots, size),
+        **result_header("recursive-seams", "recursive_seams", args, models, shots, size),
         "condition": condition.to_dict(),
         "schemes": schemes,
     }
@@ -174,7 +168,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--schemes: a comma-separated subset of {','.join(SCHEMES)}, got {','.join(args.schemes)}")
     result = run_measure(args, measure)
     for scheme, r in result["schemes"].items():
-        print(f"{scheme:>10}: PSNR {r['psnr']:.3f} dB, TC {r['tc']:.3f}; " + "; ".join(f"{c} {v['tc']:.3f} ({v['pairs']} pairs)" for c, v in r["classes"].items()))
+        classes = "; ".join(f"{c} {v['tc']:.3f} ({v['pairs']} pairs)" for c, v in r["classes"].items())
+        print(f"{scheme:>10}: PSNR {r['psnr']:.3f} dB, TC {r['tc']:.3f}; {classes}")
         print(" " * 12 + "brightness jump not in the ground truth: " + "; ".join(f"{c} {v['brightness_jump']:.4f}" for c, v in r["classes"].items()))
         print(" " * 12 + "frame offset from the ground truth, by the level that made it: "
               + "; ".join(f"{lv} |{v['mean_abs']:.4f}| (" + ", ".join(f"{x:+.4f}" for x in v["per_shot"] if x is not None) + ")"

@@ -7,9 +7,9 @@ cost per step) on a synthetic shot with all five channels. It times the conditio
 once per frame (cold), then `Renderer.render` with that cache warm (every UNet call and the VAE
 decoding), and reports both per frame. Quality figures live elsewhere.
 
-    python bench/render.py [--frames 17] [--size 320x224] [--device cpu|cuda] [--fp16] [--threads N]
+    python -m bench.render [--frames 17] [--size 320x224] [--device cpu|cuda] [--fp16] [--threads N]
 
-Results are merged into bench/results/render.json under a key naming the device, so CPU and
+Results are merged into bench/results/render/render.json under a key naming the device, so CPU and
 GPU runs sit side by side:
     {"runs": {"<device label>": {"device", "dtype", "torch", "size": [W, H], "frames", "window",
       "weights": "untrained tiny", "encode_seconds_per_frame", "load_average_before_after",
@@ -29,13 +29,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from bench.common import results_path
 from x2video.io.atomic import write_json_atomic
 from x2video.model.pipeline import X2VideoModel
 from x2video.sampling.events import FramesReady, RenderSettings, StepDone
 from x2video.sampling.renderer import Renderer, plain_conditioning
 from x2video.shot import ArrayShot
 
-RESULTS = Path(__file__).resolve().parent / "results" / "render.json"
+RESULTS = results_path("render")
 CONFIGS = [("ddim", 20), ("ddim", 4), ("lcm", 2)]
 
 
@@ -122,7 +123,7 @@ def main() -> None:
     device = torch.device(args.device)
     dtype = torch.float16 if args.fp16 else torch.float32
 
-    from x2video.cli.render import shipped_weights
+    from x2video.weights import shipped_weights
 
     weights = None if args.untrained else (args.weights or shipped_weights())
     if weights is None:
@@ -134,7 +135,8 @@ def main() -> None:
         if not lcm.has_lcm:
             raise SystemExit(f"{weights} has no lcm_unet.safetensors; LCM-2 cannot be timed (use --untrained for speed only)")
         base = lcm
-        weights_label = f"{weights} (vae {list(base.config.vae.block_out_channels)}, f={base.config.vae.downsample}; unet {list(base.config.unet.block_out_channels)})"
+        cfg = base.config
+        weights_label = f"{weights} (vae {list(cfg.vae.block_out_channels)}, f={cfg.vae.downsample}; unet {list(cfg.unet.block_out_channels)})"
     shot = synthetic_shot(args.frames, width, height)
     if args.threads:
         torch.set_num_threads(args.threads)

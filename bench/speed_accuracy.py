@@ -1,12 +1,12 @@
 """Speed vs accuracy of the sampler presets (paper Tab. acceleration): seconds per frame and PSNR/SSIM/TC of DDIM-20, DDIM-4
 and LCM-2 (when distilled weights exist) on held-out rooms, beside the classical shading baseline; JSON + PNG chart.
 
-    python bench/speed_accuracy.py --data DATA [--weights RUN_OR_DIR] [--lcm-weights LCM_RUN] [--rooms 2] [--frames 17]
-        [--size WxH] [--device cuda] [--out bench/results/speed_accuracy.json]
+    python -m bench.speed_accuracy --data DATA [--weights RUN_OR_DIR] [--lcm-weights LCM_RUN] [--rooms 2] [--frames 17]
+        [--size WxH] [--device cuda] [--out bench/results/speed_accuracy/speed_accuracy.json]
 
-Unlike bench/render.py (speed only, untrained weights), accuracy needs trained weights: this
+Unlike bench.render (speed only, untrained weights), accuracy needs trained weights: this
 renders the held-out shots with `x2video.eval` (same ground truth, metrics and classical
-baseline as `x2video eval`). The editor's chart (x2video_app/charts.py) reads every JSON in
+baseline as `x2video eval`). The editor's chart (x2video_app/charts.py) reads every JSON under
 bench/results/ and plots each dict holding "name", "seconds_per_frame" and "psnr"; the
 shape written here:
     {"format": "x2video-speed-accuracy", "command", "machine", "weights", "data",
@@ -19,31 +19,25 @@ from __future__ import annotations
 
 import argparse
 import os
-import shlex
 import sys
-import time
 from pathlib import Path
 
-from x2video.cli.args import BF16_ENCODER_HELP, CHANNEL_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, REF_DC_HELP, RESAMPLE_HELP, SEAMS_HELP, size_arg
-from x2video.model.config import CHANNEL_ENCODERS, DEFAULT_CHANNEL_ENCODER
+from bench.common import add_render_arguments, load_models, result_header, results_path, run_measure, settings
+from x2video.io.atomic import atomic_path
 
-RESULTS = Path(__file__).resolve().parent / "results" / "speed_accuracy.json"
+RESULTS = results_path("speed_accuracy")
 #: (sampler, steps, add the shading detail); the no-detail row is measured for residual-prior models only
 PRESETS = [("ddim", 20, True), ("ddim", 4, True), ("lcm", 2, True), ("ddim", 20, False)]
 
 
 def measure(args: argparse.Namespace) -> dict:
-    from x2video.cli.eval import load_models, resolve_size
     from x2video.eval.baseline import classical_frames
     from x2video.eval.data import load_eval_shots
     from x2video.eval.runner import MISSING_LCM, render_shot, warm_up
     from x2video.eval.scoring import Scorer
-    from x2video.sampling.events import RenderSettings
     from x2video.sampling.renderer import Renderer
 
-    args.image_weights = None
-    models, weights_dir = load_models(args, with_image=False)
-    size, size_note = resolve_size(args, weights_dir, models.video.downsample)
+    models, _, size, size_note = load_models(args)
     shots = load_eval_shots(args.data, args.split, args.rooms, args.frames, size)
     scorer = Scorer(shots, fid=args.fid, tc=True)
     tag = " (untrained)" if args.untrained else ""
@@ -59,42 +53,26 @@ def measure(args: argparse.Namespace) -> dict:
         renderer = Renderer(model)
         warm_up(renderer, shots[0], sampler)  # untimed: first-call costs stay out of the first preset
         renderer.cache.clear()  # every preset pays its own encoding, as in `x2video eval`
-        settings = RenderSettings(sampler=sampler, steps=steps, seed=args.seed, window=args.window, detail=detail,  # type: ignore[arg-type]
-                                  replace_refs=args.replace_refs, seams=args.seams, max_levels=args.max_levels, noise=args.noise, noise_shared=args.noise_shared,
-                                  ref_dc=args.ref_dc, resample=args.resample)
+        chosen = settings(args, sampler=sampler, steps=steps, detail=detail)
         preds, secs = {}, {}
         for s in shots:
-            preds[s.name], secs[s.name] = render_shot(renderer, s, None, settings)
+            preds[s.name], secs[s.name] = render_shot(renderer, s, None, chosen)
             print(f"{name}: {s.name} {secs[s.name] / s.num_frames:.3f} s/frame", file=sys.stderr)
         m = scorer.score(preds, secs)
-        rows.append({"name": name, "sampler": sampler, "steps": steps, "detail": detail, **{k: m[k] for k in ("seconds_per_frame", "psnr", "ssim", "tc", "fid", "frames")}})
+        rows.append({"name": name, "sampler": sampler, "steps": steps, "detail": detail,
+                     **{k: m[k] for k in ("seconds_per_frame", "psnr", "ssim", "tc", "fid", "frames")}})
     frames, secs = {}, {}
     for s in shots:
         frames[s.name], secs[s.name] = classical_frames(s.shot, None)
     m = scorer.score(frames, secs)
     rows.append({"name": "classical shading", "sampler": "none", "steps": 0,
                  **{k: m[k] for k in ("seconds_per_frame", "psnr", "ssim", "tc", "fid", "frames")}})
-    head = result_header("speed-accuracy", "speed_accuracy.py", args, models, shots, size)
+    head = result_header("speed-accuracy", "speed_accuracy", args, models, shots, size)
     head["data"]["size_note"] = size_note
     return {
         **head,
         "rows": rows,
         "unavailable": unavailable,
-    }
-
-
-def result_header(kind: str, script: str, args: argparse.Namespace, models, shots: list, size: tuple[int, int],
-                  argv: list[str] | None = None) -> dict:
-    """The fields every bench JSON here starts with: format, the command that reproduces it (`script` in bench/,
-    or a repository path; `argv`, default sys.argv[1:]), machine, weights, data."""
-    from x2video.eval.machine import machine_info
-
-    return {
-        "format": f"x2video-{kind}",
-        "command": shlex.join(["python", script if "/" in script else f"bench/{script}", *(sys.argv[1:] if argv is None else argv)]),
-        "machine": machine_info(models.video.device),
-        "weights": models.info,
-        "data": {"dir": str(args.data), "split": args.split, "rooms": [s.name for s in shots], "frames": args.frames, "size": list(size)},
     }
 
 
@@ -108,8 +86,13 @@ def draw_chart(result: dict, path: Path) -> Path:
         raise ValueError("speed/accuracy chart: no row has both seconds per frame and PSNR")
     title = f"speed vs accuracy: {machine_label(result['machine'])}"
     below = labels_below(pts)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    with atomic_path(path) as tmp:
+        _draw(pts, below, title, tmp)
+    return path
+
+
+def _draw(pts: list, below: set, title: str, tmp: Path) -> None:
+    """The chart into the file `tmp`."""
     try:
         import matplotlib
 
@@ -159,51 +142,6 @@ def draw_chart(result: dict, path: Path) -> Path:
         exporter = pyqtgraph.exporters.ImageExporter(plot.plotItem)
         exporter.parameters()["width"] = 720
         exporter.export(str(tmp))
-    os.replace(tmp, path)
-    return path
-
-
-def add_render_arguments(p: argparse.ArgumentParser) -> None:
-    """Held-out data, weights, device and sampling arguments shared with bench/lcm_speedup.py."""
-    p.add_argument("--data", type=Path, required=True, help="data set folder (DATA/test/room_*)")
-    p.add_argument("--split", default="test")
-    p.add_argument("--rooms", type=int, default=2, help="first K held-out rooms (default 2)")
-    p.add_argument("--frames", type=int, default=17, help="first T frames per shot (default 17)")
-    p.add_argument("--size", type=size_arg, help="WxH (default: the model's training size)")
-    p.add_argument("--weights", type=Path, help="video model run or folder (default: resources/)")
-    p.add_argument("--lcm-weights", type=Path, help="LCM run or folder")
-    p.add_argument("--device", default=None)
-    p.add_argument("--fp16", action="store_true")
-    p.add_argument("--bf16-encoder", action="store_true", help=BF16_ENCODER_HELP)
-    p.add_argument("--channel-encoder", choices=CHANNEL_ENCODERS, default=DEFAULT_CHANNEL_ENCODER, help=CHANNEL_ENCODER_HELP)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--window", type=int, default=5)
-    from x2video.sampling.events import RenderSettings  # light (no torch); keeps the benches on the Renderer's default
-
-    p.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=RenderSettings.replace_refs,
-                   help="hold reference frames at their noised latents between steps (default: as x2video render)")
-    p.add_argument("--seams", action=argparse.BooleanOptionalAction, default=RenderSettings.seams, help=SEAMS_HELP)
-    p.add_argument("--max-levels", type=int, default=RenderSettings.max_levels, help=MAX_LEVELS_HELP)
-    p.add_argument("--noise", choices=("window", "frame"), default=RenderSettings.noise, help=NOISE_HELP)
-    p.add_argument("--noise-shared", type=float, default=RenderSettings.noise_shared, help=NOISE_SHARED_HELP)
-    p.add_argument("--ref-dc", type=float, default=RenderSettings.ref_dc, help=REF_DC_HELP)
-    p.add_argument("--resample", type=int, default=RenderSettings.resample, help=RESAMPLE_HELP)
-    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
-
-
-def run_measure(args: argparse.Namespace, measure_fn) -> dict:
-    """Set torch's threads, run `measure_fn(args)`, add its wall time and write the JSON to args.out atomically."""
-    if args.threads:
-        import torch
-
-        torch.set_num_threads(args.threads)
-    from x2video.io.atomic import write_json_atomic
-
-    t0 = time.perf_counter()
-    result = measure_fn(args)
-    result["wall_seconds"] = time.perf_counter() - t0
-    write_json_atomic(args.out, result)
-    return result
 
 
 def main(argv: list[str] | None = None) -> int:

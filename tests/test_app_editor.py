@@ -10,10 +10,10 @@ import pytest
 pytest.importorskip("PySide6")
 pytest.importorskip("pytestqt")
 
-from PySide6.QtCore import QPoint, QPointF, Qt  # noqa: E402
+from app_helpers import make_shot_dir  # noqa: E402
+from PySide6.QtCore import QPointF, Qt  # noqa: E402
 from PySide6.QtWidgets import QMessageBox  # noqa: E402
 
-from app_helpers import make_shot_dir  # noqa: E402
 from x2video_app import edit_ops  # noqa: E402
 from x2video_app.main_window import MainWindow  # noqa: E402
 

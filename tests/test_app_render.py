@@ -11,10 +11,10 @@ import pytest
 pytest.importorskip("PySide6")
 pytest.importorskip("pytestqt")
 
+from app_helpers import make_shot_dir  # noqa: E402
 from PySide6.QtCore import Qt  # noqa: E402
 from PySide6.QtWidgets import QMessageBox  # noqa: E402
 
-from app_helpers import make_shot_dir  # noqa: E402
 from x2video.sampling.events import FramesReady, RenderCancelled, StepDone  # noqa: E402
 from x2video_app.main_window import MainWindow  # noqa: E402
 

@@ -18,7 +18,8 @@ def shot_dir(tmp_path):
     rng = np.random.default_rng(0)
     n = np.zeros((T, H, W, 3))
     n[..., 2] = 1
-    s = ArrayShot({"albedo": rng.random((T, H, W, 3)) * 0.5, "normal": n, "roughness": rng.random((T, H, W, 1)), "rgb": rng.random((T, H, W, 3)), "ids": np.ones((T, H, W), np.int32)}, fps=8.0)
+    s = ArrayShot({"albedo": rng.random((T, H, W, 3)) * 0.5, "normal": n, "roughness": rng.random((T, H, W, 1)), "rgb": rng.random((T, H, W, 3)),
+                   "ids": np.ones((T, H, W), np.int32)}, fps=8.0)
     return write_shot_folder(s, tmp_path / "shot")
 
 

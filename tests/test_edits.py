@@ -6,8 +6,19 @@ import pytest
 
 from x2video.channels import linear_to_srgb
 from x2video.edits import (
-    AlbedoHSV, AlbedoSet, AlbedoTint, Edits, Exposure, LightTint, Mask, MaskOut, Reference, ScalarOp, apply_edits,
-    op_from_dict, resolve_reference,
+    AlbedoHSV,
+    AlbedoSet,
+    AlbedoTint,
+    Edits,
+    Exposure,
+    LightTint,
+    Mask,
+    MaskOut,
+    Reference,
+    ScalarOp,
+    apply_edits,
+    op_from_dict,
+    resolve_reference,
 )
 from x2video.io.image import write_ldr
 from x2video.shot import ArrayShot
@@ -53,7 +64,7 @@ def _check(shot, op, name, expect):
 def test_albedo_ops(shot):
     _check(shot, AlbedoSet(mask="box", color=(0.2, 0.4, 0.6)), "albedo", lambda b: np.broadcast_to(np.float32([0.2, 0.4, 0.6]), b.shape))
     _check(shot, AlbedoTint(mask="box", color=(1.0, 0.5, 2.0)), "albedo", lambda b: np.clip(b * [1.0, 0.5, 2.0], 0, 1))
-    c = _check(shot, AlbedoHSV(mask="box", hue=0.0, saturation=1.0, value=1.0), "albedo", lambda b: b)  # identity
+    _check(shot, AlbedoHSV(mask="box", hue=0.0, saturation=1.0, value=1.0), "albedo", lambda b: b)  # identity
     # a hue shift of 120 degrees rotates sRGB channels: pure-ish red -> green
     red = ArrayShot({"albedo": np.tile(np.float32([0.8, 0.1, 0.1]), (1, H, W, 1))})
     out = apply_edits(red, Edits(ops=[AlbedoHSV(hue=120.0)]), 0).channels["albedo"]

@@ -5,7 +5,16 @@ import numpy as np
 import pytest
 
 from x2video.edits import (
-    AlbedoSet, Edits, Exposure, Mask, MaskOut, Project, Reference, ScalarOp, load_project, save_project,
+    AlbedoSet,
+    Edits,
+    Exposure,
+    Mask,
+    MaskOut,
+    Project,
+    Reference,
+    ScalarOp,
+    load_project,
+    save_project,
 )
 
 
@@ -16,7 +25,8 @@ def _project(tmp_path):
     m.paint(5, rng.random((6, 9)) > 0.5)
     e = Edits(
         masks={"sofa": m, "wall": Mask(hold=True)},
-        ops=[AlbedoSet(mask="sofa", color=(0.1, 0.2, 0.3)), Exposure(stops=0.5), MaskOut(mask="sofa"), ScalarOp(mask="wall", target_channel="metallic", mode="scale", value=2)],
+        ops=[AlbedoSet(mask="sofa", color=(0.1, 0.2, 0.3)), Exposure(stops=0.5), MaskOut(mask="sofa"),
+             ScalarOp(mask="wall", target_channel="metallic", mode="scale", value=2)],
         dropped={"normal"},
         global_prompt="evening",
         local_prompts={"sofa": "blue velvet"},

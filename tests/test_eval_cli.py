@@ -8,8 +8,8 @@ import math
 from pathlib import Path
 
 import pytest
-
 from eval_fixtures import make_dataset, one_thread  # noqa: F401  (fixture)
+
 from x2video.cli import main
 
 
@@ -105,9 +105,9 @@ def test_eval_fails_clearly_without_weights(data, tmp_path, capsys, monkeypatch)
     empty.mkdir()
     rc = main(["eval", "--weights", str(empty), "--data", str(data), "--out", str(out)])
     assert rc == 2 and "neither a model folder" in capsys.readouterr().err
-    import x2video.cli.render as render_cli
+    import x2video.weights
 
-    monkeypatch.setattr(render_cli, "shipped_weights", lambda *a, **k: None)
+    monkeypatch.setattr(x2video.weights, "shipped_weights", lambda *a, **k: None)
     rc = main(["eval", "--data", str(data), "--out", str(out)])
     err = capsys.readouterr().err
     assert rc == 2 and "no --weights given" in err and "--untrained" in err

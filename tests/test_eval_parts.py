@@ -2,15 +2,15 @@
 Markdown, the model card from results + run folders, contact sheets, and the speed/accuracy chart."""
 from __future__ import annotations
 
-import importlib.util
+import importlib
 import json
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
-
 from train_fixtures import tiny_room
+
 from x2video.eval.checks import orderings, orderings_markdown
 from x2video.eval.conditions import Condition, build_edits, pick_objects
 from x2video.eval.data import EvalView, resize_motion, training_size
@@ -287,39 +287,58 @@ def test_speedup_ordering_from_back_to_back_repeats(tmp_path, capsys):
     assert card.main([str(res), "--speedup", str(bench)]) == 2 and "not a `bench/lcm_speedup.py` result" in capsys.readouterr().err
 
 
-def test_card_append_keeps_the_card_and_numbers_on(tmp_path, capsys):
-    """--append: new evaluations after the last one, before the renders; the preface replaced; the rest kept."""
+def test_card_log_adds_dated_entries_and_the_card_quotes_them(tmp_path, capsys):
+    """--log: one dated file per evaluation and speed-up, numbered on, machine paths scrubbed; --card: the
+    source with its headline lines replaced by the entry's table, the formula's columns beside each row."""
     from x2video.eval import card
 
     res = tmp_path / "eval"
     res.mkdir()
-    (res / "results.json").write_text(json.dumps(dict(_results(), command="x2video eval --data D --out eval")))
+    (res / "results.json").write_text(json.dumps(dict(_results(), command="x2video eval --data /mnt/data/r160 --out eval")))
     bench = tmp_path / "b.json"
     bench.write_text(json.dumps(dict(_speedup_bench([(5.6, 5.7, 8.5)], threads=2), weights={"video": {"encoder_dtype": "bfloat16"}})))
-    old = ("# X2Video model card\n\nGenerated 2026-01-01 by `x`. Every figure ...\n\nOLD PREFACE\n\n## Training\n\nTRAINING TABLE\n\n"
-           "## Evaluation 1\n\nE1\n\n## Evaluation 2\n\nE2\n\n## Renders of held-out shots (ground truth | image model | video model)\n\nPNG\n")
-    path = tmp_path / "MODEL_CARD.md"
-    path.write_text(old)
-    pre = tmp_path / "pre.md"
-    pre.write_text("NEW PREFACE\n")
-    assert card.main([str(res), "--speedup", str(bench), "--preface", str(pre), "--append", str(path)]) == 0
-    text = path.read_text()
-    assert "OLD PREFACE" not in text and "NEW PREFACE" in text and "TRAINING TABLE" in text and "E1" in text and "E2" in text
-    order = [text.index(k) for k in ("Generated 2026-01-01", "Sections appended", "NEW PREFACE", "## Training", "## Evaluation 2",
-                                     "## Evaluation 3", "back to back, 2 torch threads, VAE encoder in bfloat16", "## Renders")]
-    assert order == sorted(order) and "## Evaluation 4" not in text
-    assert "--append" in text.splitlines()[3]  # the appending command is named
-    pre.write_text("NEWER PREFACE\n")
-    assert card.main(["--preface", str(pre), "--append", str(path)]) == 0  # the preface alone
-    again = path.read_text()
-    assert "NEWER PREFACE" in again and "NEW PREFACE\n" not in again and again.count("## Evaluation 3") == 1
-    assert "Preface replaced" in again.splitlines()[3] and "Sections appended" in again.splitlines()[4]
-    assert card.main(["--preface", str(pre), "--append", str(path)]) == 0
-    assert path.read_text().count("Preface replaced") == 1  # the line names the last replacement only
-    with pytest.raises(SystemExit):  # no results and no --append: nothing to build a card from
+    log = tmp_path / "log"
+    log.mkdir()
+    (log / "2026-01-01-evaluation-07.md").write_text("# Evaluation 7 (2026-01-01)\n")
+    assert card.main([str(res), "--speedup", str(bench), "--log", str(log)]) == 0
+    entries = sorted(p.name for p in log.glob("*-*.md"))
+    date = entries[-1][:10]
+    assert entries == ["2026-01-01-evaluation-07.md", f"{date}-evaluation-08.md", f"{date}-speedup-01.md"]
+    text = (log / f"{date}-evaluation-08.md").read_text()
+    assert text.startswith(f"# Evaluation 8 ({date})\n\nAdded by `python -m x2video.eval.card ")
+    assert "--data DATA/r160" in text and "/mnt/" not in text and "| ordering | holds | measured |" in text
+    assert "Speed-up 1" in (log / f"{date}-speedup-01.md").read_text()
+    assert f"[{date}-evaluation-08]({date}-evaluation-08.md)" in (log / "README.md").read_text()
+    source = tmp_path / "card.md"
+    source.write_text(f"# Card\n\n<!-- headline {date}-evaluation-08.md (a) -->\n\nLimits.\n")
+    out = tmp_path / "res" / "MODEL_CARD.md"
+    assert card.main(["--card", str(source), "--log", str(log), "--out", str(out)]) == 0
+    built = out.read_text()
+    assert "| PSNR↑ | SSIM↑ | TC↓ | s/frame↓ | formula PSNR↑ | formula TC↓ |" in built and "Limits." in built
+    assert f"(../log/{date}-evaluation-08.md)" in built and "Reproduce: `x2video eval --data DATA/r160" in built
+    source.write_text("<!-- headline 2026-01-01-evaluation-09.md (a) -->\n")
+    assert card.main(["--card", str(source), "--log", str(log), "--out", str(out)]) == 2 and "does not exist" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # no results and no card: nothing to do
         card.main([])
-    path.write_text("# Something else\n")
-    assert card.main([str(res), "--append", str(path)]) == 2 and "not a model card" in capsys.readouterr().err
+
+
+def test_shipped_card_is_built_whole_from_its_source_and_fits_a_few_screens():
+    from x2video.eval.card import build_card
+
+    root = Path(__file__).resolve().parents[1]
+    shipped = (root / "resources" / "MODEL_CARD.md").read_text(encoding="utf-8")
+    import os
+
+    cwd = os.getcwd()
+    os.chdir(root)
+    try:
+        built = build_card(Path("docs/model_card.md"), Path("docs/evaluations"), Path("resources/MODEL_CARD.md"))
+    finally:
+        os.chdir(cwd)
+    assert shipped == built, "resources/MODEL_CARD.md is stale: python -m x2video.eval.card --card docs/model_card.md"
+    assert len(shipped.splitlines()) <= 200
+    first = next(ln for ln in shipped.splitlines() if ln.startswith("| Video model |"))
+    assert first.count("|") == 8  # the shipped model's headline row, formula columns beside it
 
 
 def test_contact_sheet_and_mp4(tmp_path):
@@ -337,9 +356,7 @@ def test_contact_sheet_and_mp4(tmp_path):
 
 
 def test_speed_accuracy_chart_and_editor_shape(tmp_path):
-    spec = importlib.util.spec_from_file_location("speed_accuracy", Path(__file__).resolve().parents[1] / "bench" / "speed_accuracy.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = importlib.import_module("bench.speed_accuracy")
     result = {"machine": {"cpu": "test cpu", "cpu_cores": 2, "torch_threads": 1, "device": "cpu"},
               "rows": [{"name": "DDIM-20", "seconds_per_frame": 2.0, "psnr": 24.0}, {"name": "DDIM-4", "seconds_per_frame": 0.5, "psnr": 23.0},
                        {"name": "classical shading", "seconds_per_frame": 0.03, "psnr": 20.0}],
@@ -371,6 +388,7 @@ def test_resolve_size_prefers_a_smaller_training_size(tmp_path):
     import argparse
 
     from eval_fixtures import make_dataset
+
     from x2video.cli.eval import resolve_size
 
     data = make_dataset(tmp_path / "d", frames=2, size=(64, 48))
@@ -390,9 +408,7 @@ def test_resolve_size_prefers_a_smaller_training_size(tmp_path):
 def test_recursive_seams_classifies_pairs_by_the_windows_that_made_them():
     from x2video.sampling.planner import plan
 
-    spec = importlib.util.spec_from_file_location("recursive_seams", Path(__file__).resolve().parents[1] / "bench" / "recursive_seams.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = importlib.import_module("bench.recursive_seams")
     # recursive, 17 frames, N = 5: one keyframe window (level 2) makes 0, 4, 8, 12, 16; level-1 windows the rest
     rec = mod.pair_classes(plan("recursive", 17, 5), 17)
     assert rec[:4] == ["seam, level 2", "same window", "same window", "seam, level 2"]

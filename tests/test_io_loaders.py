@@ -1,6 +1,5 @@
 """Loaders: folder per channel (EXR/PNG 8+16/JPG/TIFF), multi-layer EXR (ours and Blender's), XRGB sets."""
 import json
-import warnings
 
 import numpy as np
 import pytest
@@ -94,7 +93,8 @@ def test_blender_multilayer(tmp_path):
         write_exr(tmp_path / f"render_{t:04d}.exr", p, "half")
         frames.append((wn, base))
     poses = [_rot_y(30 * t + 10) for t in range(2)]
-    (tmp_path / "cameras.json").write_text(json.dumps({"convention": "opengl_cam_to_world", "frames": [{"frame": t, "cam_to_world": m.tolist()} for t, m in enumerate(poses)]}))
+    cameras = [{"frame": t, "cam_to_world": m.tolist()} for t, m in enumerate(poses)]
+    (tmp_path / "cameras.json").write_text(json.dumps({"convention": "opengl_cam_to_world", "frames": cameras}))
     shot = load_shot(tmp_path)
     assert type(shot).__name__ == "MultilayerShot"
     assert shot.info.channels == ("albedo", "normal", "roughness", "metallic", "irradiance", "rgb", "ids", "depth")

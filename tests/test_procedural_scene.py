@@ -7,7 +7,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from x2video.procedural.geometry import part_mesh, Part
+from x2video.procedural.geometry import Part, part_mesh
 from x2video.procedural.lighting import MOODS
 from x2video.procedural.materials import FAMILIES
 from x2video.procedural.scene import generate_scene

@@ -6,7 +6,6 @@ import pytest
 from sampling_fake import make_shot
 
 from x2video.cli import main
-from x2video.cli.render import shipped_weights
 from x2video.io.shotdir import write_shot_folder
 
 
@@ -54,10 +53,11 @@ def test_render_untrained_to_mp4_and_exr(shot_dir, tmp_path, capsys) -> None:
 
 
 def test_missing_weights_says_how_to_get_them(shot_dir, tmp_path, capsys, monkeypatch) -> None:
-    import x2video.cli.render as cli
+    import x2video.weights as weights
 
-    monkeypatch.setattr(cli, "RESOURCES", tmp_path / "resources")
-    assert shipped_weights(tmp_path / "resources") is None
+    monkeypatch.delenv("X2VIDEO_WEIGHTS", raising=False)
+    monkeypatch.setattr(weights, "_candidates", lambda: [tmp_path / "resources" / "x2video-tiny"])
+    assert weights.shipped_weights() is None
     assert main(["render", str(shot_dir), "--out", str(tmp_path / "o.mp4")]) == 2
     err = capsys.readouterr().err
     assert "no trained weights" in err and "--untrained" in err and "x2video train" in err

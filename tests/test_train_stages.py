@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-
 from train_fixtures import FakeTextEncoder, tiny_dataset
+
 from x2video.train.loop import LoopConfig, list_checkpoints
 
 

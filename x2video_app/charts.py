@@ -46,9 +46,9 @@ def find_bench_points(obj: Any, source: str = "") -> list[tuple[str, float, floa
 
 
 def load_bench_points(results_dir: Path) -> list[tuple[str, float, float]]:
-    """All points from `results_dir/*.json`; unreadable files are logged and skipped."""
+    """All points from the JSONs under `results_dir` (one folder per bench); unreadable files are logged and skipped."""
     points: list[tuple[str, float, float]] = []
-    for f in sorted(Path(results_dir).glob("*.json")):
+    for f in sorted(Path(results_dir).rglob("*.json")):
         try:
             points += find_bench_points(json.loads(f.read_text()), f.stem)
         except (OSError, ValueError) as e:
@@ -133,7 +133,7 @@ class Charts(QWidget):
         points = load_bench_points(results_dir) if Path(results_dir).is_dir() else []
         self.bench_plot.clear()
         if not points:
-            self.bench_note.setText(f"No benchmark results yet ({results_dir}/*.json with seconds_per_frame and psnr).")
+            self.bench_note.setText(f"No benchmark results yet ({results_dir}/*/*.json with seconds_per_frame and psnr).")
             return 0
         xs = [p[1] for p in points]
         ys = [p[2] for p in points]

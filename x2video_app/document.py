@@ -14,6 +14,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from x2video.channels import INTRINSIC
 from x2video.conditioning import FrameConditioning
 from x2video.shot import Shot
 from x2video_app import edit_ops
@@ -237,7 +238,7 @@ class Document:
         if self.shot is None:
             return checker(self.size)
         t, v = self.frame, self.view
-        if v in ("albedo", "normal", "roughness", "metallic", "irradiance"):
+        if v in INTRINSIC:
             base = channel_to_u8(v, self.conditioning(t).channels.get(v), self.size)
         elif v == "ids":
             base = channel_to_u8("ids", self.shot.channel("ids", t) if self.shot.has("ids") else None, self.size)

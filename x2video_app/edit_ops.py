@@ -31,7 +31,6 @@ from x2video.edits import (
 from x2video.edits import load_project as _load_project
 from x2video.edits import save_project as _save_project
 from x2video.edits.project import PROJECT_FORMAT, masks_dir
-
 from x2video.shot import Shot
 
 PROJECT_SUFFIX = ".x2v.json"

@@ -10,6 +10,7 @@ from PySide6.QtCore import QSettings, Qt, QTimer
 from PySide6.QtGui import QAction, QKeySequence, QUndoStack
 from PySide6.QtWidgets import (
     QApplication,
+    QCheckBox,
     QComboBox,
     QDockWidget,
     QHBoxLayout,
@@ -17,7 +18,6 @@ from PySide6.QtWidgets import (
     QMainWindow,
     QMessageBox,
     QPushButton,
-    QCheckBox,
     QVBoxLayout,
     QWidget,
 )
@@ -30,7 +30,7 @@ from x2video_app.document import Document
 from x2video_app.edit_actions import EditActions
 from x2video_app.edit_panel import EditPanel
 from x2video_app.mask_panel import MaskPanel
-from x2video_app.model_source import HOW_TO_GET_WEIGHTS, ModelChoice, has_weights, weights_dir
+from x2video_app.model_source import ModelChoice, has_weights, weights_dir, weights_hint
 from x2video_app.project_controller import ProjectController
 from x2video_app.render_controller import RenderController
 from x2video_app.render_panel import RenderPanel
@@ -166,7 +166,7 @@ class MainWindow(QMainWindow):
         self.act_untrained.toggled.connect(self._untrained_toggled)
         r.addAction(self.act_untrained)
         h = mb.addMenu("&Help")
-        h.addAction("About the model weights…", lambda: QMessageBox.information(self, "Model weights", HOW_TO_GET_WEIGHTS.format(dir=weights_dir())))
+        h.addAction("About the model weights…", lambda: QMessageBox.information(self, "Model weights", weights_hint()))
 
     def _connect(self) -> None:
         doc = self.doc
@@ -214,7 +214,7 @@ class MainWindow(QMainWindow):
     def _update_model_label(self) -> None:
         c = self.render_ctl.choice
         text = c.label if c is not None else "Model: none (weights missing)"
-        tip = c.detail if c is not None else f"No checkpoint in {weights_dir()}; Render offers the untrained tiny model."
+        tip = c.detail if c is not None else "No trained weights found; Render offers the untrained tiny model."
         self.model_status.setText(text)
         self.model_status.setMinimumWidth(self.model_status.fontMetrics().horizontalAdvance(text) + 28)
         self.model_status.setToolTip(tip)
@@ -229,7 +229,7 @@ class MainWindow(QMainWindow):
         if self.render_ctl.choice is None:
             b = self.ask(
                 "Model weights missing",
-                HOW_TO_GET_WEIGHTS.format(dir=weights_dir()) + "\n\nRender with the untrained tiny model now?",
+                weights_hint() + "\n\nRender with the untrained tiny model now?",
                 QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.Cancel,
                 QMessageBox.StandardButton.Cancel,
             )

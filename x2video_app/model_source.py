@@ -1,19 +1,17 @@
-"""Where the editor's model comes from: shipped weights in resources/ by default, or an explicitly
+"""Where the editor's model comes from: the shipped weights (`x2video.weights`) by default, or an explicitly
 labelled untrained tiny model (smoke renders only)."""
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
-#: The repository's resources/ folder (the shipped fp16 safetensors live there).
-REPO_RESOURCES = Path(__file__).resolve().parents[1] / "resources"
+from x2video.weights import ENV, is_checkpoint, shipped_weights, where_weights_are_looked_for
 
 HOW_TO_GET_WEIGHTS = (
-    "The shipped model weights were not found in {dir}.\n\n"
-    "To get them: pull the repository's resources/ folder (the fp16 safetensors and the model card), "
-    "or train them yourself with the `x2video train` command (see resources/MODEL_CARD.md for the exact "
-    "commands), or point the X2VIDEO_WEIGHTS environment variable at a checkpoint folder.\n\n"
+    "The shipped model weights were not found ({where}).\n\n"
+    "To get them: install the x2video-studio package (it ships them) or use a checkout with its resources/ folder, "
+    "train them yourself with the `x2video train` command (docs/TRAINING.md), or point the "
+    f"{ENV} environment variable at a checkpoint folder.\n\n"
     "You can still try the editor with an UNTRAINED tiny model: it runs the whole pipeline "
     "(keyframes, interpolation levels, progress, cancel, export) but its frames are noise-like, not renders."
 )
@@ -21,24 +19,18 @@ HOW_TO_GET_WEIGHTS = (
 
 def has_weights(d: Path | None) -> bool:
     """A checkpoint folder as `X2VideoModel.save_pretrained` writes it: config.json, unet and vae safetensors."""
-    if d is None:
-        return False
-    d = Path(d)
-    return all((d / f).is_file() for f in ("config.json", "unet.safetensors", "vae.safetensors"))
+    return is_checkpoint(d)
 
 
-def weights_dir() -> Path:
-    """X2VIDEO_WEIGHTS if set; else resources/ or the first folder directly inside it holding a checkpoint."""
-    env = os.environ.get("X2VIDEO_WEIGHTS")
-    if env:
-        return Path(env)
-    if has_weights(REPO_RESOURCES):
-        return REPO_RESOURCES
-    if REPO_RESOURCES.is_dir():
-        for sub in sorted(p for p in REPO_RESOURCES.iterdir() if p.is_dir()):
-            if has_weights(sub):
-                return sub
-    return REPO_RESOURCES
+def weights_dir() -> Path | None:
+    """The folder the editor loads by default (`x2video.weights.shipped_weights`), or None when there is none."""
+    return shipped_weights()
+
+
+def weights_hint() -> str:
+    """HOW_TO_GET_WEIGHTS, saying where the weights were looked for."""
+    d = weights_dir()
+    return HOW_TO_GET_WEIGHTS.format(where=str(d) if d is not None else where_weights_are_looked_for())
 
 
 @dataclass(frozen=True)
@@ -61,12 +53,12 @@ class ModelChoice:
 
 def load_model(choice: ModelChoice):
     """Build the model (slow: call it off the GUI thread)."""
-    from x2video.model.pipeline import X2VideoModel
+    from x2video.weights import load_model as load
 
     if choice.kind == "pretrained":
         if choice.path is None or not has_weights(choice.path):
-            raise FileNotFoundError(HOW_TO_GET_WEIGHTS.format(dir=choice.path))
-        return X2VideoModel.from_pretrained(choice.path)
+            raise FileNotFoundError(HOW_TO_GET_WEIGHTS.format(where=choice.path))
+        return load(choice.path, device="cpu")
     if choice.kind == "untrained":
-        return X2VideoModel.untrained("tiny")
+        return load(untrained=True, device="cpu")
     raise ValueError(f"unknown model choice {choice.kind!r}")

@@ -55,7 +55,6 @@ def main(argv: list[str] | None = None) -> int:
     from PySide6.QtWidgets import QApplication
 
     from x2video.sampling.events import FramesReady
-    from x2video_app import edit_ops
     from x2video_app.main_window import MainWindow
     from x2video_app.style import apply_style
 

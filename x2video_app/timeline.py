@@ -1,10 +1,9 @@
 """Timeline: a scrubber that marks keyframes, the level each rendered frame came from, and the window in flight."""
 from __future__ import annotations
 
-from PySide6.QtCore import QRectF, QSize, Qt, QTimer, Signal
+from PySide6.QtCore import QPointF, QRectF, QSize, Qt, QTimer, Signal
 from PySide6.QtGui import QColor, QFont, QPainter, QPen, QPolygonF
-from PySide6.QtCore import QPointF
-from PySide6.QtWidgets import QHBoxLayout, QLabel, QSpinBox, QToolButton, QWidget, QStyle
+from PySide6.QtWidgets import QHBoxLayout, QLabel, QSpinBox, QStyle, QToolButton, QWidget
 
 #: colour of a rendered frame by level; the top level (keyframes) is gold, lower levels cooler
 LEVEL_COLOURS = [QColor(255, 196, 0), QColor(64, 170, 255), QColor(90, 210, 140), QColor(200, 120, 255), QColor(255, 120, 120)]

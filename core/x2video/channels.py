@@ -10,6 +10,8 @@ INTRINSIC = ("albedo", "normal", "roughness", "metallic", "irradiance")
 #: Channels a shot may carry besides the intrinsic ones.
 EXTRA = ("ids", "rgb", "depth")
 ALL = INTRINSIC + EXTRA
+#: The intrinsic channels the VAE encodes (irradiance is area-downsampled to latent size instead).
+VAE_ENCODED = INTRINSIC[:4]
 
 
 @dataclass(frozen=True)

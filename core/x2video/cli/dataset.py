@@ -10,9 +10,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-log = logging.getLogger(__name__)
+from x2video.procedural.demo import DEMO
 
-DEMO = {"seed": 7, "frames": 33, "width": 320, "height": 224}
+log = logging.getLogger(__name__)
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -125,10 +125,9 @@ def make(args: argparse.Namespace) -> int:
 
 
 def demo(args: argparse.Namespace) -> int:
-    from x2video.procedural.shotgen import write_procedural_shot
+    from x2video.procedural.demo import write_demo
 
-    out = Path(args.out)
-    write_procedural_shot(out, DEMO["seed"], DEMO["frames"], DEMO["width"], DEMO["height"], overwrite=True)
+    out = write_demo(args.out)
     print(f"demo shot ({DEMO['frames']} frames, {DEMO['width']}x{DEMO['height']}) in {out}")
     return 0
 

@@ -3,14 +3,15 @@ from __future__ import annotations
 
 import argparse
 import logging
-import re
 import shlex
 import time
 from pathlib import Path
 from typing import Any
 
-from x2video.cli.args import BF16_ENCODER_HELP, CHANNEL_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, REF_DC_HELP, RESAMPLE_HELP, SEAMS_HELP, size_arg
-from x2video.model.config import CHANNEL_ENCODERS, DEFAULT_CHANNEL_ENCODER
+from x2video.cli.args import size_arg
+from x2video.cli.fields import add_fields, from_args
+from x2video.model.config import DEFAULT_CHANNEL_ENCODER
+from x2video.weights import ModelOptions
 
 log = logging.getLogger(__name__)
 
@@ -55,21 +56,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     g = p.add_argument_group("weights")
     g.add_argument("--weights", type=Path, help="video model: a training run (newest step-*/model) or a model folder "
-                                                "(default: the weights shipped in resources/)")
+                                                "(default: the shipped weights)")
     g.add_argument("--image-weights", type=Path, help="image-stage run or model folder for table (a)'s per-frame row")
     g.add_argument("--lcm-weights", type=Path, help="LCM run or model folder (with lcm_unet.safetensors) for table (d)")
     g.add_argument("--untrained", action="store_true", help="untrained tiny video + image models (smoke test: numbers mean nothing)")
-    g.add_argument("--device", default=None, help="torch device (default: cuda when available, else cpu)")
-    g.add_argument("--fp16", action="store_true", help="half precision (GPU)")
-    g.add_argument("--bf16-encoder", action="store_true", help=BF16_ENCODER_HELP)
-    g.add_argument("--channel-encoder", choices=CHANNEL_ENCODERS, default=DEFAULT_CHANNEL_ENCODER, help=CHANNEL_ENCODER_HELP)
+    add_fields(g, ModelOptions, only=("device", "fp16", "bf16_encoder", "channel_encoder"))
     g = p.add_argument_group("data")
     g.add_argument("--data", type=Path, required=True, help="data set folder from `x2video dataset make` (DATA/test/room_*)")
-    g.add_argument("--split", default=d.split, help=f"split of held-out rooms (default {d.split})")
-    g.add_argument("--rooms", type=int, default=d.rooms, help="first K rooms of the split (default: all)")
+    add_fields(g, EvalConfig, only=("split", "rooms"))
     g.add_argument("--frames", type=int, default=d.frames, help=f"first T frames per shot for tables a, b, d (default {d.frames}; 0 = all)")
     g.add_argument("--long-data", type=Path, help="data set with long shots for table (c) (make it with --frames 65; default: --data)")
-    g.add_argument("--long-frames", type=int, default=d.long_frames, help=f"frames per long shot (default {d.long_frames})")
+    add_fields(g, EvalConfig, only=("long_frames",))
     g.add_argument("--long-conditions", type=_conditions, default=d.long_conditions,
                    help="conditions table (c) compares recursive and sequential under: comma-separated KIND[+text][+ref], "
                    f"KIND one of {', '.join(KINDS)}; +ref gives the ground-truth frame 0 as reference, which sequential "
@@ -77,20 +74,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     g.add_argument("--size", type=size_arg, help="evaluate at WxH (default: the model's training size when recorded, else the data's)")
     g = p.add_argument_group("what to measure")
     g.add_argument("--tables", type=_choices(TABLES), default=d.tables, help="comma-separated subset of a,b,c,d (default all)")
-    g.add_argument("--steps", type=int, default=d.steps, help=f"DDIM steps (default {d.steps})")
-    g.add_argument("--lcm-steps", type=int, default=d.lcm_steps, help=f"LCM steps (default {d.lcm_steps})")
-    g.add_argument("--seed", type=int, default=d.seed, help="noise and mask seed")
-    g.add_argument("--window", type=int, default=d.window, help=f"frames per window N (default {d.window})")
-    g.add_argument("--masks", type=int, default=d.masks, help=f"objects masked in Mask A|M|R (default {d.masks})")
-    g.add_argument("--replace-refs", action=argparse.BooleanOptionalAction, default=d.replace_refs,
-                   help="hold each window's reference frames at their noised latents between denoising steps (as in "
-                        "training; default on)")
-    g.add_argument("--seams", action=argparse.BooleanOptionalAction, default=d.seams, help=SEAMS_HELP)
-    g.add_argument("--max-levels", type=int, default=d.max_levels, help=MAX_LEVELS_HELP)
-    g.add_argument("--ref-dc", type=float, default=d.ref_dc, help=REF_DC_HELP + f" (default {d.ref_dc:g})")
-    g.add_argument("--resample", type=int, default=d.resample, help=RESAMPLE_HELP)
-    g.add_argument("--noise", choices=("window", "frame"), default=d.noise, help=NOISE_HELP + f" (default {d.noise})")
-    g.add_argument("--noise-shared", type=float, default=d.noise_shared, help=NOISE_SHARED_HELP + f" (default {d.noise_shared})")
+    add_fields(g, EvalConfig, only=("steps", "lcm_steps", "seed", "window", "masks", "replace_refs", "seams", "max_levels", "ref_dc",
+                                   "resample", "noise", "noise_shared"))
     g.add_argument("--no-fid", action="store_true", help="skip FID (Inception features of every frame)")
     g.add_argument("--no-tc", action="store_true", help="skip temporal consistency")
     g.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch's default)")
@@ -142,102 +127,19 @@ def command_line(a: argparse.Namespace) -> str:
     return shlex.join(parts)
 
 
-def _step(path: Path) -> int | None:
-    m = re.search(r"step-0*(\d+)", str(path))
-    return int(m.group(1)) if m else None
-
-
 def load_models(a: argparse.Namespace, *, with_image: bool = True) -> Any:
-    """(EvalModels, video model folder or None) from the weights arguments; missing or broken weights fail
-    with a clear message. `with_image=False` skips the image model (--untrained builds one otherwise)."""
-    import torch
+    """(EvalModels, video model folder or None) from the weights flags (`x2video.eval.loading.load_eval_models`)."""
+    from x2video.eval.loading import load_eval_models
 
-    from x2video.cli.render import shipped_weights
-    from x2video.eval.runner import EvalModels
-    from x2video.model.pipeline import X2VideoModel
-    from x2video.train.runs import model_dir
-
-    dev = a.device or ("cuda" if torch.cuda.is_available() else "cpu")
-    dtype = torch.float16 if a.fp16 else torch.float32
-    encoder_dtype = torch.bfloat16 if getattr(a, "bf16_encoder", False) else None
-    channel_encoder = getattr(a, "channel_encoder", DEFAULT_CHANNEL_ENCODER)
-    if a.untrained:
-        if a.weights or a.image_weights or a.lcm_weights:
-            raise ValueError("--untrained excludes --weights, --image-weights and --lcm-weights")
-        video = X2VideoModel.untrained("tiny", device=dev, dtype=dtype)
-        image = X2VideoModel.untrained("tiny", seed=1, device=dev, dtype=dtype, video=False) if with_image else None
-        info = {r: {"path": "untrained", "untrained": True, "config": "tiny", "video": r == "video"} for r in ("video", "image")}
-        return EvalModels(video, image, None, info), None
-
-    weights = a.weights
-    if weights is None:
-        weights = shipped_weights()
-        if weights is None:
-            raise FileNotFoundError("no --weights given and no trained weights in resources/ (a folder with config.json and "
-                                    "unet.safetensors); pass --weights RUN_OR_DIR, or --untrained for a smoke test")
-
-    def load(path: Path, role: str, want_video: bool, want_lcm: bool = False) -> tuple[Any, dict, Path]:
-        if not path.exists():
-            raise FileNotFoundError(f"--{role}: {path} does not exist")
-        d = model_dir(path)
-        for part in ("unet.safetensors", "vae.safetensors"):
-            if not (d / part).is_file():
-                raise FileNotFoundError(f"--{role}: {d} has no {part}")
-        # The image model of table (a) is compared with the video model as the paper's baseline: it encodes its channels
-        # like the video model where it can ("distilled" needs its own channel_encoder.safetensors, so "auto" for it).
-        enc = "auto" if role == "image-weights" and channel_encoder == "distilled" else channel_encoder
-        model = X2VideoModel.from_pretrained(d, device=dev, dtype=dtype, encoder_dtype=encoder_dtype, channel_encoder=enc)
-        if model.config.video != want_video:
-            kind = "video" if model.config.video else "image"
-            raise ValueError(f"--{role}: {d} holds an {kind} model; expected {'a video' if want_video else 'an image'} model")
-        if want_lcm and not model.has_lcm:
-            raise ValueError(f"--{role}: {d} has no lcm_unet.safetensors (distil one with `x2video train lcm`)")
-        info = {"path": str(d), "config": model.config.name, "video": model.config.video, "shading_prior": model.config.shading_prior,
-                "lcm": model.has_lcm, "step": _step(d), "untrained": False}
-        if encoder_dtype is not None:
-            info["encoder_dtype"] = str(encoder_dtype).removeprefix("torch.")
-        info["channel_encoder"] = "vae" if model.channel_encoder is None else "distilled"
-        return model, info, d
-
-    video, vinfo, vdir = load(weights, "weights", True)
-    info = {"video": vinfo}
-    image = lcm = None
-    if a.image_weights is not None and with_image:
-        image, info["image"], _ = load(a.image_weights, "image-weights", False)
-    if a.lcm_weights is not None:
-        lcm, info["lcm"], _ = load(a.lcm_weights, "lcm-weights", True, want_lcm=True)
-        if info["lcm"]["channel_encoder"] != vinfo["channel_encoder"]:  # table (d) compares samplers, not encoders
-            raise ValueError(f"--channel-encoder {channel_encoder}: --weights encodes the channels with its "
-                             f"{vinfo['channel_encoder']} encoder, --lcm-weights with its {info['lcm']['channel_encoder']} one; "
-                             "pick vae or distilled explicitly")
-    elif video.has_lcm:
-        info["lcm"] = dict(vinfo, note="lcm_unet.safetensors of --weights")
-    return EvalModels(video, image, lcm, info), vdir
+    return load_eval_models(a.weights, getattr(a, "image_weights", None), getattr(a, "lcm_weights", None),
+                            options=from_args(ModelOptions, a, weights=None), with_image=with_image)
 
 
 def resolve_size(a: argparse.Namespace, weights_dir: Path | None, downsample: int) -> tuple[tuple[int, int], str]:
-    """(W, H) to evaluate at and a sentence saying why."""
-    from x2video.eval.data import native_size, training_size
+    """(W, H) to evaluate at and a sentence saying why (`x2video.eval.loading.resolve_size`)."""
+    from x2video.eval.loading import resolve_size as resolve
 
-    native = native_size(a.data, a.split)
-    if a.size is not None:
-        size, why = tuple(a.size), f"--size {a.size[0]}x{a.size[1]}"
-    else:
-        trained = training_size(weights_dir) if weights_dir is not None else None
-        if trained is not None and trained[0] * trained[1] < native[0] * native[1]:
-            size, why = trained, f"the model was trained at {trained[0]}x{trained[1]}"
-        elif trained is not None:
-            size, why = native, f"the data's size (model trained at {trained[0]}x{trained[1]})"
-        else:
-            size, why = native, "the data's size (the weights do not record a training size)"
-    if size[0] % downsample or size[1] % downsample:
-        raise ValueError(f"evaluation size {size[0]}x{size[1]} ({why}) is not a multiple of the model's VAE factor {downsample}; pass --size")
-    if tuple(size) != tuple(native):
-        why += f"; ground truth, channels and motion area-downsampled from {native[0]}x{native[1]}"
-        if abs(size[0] / size[1] - native[0] / native[1]) > 0.02:
-            why += f" (aspect ratio {native[0] / native[1]:.3f} -> {size[0] / size[1]:.3f}: images are stretched)"
-            log.warning("evaluation size %dx%d stretches the data's %dx%d frames", size[0], size[1], native[0], native[1])
-    return tuple(size), why  # type: ignore[return-value]
+    return resolve(a.data, a.split, a.size, weights_dir, downsample)
 
 
 def run(a: argparse.Namespace) -> int:

@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 
+from x2video.channels import INTRINSIC
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("info", help="describe a shot: frames, size, channels, value ranges, problems")
@@ -48,7 +50,7 @@ def inspect(path: Path, frames: int = 8, progress: Any = None) -> dict[str, Any]
             if progress is not None:
                 progress(i, len(ts))
         problems += [str(w.message) for w in caught]
-    missing = [c for c in ("albedo", "normal", "roughness", "metallic", "irradiance") if c not in shot.channels]
+    missing = [c for c in INTRINSIC if c not in shot.channels]
     info = shot.info
     return {
         "path": str(path),

@@ -9,6 +9,8 @@ from pathlib import Path
 from typing import Callable
 
 from x2video.cli.args import size_arg
+from x2video.cli.fields import add_field
+from x2video.train.config import AugmentConfig, LoopConfig, WindowConfig
 
 log = logging.getLogger(__name__)
 
@@ -20,49 +22,48 @@ def _ints(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of integers") from e
 
 
-def _loop_args(p: argparse.ArgumentParser, steps: int, lr: float, ema: float = 0.999) -> None:
+def _loop_args(p: argparse.ArgumentParser, steps: int, lr: float, ema: float = LoopConfig.ema_decay) -> None:
+    """The optimisation flags (`LoopConfig`), with this stage's steps, learning rate and EMA decay."""
     g = p.add_argument_group("optimisation (resumes from the newest step-* checkpoint in --out)")
-    g.add_argument("--steps", type=int, default=steps, help=f"total optimiser steps (default {steps})")
-    g.add_argument("--lr", type=float, default=lr, help=f"peak AdamW learning rate (default {lr})")
-    g.add_argument("--warmup", type=int, default=50, help="linear warm-up steps")
-    g.add_argument("--lr-half-every", type=int, default=0, help="halve the learning rate every N steps (paper: 20000); 0 = constant")
-    g.add_argument("--ema", type=float, default=ema, help="EMA decay of the saved weights (0 = no EMA)")
-    g.add_argument("--ckpt-every", type=int, default=500, help="checkpoint every N steps (and at the end)")
-    g.add_argument("--keep", type=int, default=2, help="step checkpoints kept on disk")
-    g.add_argument("--time-limit", type=float, default=0.0, help="stop with a checkpoint after this many minutes (0 = none)")
-    g.add_argument("--seed", type=int, default=0)
-    g.add_argument("--mixed-precision", choices=("no", "fp16", "bf16"), default="no", help="accelerate mixed precision (GPU)")
+    add_field(g, "--steps", LoopConfig, "steps", default=steps)
+    add_field(g, "--lr", LoopConfig, "lr", default=lr)
+    add_field(g, "--warmup", LoopConfig, "warmup")
+    add_field(g, "--lr-half-every", LoopConfig, "lr_half_every")
+    add_field(g, "--ema", LoopConfig, "ema_decay", default=ema)
+    add_field(g, "--ckpt-every", LoopConfig, "ckpt_every")
+    add_field(g, "--keep", LoopConfig, "keep_ckpts")
+    g.add_argument("--time-limit", type=float, default=LoopConfig.time_limit_s / 60,
+                   help="stop with a checkpoint after this many minutes (0 = none)")
+    add_field(g, "--seed", LoopConfig, "seed")
+    add_field(g, "--mixed-precision", LoopConfig, "mixed_precision")
     g.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch's default; 1 is fastest on a busy machine)")
-    g.add_argument("--workers", type=int, default=0,
-                   help="processes drawing batches ahead of the optimiser (0: in the training process; a GPU wants several)")
+    add_field(g, "--workers", LoopConfig, "workers")
 
 
 def _aug_args(p: argparse.ArgumentParser) -> None:
+    """The conditioning augmentation flags (`AugmentConfig`)."""
     g = p.add_argument_group("conditioning augmentation")
-    g.add_argument("--channel-drop", type=float, default=0.5, help="probability of dropping each intrinsic channel")
-    g.add_argument("--prompt-drop", type=float, default=0.3, help='probability the global prompt is ""')
-    g.add_argument("--mask-p", type=float, default=0.5, help="probability a sample has A|M|R-masked objects")
-    g.add_argument("--max-masks", type=int, default=5, help="most masked objects (local prompts) per sample")
-    g.add_argument("--ref-shift-p", type=float, default=0.0,
-                   help="probability a window with references has them and its target shifted alike by a random latent offset per "
-                        "object, meant to teach the model to carry what its references show (0: off; measured worse on the CPU, "
-                        "docs/TRAINING.md)")
-    g.add_argument("--ref-shift-std", type=float, default=0.3, help="largest standard deviation of those offsets, as a fraction of each latent channel's")
+    add_field(g, "--channel-drop", AugmentConfig, "channel_drop_p")
+    add_field(g, "--prompt-drop", AugmentConfig, "prompt_drop_p")
+    add_field(g, "--mask-p", AugmentConfig, "mask_p")
+    add_field(g, "--max-masks", AugmentConfig, "max_masks")
+    add_field(g, "--ref-shift-p", AugmentConfig, "ref_shift_p")
+    add_field(g, "--ref-shift-std", AugmentConfig, "ref_shift_std")
 
 
 def _window_args(p: argparse.ArgumentParser) -> None:
+    """The video window flags (`WindowConfig`)."""
     g = p.add_argument_group("windows")
-    g.add_argument("--frames", type=int, default=5, help="N: frames per window")
-    g.add_argument("--levels", type=int, default=3, help="K: recursive levels (keyframe strides (N-1)^(k-1), interpolation levels 1..K)")
-    g.add_argument("--ref-p", type=float, default=0.5, help="probability a window carries its reference frame(s)")
+    add_field(g, "--frames", WindowConfig, "frames")
+    add_field(g, "--levels", WindowConfig, "levels")
+    add_field(g, "--ref-p", WindowConfig, "ref_p_key", help="probability a window carries its reference frame(s) "
+              f"(default: {WindowConfig.ref_p_key:g})")
     g.add_argument("--ref-p-interp", type=float, default=None,
                    help="the same for interpolation windows (default: --ref-p; at inference they always carry both)")
-    g.add_argument("--interp-p", type=float, default=0.5, help="probability a batch is interpolation-mode windows (else keyframe)")
+    add_field(g, "--interp-p", WindowConfig, "interp_p")
 
 
 def _loop_cfg(a: argparse.Namespace):
-    from x2video.train.loop import LoopConfig
-
     if a.threads:
         import torch
 
@@ -75,8 +76,6 @@ def _loop_cfg(a: argparse.Namespace):
 
 
 def _aug(a: argparse.Namespace):
-    from x2video.train.batches import AugmentConfig
-
     for flag, v in (("--channel-drop", a.channel_drop), ("--prompt-drop", a.prompt_drop), ("--mask-p", a.mask_p),
                     ("--ref-shift-p", a.ref_shift_p)):
         if not 0.0 <= v <= 1.0:
@@ -88,8 +87,6 @@ def _aug(a: argparse.Namespace):
 
 
 def _window(a: argparse.Namespace):
-    from x2video.train.batches import WindowConfig
-
     for flag, v in (("--ref-p", a.ref_p), ("--ref-p-interp", a.ref_p_interp), ("--interp-p", a.interp_p)):
         if v is not None and not 0.0 <= v <= 1.0:
             raise ValueError(f"{flag} must be a probability in [0, 1], got {v}")
@@ -200,8 +197,8 @@ def cmd_video(a: argparse.Namespace) -> int:
     loop = _loop_cfg(a)
     sp = None if a.shading_prior is None else a.shading_prior == "on"
     rp = None if a.residual_prior is None else a.residual_prior == "on"
-    stage = VideoStageConfig(batch=a.batch, shading_prior=sp, residual_prior=rp, prediction=a.prediction, seed=a.seed, heldout_batches=a.heldout_batches, augment=_aug(a),
-                             window=_window(a), alpha_lr_mult=a.alpha_lr_mult, train_only=a.train_only,
+    stage = VideoStageConfig(batch=a.batch, shading_prior=sp, residual_prior=rp, prediction=a.prediction, seed=a.seed, heldout_batches=a.heldout_batches,
+                             augment=_aug(a), window=_window(a), alpha_lr_mult=a.alpha_lr_mult, train_only=a.train_only,
                              noise_shared=a.noise_shared)
     _print_result(_run("video", loop.steps, lambda bar: run_video_stage(a.init, a.cache, a.out, stage, loop, bar)))
     return 0

@@ -62,9 +62,9 @@ def resolve_reference(shot: Shot, edits: Edits, base_dir: str | Path | None = No
         if not 0 <= ref.frame < shot.num_frames:
             raise ValueError(f"reference frame {ref.frame} outside the shot's {shot.num_frames} frames")
         return ref.frame, shot.channel("rgb", ref.frame).astype(np.float32)
+    from x2video.channels import srgb_to_linear
     from x2video.io.convention import zero_nonfinite
     from x2video.io.image import read_image
-    from x2video.channels import srgb_to_linear
 
     path = Path(ref.path)  # type: ignore[arg-type]
     if not path.is_absolute() and base_dir is not None:

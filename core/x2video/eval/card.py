@@ -1,23 +1,23 @@
-"""Composes resources/MODEL_CARD.md from `x2video eval` results folders and training run folders (issue 5, "Done means").
+"""The model card and the evaluation log (issue 5, "Done means"; issue 32).
 
-    python -m x2video.eval.card RESULTS_DIR [RESULTS_DIR ...] [--run RUN_DIR ...] [--speedup LCM_SPEEDUP_JSON ...]
-        [--renders DIR] [--out resources/MODEL_CARD.md]
-    python -m x2video.eval.card RESULTS_DIR [...] [--speedup JSON ...] [--preface MD] --append resources/MODEL_CARD.md
+    python -m x2video.eval.card --card docs/model_card.md --out resources/MODEL_CARD.md
+    python -m x2video.eval.card RESULTS_DIR [RESULTS_DIR ...] [--speedup LCM_SPEEDUP_JSON ...] --log docs/evaluations
+    python -m x2video.eval.card RESULTS_DIR [...] [--run RUN_DIR ...] [--speedup JSON ...] [--renders DIR] [--out FILE]
 
-Every number in the card is read from a results.json (with the exact command that produced
-it) or from a training run's state.json / summary.json / log.json / results.json; nothing is
-typed in by hand. Without --out the card goes to stdout.
-
-`--append CARD` adds evaluations and speed-up sections to an existing card instead, numbered on
-from its last "Evaluation k" and placed before its renders, and (with --preface) replaces its
-preface; the rest of the card, built from results and runs a later session may no longer have,
-is kept as it is. The card's header then names both commands.
+The first builds the card whole: the hand-written source with each `<!-- headline ENTRY (x) -->`
+line replaced by that table of the log entry ENTRY, cut to the headline columns, the formula's
+beside every row. The second adds one dated file per evaluation and per speed-up to the
+append-only log (`docs/evaluations/`), machine paths replaced by placeholders. The third writes
+every table of the given results (and training runs) as one report. Every number is read from a
+results.json (with the exact command that produced it), a training run's state.json / summary.json /
+log.json / results.json, or a log entry made from them; nothing is typed in by hand.
 """
 from __future__ import annotations
 
 import argparse
 import datetime as _dt
 import json
+import re
 import shlex
 import sys
 from pathlib import Path
@@ -25,6 +25,7 @@ from typing import Any
 
 from x2video.eval.checks import orderings, orderings_markdown, speedup_checks
 from x2video.eval.report import results_markdown
+from x2video.io.paths import scrub_paths
 
 
 def _read(path: Path) -> Any:
@@ -167,40 +168,135 @@ def card_markdown(results: list[dict[str, Any]], runs: list[dict[str, Any]], ren
     return "\n".join(out) + "\n"
 
 
-RENDERS_HEADING = "## Renders of held-out shots"
+LOG_ENTRY = re.compile(r"^(\d{4}-\d\d-\d\d)-(evaluation|speedup)-(\d+)\.md$")
 
 
-def append_to_card(card: str, results: list[dict[str, Any]], speedups: list[dict[str, Any]], command: str,
-                   preface: str | None = None) -> str:
-    """`card` with `results` and `speedups` appended as `card_markdown` would write them (see the module docstring)."""
-    lines = card.splitlines()
-    if not lines or lines[0] != "# X2Video model card":
-        raise ValueError("not a model card written by x2video.eval.card (its first line is not '# X2Video model card')")
-    gen = next((i for i, ln in enumerate(lines) if ln.startswith("Generated ")), None)
-    if gen is None:
-        raise ValueError("the model card has no 'Generated ...' line")
-    numbers = [int(ln.split()[-1]) for ln in lines if ln.startswith("## Evaluation ") and ln.split()[-1].isdigit()]
-    first = max(numbers, default=1 if any(ln == "## Evaluation" for ln in lines) else 0) + 1
-    new: list[str] = []
+def _log_numbers(log_dir: Path, kind: str) -> list[int]:
+    return [int(m.group(3)) for p in log_dir.glob("*.md") if (m := LOG_ENTRY.match(p.name)) and m.group(2) == kind]
+
+
+def _as_entry(markdown: str) -> str:
+    """A section of `card_markdown` as a document of its own: headings one level up."""
+    return "\n".join(ln[1:] if ln.startswith("##") else ln for ln in markdown.splitlines()).rstrip() + "\n"
+
+
+def write_log(log_dir: Path, results: list[dict[str, Any]], speedups: list[dict[str, Any]], command: str,
+              date: str | None = None) -> list[Path]:
+    """Add one dated file per evaluation and per speed-up to the evaluation log `log_dir` (numbered on from
+    the last of each kind; a file never changes once written), machine paths replaced by placeholders."""
+    date = date or _dt.date.today().isoformat()
+    log_dir.mkdir(parents=True, exist_ok=True)
+    first_e = max(_log_numbers(log_dir, "evaluation"), default=0) + 1
+    first_s = max(_log_numbers(log_dir, "speedup"), default=0) + 1
+    entries = []
     for i, r in enumerate(results):
-        new.append(results_markdown(r, heading=f"Evaluation {first + i}"))
-        new += ["### Orderings the paper reports, on these numbers", "", orderings_markdown(orderings(r)), ""]
-    for b in speedups:
-        new.append(speedup_markdown(b, _speedup_heading(b)))
-    at = next((i for i, ln in enumerate(lines) if ln.startswith(RENDERS_HEADING)), len(lines))
-    lines = lines[:at] + "\n".join(new).splitlines() + [""] * bool(new) + lines[at:]
-    if not new:  # one line says who wrote the current preface
-        lines = [ln for ln in lines if not ln.startswith("Preface replaced ")]
-    lines.insert(gen + 1, f"{'Sections appended' if new else 'Preface replaced'} {_dt.date.today().isoformat()} by `{command}`.")
-    if preface is not None:
-        start = gen + 2
-        while start < len(lines) and lines[start].startswith(("Sections appended ", "Preface replaced ")):
-            start += 1
-        end = next((i for i, ln in enumerate(lines) if i > start and (ln == "## Training" or ln.startswith("## Evaluation"))), None)
-        if end is None:
-            raise ValueError("the model card has no '## Training' or '## Evaluation' section to keep after the preface")
-        lines = lines[:start] + ["", *preface.strip().splitlines(), ""] + lines[end:]
-    return "\n".join(lines) + "\n"
+        n = first_e + i
+        md = results_markdown(r, heading=f"Evaluation {n} ({date})")
+        md += "\n### Orderings the paper reports, on these numbers\n\n" + orderings_markdown(orderings(r)) + "\n"
+        entries.append((log_dir / f"{date}-evaluation-{n:02d}.md", md))
+    for i, b in enumerate(speedups):
+        n = first_s + i
+        entries.append((log_dir / f"{date}-speedup-{n:02d}.md", speedup_markdown(b, f"Speed-up {n} ({date}): {_speedup_heading(b)}")))
+    from x2video.io.atomic import write_text_atomic
+
+    for path, md in entries:
+        head, _, rest = _as_entry(md).partition("\n")
+        write_text_atomic(path, scrub_paths(f"{head}\n\nAdded by `{command}`.\n{rest}"))
+    write_text_atomic(log_dir / "README.md", log_index(log_dir))
+    return [path for path, _ in entries]
+
+
+def log_index(log_dir: Path) -> str:
+    """README.md of the evaluation log: what it is and one row per entry (title, tables, video weights)."""
+    rows = []
+    for p in sorted(log_dir.glob("*.md")):
+        if p.name == "README.md":
+            continue
+        lines = p.read_text(encoding="utf-8").splitlines()
+        tables = "".join(ln[4] for ln in lines if re.match(r"^## \([a-d]\)", ln))
+        weights = next((ln.split(": (", 1)[1].split(",")[0] for ln in lines if ln.startswith("- Model (video): (")), "")
+        if not weights and LOG_ENTRY.match(p.name):
+            weights = next((m.group(1) for ln in lines[:6] if (m := re.search(r"--weights (\S+)", ln))), "(shipped)")
+        rows.append(f"| [{p.stem}]({p.name}) | {lines[0].lstrip('# ')} | {tables} | {weights.strip('`')} |")
+    return "\n".join([
+        "# Evaluation log",
+        "",
+        "Append-only: one dated file per evaluation (`x2video eval`) and per back-to-back speed-up",
+        "(`python -m bench.lcm_speedup`), written by `python -m x2video.eval.card RESULTS... [--speedup JSON...]",
+        "--log docs/evaluations`, which also rewrites this index. An entry is never edited after it is",
+        "written; a later measurement is a new entry. Machine paths are placeholders: DATA/ (data sets",
+        "from `x2video dataset make`), RUNS/ (training runs), RESULTS/ (`x2video eval --out` folders),",
+        "TMP/. The model card (resources/MODEL_CARD.md) quotes the headline entries that",
+        "docs/model_card.md names; the notebook holds the reasoning and session notes behind them.",
+        "",
+        "| entry | title | tables | video weights |",
+        "|---|---|---|---|",
+        *rows,
+    ]) + "\n"
+
+
+#: a line of the card's source that becomes a headline table: `<!-- headline ENTRY (x) -->`, ENTRY a log file's name
+HEADLINE = re.compile(r"^<!-- headline (?P<entry>\S+\.md) \((?P<table>[a-d])\) -->$")
+#: the columns a headline table keeps, as the log's tables name them, and what the card calls them
+HEADLINE_COLUMNS = (("PSNR↑", "PSNR↑"), ("SSIM↑", "SSIM↑"), ("TC↓", "TC↓"), ("s/frame↓", "s/frame↓"),
+                    ("classical PSNR↑", "formula PSNR↑"), ("classical TC↓", "formula TC↓"))
+
+
+def _markdown_table(lines: list[str], start: int) -> list[list[str]]:
+    """The rows (header first, the |---| line dropped) of the Markdown table at or after `lines[start]`."""
+    i = next(i for i in range(start, len(lines)) if lines[i].startswith("|"))
+    rows = []
+    while i < len(lines) and lines[i].startswith("|"):
+        cells = [c.strip() for c in re.split(r"(?<!\\)\|", lines[i].strip())[1:-1]]
+        if not all(set(c) <= {"-", ":"} for c in cells):
+            rows.append(cells)
+        i += 1
+    return rows
+
+
+def _escape_pipes(text: str) -> str:
+    return re.sub(r"(?<!\\)\|", r"\\|", text)
+
+
+def headline_table(entry: Path, table: str, link: str) -> list[str]:
+    """Table (`table`) of the log entry `entry`, cut to the headline columns with the formula's beside each
+    row, then where it comes from and the command that reproduces it."""
+    lines = entry.read_text(encoding="utf-8").splitlines()
+    at = next((i for i, ln in enumerate(lines) if ln.startswith(f"## ({table})")), None)
+    if at is None:
+        raise ValueError(f"{entry}: no table ({table})")
+    header, *rows = _markdown_table(lines, at)
+    cols = [header.index(name) for name, _ in HEADLINE_COLUMNS]
+    out = [f"| {_escape_pipes(lines[at][3:])} | " + " | ".join(label for _, label in HEADLINE_COLUMNS) + " |",
+           "|---|" + "---|" * len(cols)]
+    out += [f"| {r[0]} | " + " | ".join(r[c] for c in cols) + " |" for r in rows]
+    title = lines[0].lstrip("# ")
+    which = "- Data (long): " if table == "c" else "- Data (main): "
+    data = next((ln[len(which):].split(": ", 1)[0] for ln in lines if ln.startswith(which)), "")
+    reproduce = next((ln for ln in lines if ln.startswith("Reproduce: ")), "")
+    out += ["", f"From [{title}]({link}): {data}." + (f" {reproduce}" if reproduce else "")]
+    return out
+
+
+def build_card(source: Path, log_dir: Path, out_path: Path) -> str:
+    """The model card to write at `out_path`: `source` (Markdown) with each `<!-- headline ENTRY (x) -->`
+    line replaced by `headline_table` of that entry of `log_dir`."""
+    import os
+
+    link_base = Path(os.path.relpath(log_dir.resolve(), out_path.resolve().parent)).as_posix() + "/"
+    command = shlex.join(["python", "-m", "x2video.eval.card", "--card", source.as_posix(), "--log", log_dir.as_posix(),
+                          "--out", out_path.as_posix()])
+    out = [f"<!-- Generated by `{command}`: edit {source.as_posix()} (and add to {log_dir.as_posix()}/), not this file. -->", ""]
+    for ln in source.read_text(encoding="utf-8").splitlines():
+        m = HEADLINE.match(ln.strip())
+        if m is None:
+            out.append(ln)
+            continue
+        entry = log_dir / m.group("entry")
+        if not entry.is_file():
+            raise FileNotFoundError(f"{source}: headline names {entry}, which does not exist")
+        out += headline_table(entry, m.group("table"), f"{link_base}{entry.name}")
+    return "\n".join(out).rstrip() + "\n"
 
 
 def _speedup_heading(b: dict[str, Any]) -> str:
@@ -216,40 +312,42 @@ def _speedup_heading(b: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m x2video.eval.card", description=__doc__.split("\n\n")[0])
-    p.add_argument("results", nargs="*", type=Path, help="`x2video eval` results folders (or results.json files); none only "
-                                                          "with --append (e.g. to replace the preface)")
+    p.add_argument("results", nargs="*", type=Path, help="`x2video eval` results folders (or results.json files)")
     p.add_argument("--run", action="append", type=Path, default=[], help="training run folder (repeat: vae, image, video, lcm)")
     p.add_argument("--speedup", action="append", type=Path, default=[],
-                   help="bench/lcm_speedup.py result JSON (repeat): table (d)'s speed-up timed back to back over repeats")
+                   help="bench/lcm_speedup result JSON (repeat): table (d)'s speed-up timed back to back over repeats")
     p.add_argument("--renders", type=Path, help="folder of contact sheets / MP4s (x2video eval --renders N --renders-out DIR)")
-    p.add_argument("--preface", type=Path, help="Markdown placed after the header (data recipe, how to read the card)")
-    p.add_argument("--out", type=Path, help="write the card here (atomically) instead of stdout")
-    p.add_argument("--append", type=Path, metavar="CARD",
-                   help="add these evaluations and speed-ups to the existing card CARD (rewritten in place unless --out)")
+    p.add_argument("--preface", type=Path, help="Markdown placed after the header of a report")
+    p.add_argument("--out", type=Path, help="write the card or report here (atomically) instead of stdout")
+    p.add_argument("--log", type=Path, metavar="DIR", help="add the results and speed-ups to the evaluation log DIR, one dated file each")
+    p.add_argument("--card", type=Path, metavar="SOURCE", help="build the model card from SOURCE and the log (--log, default docs/evaluations)")
     a = p.parse_args(argv)
-    if a.append is not None and (a.run or a.renders):
-        p.error("--append adds evaluations and speed-ups only; --run and --renders need a whole new card")
-    if not a.results and a.append is None:
-        p.error("give at least one results folder")
+    if a.card is not None and (a.results or a.run or a.speedup or a.renders or a.preface):
+        p.error("--card builds the card from its source and the log alone; add results to the log first (--log)")
+    if a.log is not None and a.card is None and (a.run or a.renders or a.preface or a.out):
+        p.error("--log adds evaluations and speed-ups only")
+    if a.card is None and not a.results and not (a.log is not None and a.speedup):
+        p.error("give at least one results folder, or --card")
+    argv_ = sys.argv[1:] if argv is None else argv
+    command = shlex.join(["python", "-m", "x2video.eval.card", *map(str, argv_)])
     try:
-        results = [load_results(r) for r in a.results]
-        runs = [run_facts(r) for r in a.run]
-        speedups = [load_speedup(f) for f in a.speedup]
+        if a.card is not None:
+            log_dir = a.log or Path("docs/evaluations")
+            a.out = out = a.out or Path("resources/MODEL_CARD.md")
+            text = build_card(a.card, log_dir, out)
+        else:
+            results = [load_results(r) for r in a.results]
+            runs = [run_facts(r) for r in a.run]
+            speedups = [load_speedup(f) for f in a.speedup]
+            if a.log is not None:
+                for path in write_log(a.log, results, speedups, command):
+                    print(f"wrote {path}")
+                return 0
+            preface = a.preface.read_text(encoding="utf-8") if a.preface is not None else None
+            text = card_markdown(results, runs, a.renders, command, preface, speedups)
     except (ValueError, FileNotFoundError) as e:
         print(f"model card: error: {e}", file=sys.stderr)
         return 2
-    argv_ = sys.argv[1:] if argv is None else argv
-    preface = a.preface.read_text(encoding="utf-8") if a.preface is not None else None
-    command = shlex.join(["python", "-m", "x2video.eval.card", *map(str, argv_)])
-    if a.append is not None:
-        try:
-            text = append_to_card(a.append.read_text(encoding="utf-8"), results, speedups, command, preface)
-        except (ValueError, FileNotFoundError) as e:
-            print(f"model card: error: {a.append}: {e}", file=sys.stderr)
-            return 2
-        a.out = a.out or a.append
-    else:
-        text = card_markdown(results, runs, a.renders, command, preface, speedups)
     if a.out is None:
         sys.stdout.write(text)
     else:

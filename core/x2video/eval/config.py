@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Literal
 
 from x2video.sampling.events import RenderSettings
 from x2video.sampling.planner import check_max_levels
@@ -47,7 +48,7 @@ class EvalConfig:
     """interpolation windows: pull the generated frames' latent mean toward the references' (`RenderSettings.ref_dc`)"""
     resample: int = RenderSettings.resample
     """DDIM rows, windows with references: RePaint's resampling, each step taken this many times (`RenderSettings.resample`)"""
-    noise: str = RenderSettings.noise
+    noise: Literal["window", "frame"] = RenderSettings.noise
     """how the initial noise is seeded, 'window' or 'frame' (`RenderSettings.noise`); every row alike"""
     noise_shared: float = RenderSettings.noise_shared
     """with noise 'frame': the fraction of the noise's variance all frames share (`RenderSettings.noise_shared`)"""

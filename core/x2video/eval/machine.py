@@ -60,3 +60,5 @@ def machine_label(info: dict[str, Any]) -> str:
     if dev.startswith("cuda") and info.get("cuda"):
         return f"{info['cuda']} ({dev})"
     return f"{info.get('cpu')}, {info.get('cpu_cores')} cores, torch threads {info.get('torch_threads')} (cpu)"
+
+

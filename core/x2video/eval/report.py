@@ -166,7 +166,8 @@ def results_markdown(results: dict[str, Any], *, heading: str | None = "X2Video 
         out.append("- Recursive rows: keyframes re-generated with their neighbours after the first interpolation level (`--seams`)")
     dc = results.get("settings", {}).get("ref_dc", 0.0)  # results from before the option: off
     if dc:
-        out.append(f"- Interpolation windows: generated frames' latent mean pulled {dc:g} of the way to the interpolation of their references' (`--ref-dc {dc:g}`)")
+        out.append(f"- Interpolation windows: generated frames' latent mean pulled {dc:g} of the way to the interpolation of their "
+                   f"references' (`--ref-dc {dc:g}`)")
     if results.get("settings", {}).get("resample", 1) != 1:
         r = results["settings"]["resample"]
         out.append(f"- DDIM rows: windows with reference frames take each step but the first and last {r} times (RePaint's resampling, `--resample {r}`)")

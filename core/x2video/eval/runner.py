@@ -26,7 +26,7 @@ from x2video.eval.tables import PAPER, PAPER_NOTE, TITLES, RowSpec, table_rows
 from x2video.metrics.suite import DEFINITIONS
 from x2video.metrics.unavailable import unavailable_metrics
 from x2video.model.api import RenderModel
-from x2video.sampling.events import CancelToken, Cancelled, FramesReady, RenderCancelled, RenderSettings
+from x2video.sampling.events import Cancelled, CancelToken, FramesReady, RenderCancelled, RenderSettings
 from x2video.sampling.renderer import Renderer
 
 log = logging.getLogger(__name__)
@@ -216,7 +216,8 @@ def _notes(table: str, config: EvalConfig, data: dict[str, list[EvalShot]]) -> l
     notes = []
     if table == "a":
         notes.append(
-            f"the image model (XRGB-style UNet; 27 inputs with the shading prior) renders every frame independently, {config.image_window} frames per UNet call; "
+            "the image model (XRGB-style UNet; 27 inputs with the shading prior) renders every frame independently, "
+            f"{config.image_window} frames per UNet call; "
             f"the video model uses Recursive Sampling with N={config.window}"
         )
     if table == "b":

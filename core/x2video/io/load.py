@@ -4,6 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from x2video.channels import INTRINSIC
 from x2video.shot import Shot
 
 
@@ -17,7 +18,7 @@ def detect_format(path: str | Path) -> str:
     if p.is_file():
         if p.suffix.lower() == ".exr":
             return "multilayer"
-        if p.name.lower().endswith(tuple(f"-{c}{e}" for c in ("albedo", "normal", "roughness", "metallic", "irradiance", "ref") for e in (".png", ".jpg", ".jpeg", ".exr"))):
+        if p.name.lower().endswith(tuple(f"-{c}{e}" for c in (*INTRINSIC, "ref") for e in (".png", ".jpg", ".jpeg", ".exr"))):
             return "xrgb"
         raise ValueError(f"{p}: not a shot (give a shot folder, a multi-layer EXR, or an XRGB '<name>-albedo.png' file)")
     if channel_folders(p):

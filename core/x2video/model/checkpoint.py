@@ -12,31 +12,18 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import torch
 from safetensors.torch import load_file, save_file
 from torch import nn
 
+from x2video.io.atomic import atomic_path, write_text_atomic
 from x2video.model.config import ModelConfig
 
 FORMAT = "x2video-model"
 VERSION = 1
 PARTS = ("unet", "vae", "lcm_unet", "channel_encoder")
-
-
-def _atomic_write(path: Path, write) -> None:
-    """Write via a temp file in the same folder, then os.replace (a kept file is never half-written)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def _cast_state(state: dict[str, torch.Tensor], dtype: torch.dtype, part: str) -> dict[str, torch.Tensor]:
@@ -63,14 +50,9 @@ def save_checkpoint(directory: str | os.PathLike, config: ModelConfig, modules: 
         if name not in PARTS:
             raise ValueError(f"unknown checkpoint part {name!r} (expected one of {PARTS})")
         sd = _cast_state(module.state_dict() if isinstance(module, nn.Module) else module, dtype, name)
-        _atomic_write(out / f"{name}.safetensors", lambda tmp, sd=sd: save_file(sd, tmp, metadata={"format": FORMAT}))
-    text = json.dumps({"format": FORMAT, "version": VERSION, "config": config.to_dict()}, indent=2, sort_keys=True)
-
-    def write_json(tmp: str) -> None:
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(text)
-
-    _atomic_write(out / "config.json", write_json)
+        with atomic_path(out / f"{name}.safetensors") as tmp:  # a kept file is never half-written
+            save_file(sd, str(tmp), metadata={"format": FORMAT})
+    write_text_atomic(out / "config.json", json.dumps({"format": FORMAT, "version": VERSION, "config": config.to_dict()}, indent=2, sort_keys=True))
     return out
 
 

@@ -11,8 +11,10 @@ import json
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from x2video.channels import VAE_ENCODED
+
 #: Channels that go through the VAE and carry their own latent scaling factor (DESIGN.md).
-LATENT_SCALE_KEYS = ("albedo", "normal", "roughness", "metallic", "rgb")
+LATENT_SCALE_KEYS = (*VAE_ENCODED, "rgb")
 #: what encodes the conditioning channels (`X2VideoModel.from_pretrained(channel_encoder=...)`, `--channel-encoder`):
 #: the VAE's encoder, the folder's distilled `channel_encoder.safetensors`, or the distilled one when present.
 #: "auto" by default: on the shipped model the distilled encoder renders within 0.02 dB of the VAE's in all

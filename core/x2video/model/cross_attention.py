@@ -16,7 +16,7 @@ from diffusers.models.attention_processor import Attention
 from torch import nn
 
 from x2video.model.context import AttnContext
-from x2video.model.hybrid_attention import heads_merge, heads_split
+from x2video.model.processor_io import head_mask, heads_merge, heads_split, tokens_in, tokens_out
 
 
 class MaskedCrossAttnProcessor(nn.Module):
@@ -32,22 +32,11 @@ class MaskedCrossAttnProcessor(nn.Module):
         x2v: AttnContext | None = None,
     ) -> torch.Tensor:
         residual = hidden_states
-        if attn.spatial_norm is not None:
-            hidden_states = attn.spatial_norm(hidden_states, temb)
-        input_ndim = hidden_states.ndim
-        if input_ndim == 4:
-            bn, channel, height, width = hidden_states.shape
-            hidden_states = hidden_states.view(bn, channel, height * width).transpose(1, 2)  # (BN, L, C)
-        if attn.group_norm is not None:
-            hidden_states = attn.group_norm(hidden_states.transpose(1, 2)).transpose(1, 2)
-        x = hidden_states  # (BN, Lq, C)
+        x, shape = tokens_in(attn, hidden_states, temb)  # (BN, Lq, C)
         text = x if encoder_hidden_states is None else encoder_hidden_states  # (BN, Lt, D)
         if encoder_hidden_states is not None and attn.norm_cross:
             text = attn.norm_encoder_hidden_states(text)
-        mask = None
-        if attention_mask is not None:
-            mask = attn.prepare_attention_mask(attention_mask, text.shape[1], x.shape[0])
-            mask = mask.view(x.shape[0], attn.heads, -1, mask.shape[-1])
+        mask = head_mask(attn, attention_mask, text.shape[1], x.shape[0])
 
         q = heads_split(attn.to_q(x), attn.heads)  # (BN, H, Lq, d)
         k = heads_split(attn.to_k(text), attn.heads)  # (BN, H, Lt, d)
@@ -63,11 +52,7 @@ class MaskedCrossAttnProcessor(nn.Module):
             out = out + self.local(attn, q, x2v)
 
         out = attn.to_out[1](out)  # dropout
-        if input_ndim == 4:
-            out = out.transpose(-1, -2).reshape(bn, channel, height, width)
-        if attn.residual_connection:
-            out = out + residual
-        return out / attn.rescale_output_factor
+        return tokens_out(attn, out, residual, shape)
 
     @staticmethod
     def local(attn: Attention, q: torch.Tensor, ctx: AttnContext) -> torch.Tensor:

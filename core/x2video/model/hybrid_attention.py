@@ -23,6 +23,7 @@ from torch import nn
 from x2video.model.config import HybridConfig
 from x2video.model.context import AttnContext
 from x2video.model.lora import SwitchableQKV
+from x2video.model.processor_io import head_mask, heads_merge, heads_split, tokens_in, tokens_out
 
 REF_BRANCHES = ("r0", "r1")
 
@@ -30,18 +31,6 @@ REF_BRANCHES = ("r0", "r1")
 def temporal_branches(interp_levels: int) -> tuple[str, ...]:
     """LoRA branch names of MHF temporal attention: keyframe mode, then one per interpolation level."""
     return ("key",) + tuple(f"interp{k}" for k in range(1, interp_levels + 1))
-
-
-def heads_split(x: torch.Tensor, heads: int) -> torch.Tensor:
-    """(B, L, H*d) -> (B, H, L, d)"""
-    b, n, c = x.shape
-    return x.view(b, n, heads, c // heads).transpose(1, 2)
-
-
-def heads_merge(x: torch.Tensor) -> torch.Tensor:
-    """(B, H, L, d) -> (B, L, H*d)"""
-    b, h, n, d = x.shape
-    return x.transpose(1, 2).reshape(b, n, h * d)
 
 
 def mhf_gather(kv: torch.Tensor, num_frames: int, heads: int) -> torch.Tensor:
@@ -90,19 +79,8 @@ class HybridSelfAttnProcessor(nn.Module):
         if encoder_hidden_states is not None:
             raise ValueError("HybridSelfAttnProcessor is a self-attention processor (attn1); got encoder_hidden_states")
         residual = hidden_states
-        if attn.spatial_norm is not None:
-            hidden_states = attn.spatial_norm(hidden_states, temb)
-        input_ndim = hidden_states.ndim
-        if input_ndim == 4:
-            bn, channel, height, width = hidden_states.shape
-            hidden_states = hidden_states.view(bn, channel, height * width).transpose(1, 2)  # (BN, L, C)
-        if attn.group_norm is not None:
-            hidden_states = attn.group_norm(hidden_states.transpose(1, 2)).transpose(1, 2)
-        x = hidden_states  # (BN, L, C)
-        mask = None
-        if attention_mask is not None:
-            mask = attn.prepare_attention_mask(attention_mask, x.shape[1], x.shape[0])
-            mask = mask.view(x.shape[0], attn.heads, -1, mask.shape[-1])
+        x, shape = tokens_in(attn, hidden_states, temb)  # (BN, L, C)
+        mask = head_mask(attn, attention_mask, x.shape[1], x.shape[0])
 
         # 1. SelfAttn(f^i): the pretrained path, unchanged.
         out = self._attend(attn, attn.to_q(x), attn.to_k(x), attn.to_v(x), mask)  # (BN, H, L, d)
@@ -120,11 +98,7 @@ class HybridSelfAttnProcessor(nn.Module):
 
         out = heads_merge(out).to(x.dtype)  # (BN, L, H*d)
         out = attn.to_out[1](attn.to_out[0](out))
-        if input_ndim == 4:
-            out = out.transpose(-1, -2).reshape(bn, channel, height, width)
-        if attn.residual_connection:
-            out = out + residual
-        return out / attn.rescale_output_factor
+        return tokens_out(attn, out, residual, shape)
 
     # -- branches ----------------------------------------------------------------
     def reference(self, attn: Attention, x: torch.Tensor, ctx: AttnContext) -> torch.Tensor:

@@ -10,9 +10,8 @@ and `unet_inputs` interleaves the noisy latent and reference latents into the UN
 """
 from __future__ import annotations
 
-from typing import Sequence
-
 import functools
+from typing import Sequence
 
 import torch
 from diffusers import UNet2DConditionModel
@@ -20,7 +19,6 @@ from diffusers.schedulers.scheduling_ddim import rescale_zero_terminal_snr
 
 from x2video.model.context import AttnContext
 from x2video.model.unet import IMAGE_IN, IMAGE_IN_PRIOR, INTRINSIC_CHANNELS, LATENT, MASK_CHANNELS, REF_CHANNELS, SHADING_CHANNELS
-
 
 #: what a UNet may output (`ModelConfig.prediction`)
 PREDICTIONS = ("v", "sample")

@@ -102,7 +102,8 @@ class X2VideoModel:
 
     # -- construction -------------------------------------------------------------
     @classmethod
-    def untrained(cls, name: str | ModelConfig = "tiny", *, seed: int = 0, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32, **overrides) -> "X2VideoModel":
+    def untrained(cls, name: str | ModelConfig = "tiny", *, seed: int = 0, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32,
+                  **overrides) -> "X2VideoModel":
         """UNTRAINED (randomly initialised) weights of a preset, for tests and demos: renders are noise."""
         cfg = preset(name, **overrides) if isinstance(name, str) else name
         with torch.random.fork_rng(devices=[]):

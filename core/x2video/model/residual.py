@@ -27,7 +27,6 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-
 #: input feature planes, in order (see `features`)
 FEATURES = ("albedo3", "normal3", "roughness", "metallic", "log_irradiance3", "log_formula3", "present5", "geometry")
 #: where log1p(formula) sits among the input planes (`features`); `apply`'s base
@@ -39,7 +38,7 @@ class ResidualConfig:
     """Shape of the tier-1 network; stored beside its weights so a checkpoint rebuilds itself."""
 
     #: feature channels per level, finest first (the net downsamples by 2 between levels)
-    widths: tuple[int, ...] = (24, 48, 96, 144)
+    widths: tuple[int, ...] = (16, 32, 64, 128)
     #: input planes: 3 + 3 + 1 + 1 + 3 + 3 + 5 present flags + 1 geometry mask
     in_channels: int = 20
 

@@ -23,6 +23,8 @@ from typing import Mapping
 
 import numpy as np
 
+from x2video.channels import INTRINSIC
+
 #: Karis' fitted constants for the analytic environment BRDF.
 _C0 = np.array([-1.0, -0.0275, -0.572, 0.022], np.float32)
 _C1 = np.array([1.0, 0.0425, 1.04, -0.04], np.float32)
@@ -86,4 +88,4 @@ def classical_shading(channels: Mapping[str, np.ndarray | None], amr_mask: np.nd
     return out.astype(np.float32)
 
 
-_USED = ("albedo", "normal", "roughness", "metallic", "irradiance")
+_USED = INTRINSIC

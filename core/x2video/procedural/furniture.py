@@ -150,7 +150,8 @@ def floor_lamp(rng: np.random.Generator) -> Design:
     h, r = rng.uniform(1.4, 1.7), rng.uniform(0.18, 0.25)
     p = [_b(-0.15, 0, -0.15, 0.15, 0.03, 0.15, "accent", kind="cylinder"), _b(-0.015, 0.03, -0.015, 0.015, h - 0.3, 0.015, "accent", kind="cylinder"),
          _b(-r, h - 0.35, -r, r, h, r, "main", False, kind="cylinder")]
-    return Design("floor lamp", p, 2 * r, 2 * r, h, ("fabric",), ("metal",), bulb=(0.0, h - 0.2, 0.0), caption="a floor lamp with {main} shade on {accent} stand")
+    return Design("floor lamp", p, 2 * r, 2 * r, h, ("fabric",), ("metal",), bulb=(0.0, h - 0.2, 0.0),
+                  caption="a floor lamp with {main} shade on {accent} stand")
 
 
 def table_lamp(rng: np.random.Generator) -> Design:

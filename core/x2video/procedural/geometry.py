@@ -91,9 +91,9 @@ def _cylinder(lo: np.ndarray, hi: np.ndarray, seg: int = 20) -> tuple[np.ndarray
     pos, nrm = [], []
     y0, y1 = lo[1], hi[1]
     for i in range(seg):
-        p00 = (ring[i, 0], y0, ring[i, 1]); p10 = (ring[i + 1, 0], y0, ring[i + 1, 1])
-        p01 = (ring[i, 0], y1, ring[i, 1]); p11 = (ring[i + 1, 0], y1, ring[i + 1, 1])
-        n0 = (nr[i, 0], 0, nr[i, 1]); n1 = (nr[i + 1, 0], 0, nr[i + 1, 1])
+        p00, p10 = (ring[i, 0], y0, ring[i, 1]), (ring[i + 1, 0], y0, ring[i + 1, 1])
+        p01, p11 = (ring[i, 0], y1, ring[i, 1]), (ring[i + 1, 0], y1, ring[i + 1, 1])
+        n0, n1 = (nr[i, 0], 0, nr[i, 1]), (nr[i + 1, 0], 0, nr[i + 1, 1])
         pos += [p00, p10, p11, p00, p11, p01]
         nrm += [n0, n1, n1, n0, n1, n0]
         pos += [(cx, y1, cz), p01, p11]

@@ -236,10 +236,11 @@ class ProceduralRenderer:
         pad = lambda a, k: np.concatenate([np.asarray(a, np.float32).reshape(n, k), np.zeros((MAX_LIGHTS - n, k), np.float32)])  # noqa: E731
         p["u_nl"].value = n
         if n:
-            p["u_lpos"].write(pad([l.position for l in lights], 3).tobytes())
-            p["u_lcol"].write(pad([l.colour * l.intensity * self._scale for l in lights], 3).tobytes())
-            p["u_lrad2"].write(pad([l.radius**2 for l in lights], 1).tobytes())
-            p["u_ldir"].write(pad([[*(l.direction if l.direction is not None else np.zeros(3)), 1.0 if l.direction is not None else 0.0] for l in lights], 4).tobytes())
+            p["u_lpos"].write(pad([lt.position for lt in lights], 3).tobytes())
+            p["u_lcol"].write(pad([lt.colour * lt.intensity * self._scale for lt in lights], 3).tobytes())
+            p["u_lrad2"].write(pad([lt.radius**2 for lt in lights], 1).tobytes())
+            p["u_ldir"].write(pad([[*(lt.direction if lt.direction is not None else np.zeros(3)), 1.0 if lt.direction is not None else 0.0]
+                                   for lt in lights], 4).tobytes())
         sun = sc.lighting.sun
         p["u_has_sun"].value = 1 if sun is not None else 0
         if sun is not None:

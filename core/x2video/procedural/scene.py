@@ -6,7 +6,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from x2video.procedural import furniture as F
-from x2video.procedural.colors import linear_rgb
 from x2video.procedural.geometry import Part, SceneObject, rotate_y
 from x2video.procedural.lighting import MOODS, Lighting, ceiling_on, light_points_for, sun_for, white_balance
 from x2video.procedural.materials import Material, emissive, sample_material, sky
@@ -295,7 +294,8 @@ def generate_scene(seed: int) -> Scene:
                             off = (i - (k - 1) / 2) * span / k
                             ch = F.chair(rng)
                             gap = ch.depth / 2 + 0.01  # chair pulled out just clear of the table edge
-                            c = origin + (np.array([off, 0, side * ((r[3] - r[1]) / 2 + gap)]) if long_x else np.array([side * ((r[2] - r[0]) / 2 + gap), 0, off]))
+                            c = origin + (np.array([off, 0, side * ((r[3] - r[1]) / 2 + gap)]) if long_x
+                                          else np.array([side * ((r[2] - r[0]) / 2 + gap), 0, off]))
                             t = (2 if side > 0 else 0) if long_x else (3 if side > 0 else 1)
                             put(ch, t, c, _rect(ch, t, c), chair_main)
                 if "rug" in where or ("chairs" in where and rng.random() < 0.6):
@@ -339,7 +339,8 @@ def generate_scene(seed: int) -> Scene:
         r = rng.uniform(0.18, 0.3)
         lit = ceiling_on(mood, len(lamp_bulbs))
         mat = emissive(np.ones(3), 3.0 if lit else 0.0, word="round", name="white")
-        b.add("ceiling light", _caption(mat, "ceiling light"), [Part("cylinder", c - np.array([r, 0.06, r]), c + np.array([r, 0, r]), b.material(mat), False)], False)
+        shade = Part("cylinder", c - np.array([r, 0.06, r]), c + np.array([r, 0, r]), b.material(mat), False)
+        b.add("ceiling light", _caption(mat, "ceiling light"), [shade], False)
         spots.append(c - np.array([0, 0.2, 0]))
     points = light_points_for(mood, rng, ceiling_spots=spots, lamp_bulbs=lamp_bulbs, windows=windows)
     if mood.lamps:

@@ -6,6 +6,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from x2video.channels import ALL
 from x2video.io.shotdir import ShotWriter
 from x2video.procedural.camera import PathConfig, camera_path
 from x2video.procedural.motion import motion_field
@@ -14,7 +15,7 @@ from x2video.procedural.scene import Scene, generate_scene
 from x2video.shot import CameraPose, ShotInfo
 
 #: channels a procedural shot holds (motion besides, on all frames but the last)
-SHOT_CHANNELS = ("albedo", "normal", "roughness", "metallic", "irradiance", "ids", "rgb", "depth")
+SHOT_CHANNELS = ALL
 GENERATOR = "x2video.procedural v1"
 
 

@@ -11,6 +11,7 @@ or one shared Renderer driven from one thread at a time.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import time
 from pathlib import Path
@@ -23,10 +24,11 @@ from x2video.channels import INTRINSIC
 from x2video.conditioning import FrameConditioning, Prompts
 from x2video.model.api import RenderModel, WindowInputs
 from x2video.model.shading import shading_available
+from x2video.sampling import tiers
 from x2video.sampling.cache import CacheStats, ConditioningCache, conditioning_key
 from x2video.sampling.events import (
-    CancelToken,
     Cancelled,
+    CancelToken,
     EventCallback,
     FramesReady,
     RenderCancelled,
@@ -38,7 +40,6 @@ from x2video.sampling.events import (
     StepDone,
     WindowStarted,
 )
-from x2video.sampling import tiers
 from x2video.sampling.planner import Window, last_use, plan, shift
 from x2video.sampling.samplers import Known, alphas_cumprod, mix_noise, sample_ddim, sample_lcm
 from x2video.shot import Shot
@@ -258,13 +259,13 @@ class Renderer:
         log.info("quality %s: tier %s (%s)", settings.quality, choice.tier, choice.reason)
         if edits is None:
             prompts, reference = Prompts(), None
-            conditioning: Callable[[int], FrameConditioning] = lambda t: plain_conditioning(shot, t)
+            conditioning: Callable[[int], FrameConditioning] = functools.partial(plain_conditioning, shot)
         else:
             from x2video.edits import apply_edits, resolve_reference
 
             prompts = edits.prompts()
             reference = resolve_reference(shot, edits, base_dir) if choice.tier == "diffusion" else None
-            conditioning = lambda t: apply_edits(shot, edits, t)
+            conditioning = functools.partial(apply_edits, shot, edits)
         if choice.tier in ("formula", "residual"):
             self._render_direct(shot, settings, choice, conditioning, emit, cancel, done, t0)
             return

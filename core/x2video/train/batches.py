@@ -20,58 +20,15 @@ from typing import Iterator
 import numpy as np
 import torch
 
+from x2video.channels import INTRINSIC, VAE_ENCODED
+from x2video.model.config import LATENT_SCALE_KEYS
 from x2video.model.vae import area_downsample
 from x2video.train.cache import SHADING_KEYS, load_split, load_text, read_info, shading_key
+from x2video.train.config import AugmentConfig, WindowConfig
 from x2video.train.loop import process_index
 
-CHANNELS = ("albedo", "normal", "roughness", "metallic", "irradiance")
+CHANNELS = INTRINSIC
 AMR = ("albedo", "roughness", "metallic")
-
-
-@dataclass
-class AugmentConfig:
-    """Conditioning augmentation (field docstrings are CLI help)."""
-
-    channel_drop_p: float = 0.5
-    """Probability of dropping each intrinsic channel (XRGB / paper: 0.5)."""
-    prompt_drop_p: float = 0.3
-    """Probability the global prompt is "" instead of the room's caption."""
-    mask_p: float = 0.5
-    """Probability a sample has A|M|R-masked objects (then 1..max_masks of them)."""
-    max_masks: int = 5
-    local_prompt_p: float = 0.8
-    """Probability a masked object carries its caption as a local prompt."""
-    min_object_frac: float = 0.01
-    """Objects covering less of the first frame than this are not picked for masks."""
-    ref_shift_p: float = 0.0
-    """Probability a window with references has its target and its references shifted alike by a random
-    latent offset per object (and one for the whole window), so that what the references show beyond
-    the channels is what the other frames must show too (`object_shift`); 0: off, as the shipped
-    weights were trained (on the CPU it made recursive sampling worse, docs/TRAINING.md). Windows
-    without references are never shifted."""
-    ref_shift_std: float = 0.3
-    """Largest standard deviation of those offsets, as a fraction of each RGB latent channel's standard
-    deviation over the split (each window draws its own fraction in [0, this])."""
-
-
-@dataclass
-class WindowConfig:
-    """How video windows are drawn (paper Sec. Recursive Sampling / Implementation: N=5, K=3)."""
-
-    frames: int = 5
-    """N: frames per window."""
-    levels: int = 3
-    """K: keyframe windows use stride (N-1)^(k-1) for k in 1..K; interpolation levels 1..K."""
-    interp_p: float = 0.5
-    """Probability a batch is interpolation-mode windows (else keyframe-mode)."""
-    ref_p_key: float = 0.5
-    """Probability keyframe windows carry the start frame as reference."""
-    ref_p_interp: float = 0.5
-    """Probability interpolation windows carry the start and end frames as references."""
-    reverse_p: float = 0.5
-    """Probability the windows run backwards in time (the planner's backward keyframe windows)."""
-    short_p: float = 0.1
-    """Probability of a shorter window (the planner's tail windows), 2..N-1 frames (3.. interpolating)."""
 
 
 @dataclass
@@ -106,7 +63,7 @@ class LatentData:
         self.info = read_info(cache_dir)
         t = load_split(cache_dir, split)
         self.shading_prior = shading_prior
-        self.lat = {k: (t[k].float() * latent_scales[k]).half() for k in ("albedo", "normal", "roughness", "metallic", "rgb")}
+        self.lat = {k: (t[k].float() * latent_scales[k]).half() for k in LATENT_SCALE_KEYS}
         if shading_prior:
             self.lat.update({k: (t[k].float() * latent_scales["rgb"]).half() for k in SHADING_KEYS})
         self.irradiance = t["irradiance"]  # (F, 3, h, w) float16
@@ -134,7 +91,7 @@ class LatentData:
         h, w = self.latent_size
         m = area_downsample(amr_mask, (h, w)) if amr_mask is not None else torch.zeros(n, 1, h, w)  # (n, 1, h, w)
         parts = []
-        for name in ("albedo", "normal", "roughness", "metallic"):
+        for name in VAE_ENCODED:
             z = self.lat[name][rows].float() if keep[name] else torch.zeros(n, 4, h, w)
             parts.append(z * (1 - m) if name in AMR else z)
         parts.append(self.irradiance[rows].float() if keep["irradiance"] else torch.zeros(n, 3, h, w))

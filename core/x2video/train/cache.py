@@ -33,9 +33,10 @@ import torch
 from diffusers import AutoencoderKL
 from safetensors.torch import load_file, save_file
 
+from x2video.channels import INTRINSIC
 from x2video.io.atomic import atomic_path, write_json_atomic
 from x2video.model.checkpoint import save_checkpoint
-from x2video.model.config import ModelConfig
+from x2video.model.config import LATENT_SCALE_KEYS, ModelConfig
 from x2video.model.shading import classical_shading
 from x2video.model.text import TextEncoder, build_text_encoder
 from x2video.model.vae import area_downsample, encode_mode, images_to_tensor, irradiance_to_unit, measure_latent_scales, to_vae_range
@@ -44,10 +45,10 @@ from x2video.train.data import read_frame
 
 log = logging.getLogger(__name__)
 
-VAE_KEYS = ("albedo", "normal", "roughness", "metallic", "rgb")
+VAE_KEYS = LATENT_SCALE_KEYS
 #: shading prior variants: "shading_<S><M>", S = specular term present, M = metallic present
 SHADING_KEYS = ("shading_11", "shading_10", "shading_01", "shading_00")
-READ = ("albedo", "normal", "roughness", "metallic", "irradiance", "rgb", "ids")
+READ = (*INTRINSIC, "rgb", "ids")
 FORMAT = "x2video-latent-cache"
 
 

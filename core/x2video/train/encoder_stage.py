@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from safetensors.torch import load_file
 
+from x2video.channels import INTRINSIC, VAE_ENCODED
 from x2video.model.channel_encoder import ChannelEncoder
 from x2video.model.checkpoint import PARTS, load_into, save_checkpoint
 from x2video.model.config import ModelConfig
@@ -42,7 +43,7 @@ log = logging.getLogger(__name__)
 
 #: the images the student learns, and the latent scale each is multiplied by in the UNet's input
 IMAGES = {"albedo": "albedo", "normal": "normal", "roughness": "roughness", "metallic": "metallic", "shading": "rgb"}
-_READ = ("albedo", "normal", "roughness", "metallic", "irradiance")
+_READ = INTRINSIC
 
 
 @dataclass
@@ -63,7 +64,7 @@ class EncoderStageConfig:
 def frame_images(channels: dict[str, np.ndarray], rng: np.random.Generator) -> list[tuple[str, np.ndarray]]:
     """The (kind, (H, W, 3) image in [-1, 1]) pairs of one frame: the four channels, the full shading
     prior and one variant with metallic or the specular inputs dropped (as a dropped channel makes it)."""
-    out = [(c, to_vae_range(c, channels[c])) for c in ("albedo", "normal", "roughness", "metallic")]
+    out = [(c, to_vae_range(c, channels[c])) for c in VAE_ENCODED]
     out.append(("shading", to_vae_range("shading", classical_shading(channels))))
     variant = dict(channels)
     drop = ("metallic",), ("roughness",), ("normal", "metallic")

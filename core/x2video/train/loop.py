@@ -21,39 +21,12 @@ from typing import Any, Callable, Iterator
 import torch
 from safetensors.torch import load_file, save_file
 
+from x2video.io.atomic import write_json_atomic
+from x2video.train.config import LoopConfig
+
 log = logging.getLogger(__name__)
 
 CKPT_PREFIX = "step-"
-
-
-@dataclass
-class LoopConfig:
-    """Optimisation settings shared by every stage (field docstrings are CLI help)."""
-
-    steps: int = 1000
-    """Total optimiser steps (a resumed run continues up to this number)."""
-    lr: float = 1e-4
-    """Peak AdamW learning rate (after linear warm-up)."""
-    warmup: int = 50
-    """Linear warm-up steps."""
-    lr_half_every: int = 0
-    """Halve the learning rate every this many steps (paper: 20,000); 0 = constant."""
-    weight_decay: float = 0.0
-    grad_clip: float = 1.0
-    ema_decay: float = 0.999
-    """EMA decay of the weights that get saved for inference; 0 disables EMA."""
-    ckpt_every: int = 500
-    """Write a resumable `step-XXXXXXXXX/` checkpoint every this many steps (and at the end)."""
-    keep_ckpts: int = 2
-    """How many step checkpoints to keep on disk."""
-    time_limit_s: float = 0.0
-    """Stop (with a checkpoint) after this many seconds of training; 0 = no limit."""
-    seed: int = 0
-    mixed_precision: str = "no"
-    """accelerate mixed precision: "no", "fp16" or "bf16" (GPU)."""
-    workers: int = 0
-    """Processes drawing batches ahead of the optimiser (0: drawn in the training process). Not
-    part of what a run is: a run resumes with any number, with fresh batches either way."""
 
 
 @dataclass
@@ -223,7 +196,7 @@ def train(
         (tmp / "state.json").write_text(json.dumps({"step": step, "loop": asdict(cfg), "stage_config": stage_config}, indent=1))
         shutil.rmtree(ck, ignore_errors=True)
         os.replace(tmp, ck)
-        _write_json_atomic(out_dir / "log.json", history)
+        write_json_atomic(out_dir / "log.json", history, indent=None)
         for old in list_checkpoints(out_dir)[: -max(1, cfg.keep_ckpts)]:
             shutil.rmtree(old, ignore_errors=True)
 
@@ -312,11 +285,5 @@ def train(
             "device": str(accel.device),
         }
         if accel.is_main_process:
-            _write_json_atomic(out_dir / "summary.json", summary)
+            write_json_atomic(out_dir / "summary.json", summary, indent=None)
     return last_ck
-
-
-def _write_json_atomic(path: Path, obj: Any) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(obj))
-    os.replace(tmp, path)

@@ -25,6 +25,7 @@ import torch
 from safetensors.torch import load_file
 
 from x2video.eval.data import training_size
+from x2video.io.paths import portable_path
 from x2video.model.checkpoint import PARTS, read_config, save_checkpoint
 from x2video.train.runs import model_dir
 
@@ -36,11 +37,11 @@ def _copy_fp16(src: Path, dst: Path) -> dict[str, Any]:
     if "unet" not in parts or "vae" not in parts:
         raise FileNotFoundError(f"{src}: a shippable model needs unet.safetensors and vae.safetensors")
     save_checkpoint(dst, read_config(src), parts, dtype=torch.float16)
-    return {"source": str(src.resolve()), "bytes": {p: (dst / f"{p}.safetensors").stat().st_size for p in parts}}
+    return {"source": portable_path(src.resolve()), "bytes": {p: (dst / f"{p}.safetensors").stat().st_size for p in parts}}
 
 
 def _run_doc(run: Path) -> dict[str, Any]:
-    doc: dict[str, Any] = {"path": str(run)}
+    doc: dict[str, Any] = {"path": portable_path(run)}
     for name in ("summary.json", "results.json"):
         f = run / name
         if f.is_file():

@@ -1,0 +1,31 @@
+"""`ruff check` (its rules in pyproject.toml) passes on the product code, the benches and the tests."""
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _ruff() -> str | None:
+    beside = Path(sys.executable).with_name("ruff")
+    return str(beside) if beside.is_file() else shutil.which("ruff")
+
+
+def test_ruff_check_passes():
+    ruff = _ruff()
+    if ruff is None:
+        pytest.fail("ruff is not installed: pip install -e '.[test]'")
+    proc = subprocess.run([ruff, "check", "--no-cache", "core", "x2video_app", "bench", "tests"], cwd=ROOT, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_no_machine_paths_in_tracked_files():
+    """Checked-in files name DATA/, RUNS/, ~/ or repository-relative paths, never one machine's folders."""
+    if not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout")
+    pattern = "/" + "|/".join(("work/", "tmp/", "root/", "home/"))
+    proc = subprocess.run(["git", "grep", "-nIE", pattern, "--", ".", ":!tests/test_lint.py"], cwd=ROOT, capture_output=True, text=True)
+    assert proc.stdout == "", "machine paths in tracked files:\n" + proc.stdout[:3000]
