@@ -49,6 +49,8 @@ class ResidualTrainConfig:
     """AdamW peak learning rate (cosine decay to 5 % over `steps`, 100 warm-up steps)."""
     log_weight: float = 0.25
     """Weight of the log1p-space L1 beside the display-space L1."""
+    noisy_p: float = 0.3
+    """Probability that a crop's irradiance is the sampled (noisy) one the shot keeps beside the denoised one."""
     val_every: int = 250
     """Validate on the held-out shots (full frames) every this many steps."""
     ckpt_every: int = 250
@@ -77,17 +79,44 @@ def cache_shot(shot_dir: Path, cache_dir: Path) -> Path:
     if missing:
         raise ValueError(f"{shot_dir}: lacks {', '.join(missing)}; tier-1 training needs the five channels and rgb")
     s = float(shot.info.irradiance_scale)
-    xs, ys = [], []
+    files = sorted(shot_dir.glob("*.exr"))
+    xs, ys, noisy = [], [], []
     for t in range(shot.num_frames):
         fr = shot.frame(t)
-        x, _ = R.features({k: fr[k] for k in INTRINSIC})
+        ch = {k: fr[k] for k in INTRINSIC}
+        x, _ = R.features(ch)
         xs.append(x.astype(np.float16))
         ys.append((np.asarray(fr["rgb"], np.float32) * s).transpose(2, 0, 1).astype(np.float16))
+        raw = noisy_irradiance(files[t]) if len(files) == shot.num_frames else None
+        if raw is not None:
+            xn, _ = R.features({**ch, "irradiance": raw * s})
+            noisy.append(xn[NOISY_PLANES].astype(np.float16))
     cache_dir.mkdir(parents=True, exist_ok=True)
+    extra = {"noisy": np.stack(noisy)} if len(noisy) == len(xs) else {}
     with atomic_path(out) as tmp:
         with open(tmp, "wb") as fh:
-            np.savez(fh, x=np.stack(xs), y=np.stack(ys), scale=np.float32(s))
+            np.savez(fh, x=np.stack(xs), y=np.stack(ys), scale=np.float32(s), **extra)
     return out
+
+
+#: input planes that change when the irradiance is the sampled (noisy) one: log irradiance and log formula
+NOISY_PLANES = slice(8, 14)
+
+
+def noisy_irradiance(frame_file: Path) -> np.ndarray | None:
+    """(H, W, 3) NoisyDiffDir + NoisyDiffInd of a Cycles frame from `x2video.cycles.passes.compositor_output`
+    (the light passes as sampled, before denoising), or None when the file has none."""
+    from x2video.io.image import read_image
+
+    img = read_image(frame_file)
+    names = set(img.channel_names)
+    parts = []
+    for p in ("NoisyDiffDir", "NoisyDiffInd"):
+        comps = [f"{p}.{c}" for c in "RGB"]
+        if not all(c in names for c in comps):
+            return None
+        parts.append(img.stack(comps))
+    return np.nan_to_num(parts[0] + parts[1], nan=0.0, posinf=0.0, neginf=0.0).clip(0, None).astype(np.float32)
 
 
 def shot_dirs(data: Path, split: str) -> list[Path]:
@@ -97,15 +126,19 @@ def shot_dirs(data: Path, split: str) -> list[Path]:
 
 
 class Frames:
-    """All cached frames of some shots in memory (float16), for crops and full-frame validation."""
+    """All cached frames of some shots in memory (float16), for crops and full-frame validation; with
+    `noisy_p` > 0 a crop takes the frame's sampled (noisy) irradiance instead of the denoised one with
+    that probability, where the shot has it (noise augmentation: users' passes are often not denoised)."""
 
-    def __init__(self, files: list[Path]):
-        self.x, self.y, self.scale, self.shot = [], [], [], []
+    def __init__(self, files: list[Path], noisy_p: float = 0.0):
+        self.x, self.y, self.scale, self.shot, self.noisy = [], [], [], [], []
+        self.noisy_p = noisy_p
         for i, f in enumerate(files):
             d = np.load(f)
             for t in range(d["x"].shape[0]):
                 self.x.append(d["x"][t])
                 self.y.append(d["y"][t])
+                self.noisy.append(d["noisy"][t] if "noisy" in d.files else None)
                 self.scale.append(float(d["scale"]))
                 self.shot.append(i)
         if not self.x:
@@ -123,6 +156,8 @@ class Frames:
             s = min(size, h, w)
             r, c = int(rng.integers(h - s + 1)), int(rng.integers(w - s + 1))
             x, y = x[:, r:r + s, c:c + s].astype(np.float32), y[:, r:r + s, c:c + s].astype(np.float32)
+            if self.noisy[i] is not None and rng.random() < self.noisy_p:
+                x[NOISY_PLANES] = self.noisy[i][:, r:r + s, c:c + s]
             if rng.random() < 0.5:  # mirror left-right: the camera-space normal's x changes sign
                 x, y = x[:, :, ::-1].copy(), y[:, :, ::-1].copy()
                 x[3] = -x[3]
@@ -162,7 +197,7 @@ def train(data: Path, out: Path, cfg: ResidualTrainConfig, *, threads: int = 2, 
     val_files = [cache_shot(p, cache) for p in shot_dirs(data, val_split)]
     if not train_files:
         raise ValueError(f"{data}: no finished shots in train/ (make them with `x2video dataset make --renderer cycles`)")
-    tr, va = Frames(train_files), (Frames(val_files) if val_files else None)
+    tr, va = Frames(train_files, cfg.noisy_p), (Frames(val_files) if val_files else None)
     torch.manual_seed(cfg.seed)
     net = R.ResidualNet(R.ResidualConfig(widths=tuple(cfg.widths)))
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=1e-4)
