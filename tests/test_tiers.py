@@ -160,3 +160,18 @@ def test_train_residual_learns_and_resumes(tmp_path):
     assert last["psnr"] > last["psnr_formula"]  # it learned some of the term the formula misses
     s2 = train(tmp_path / "data", out, ResidualTrainConfig(**{**cfg.__dict__, "steps": 40}), threads=1)
     assert s2["steps"] == 40 and len(s2["history"]) == 1  # resumed at 30, validated once at the end
+
+
+def test_onnx_engine_matches_pytorch():
+    net = R.ResidualNet(R.ResidualConfig(widths=(8, 16, 16))).eval()
+    torch.nn.init.normal_(net.out.weight, std=0.1)
+    eng = R.engine(net, "cpu")
+    assert isinstance(eng, R.OnnxResidual)
+    shot = full_shot(1, 37, 53)
+    x, f = (torch.from_numpy(a)[None] for a in R.features(shot.frame(0)))
+    with torch.inference_mode():
+        want = R.apply(net, x, f)
+    got = R.apply(eng, x, f)
+    assert got.shape == want.shape == (1, 3, 37, 53)
+    assert float((got - want).abs().max()) < 1e-4  # stated parity: float32 on both sides
+    assert R.engine(net, "cpu", prefer="torch") is net

@@ -155,7 +155,9 @@ class X2VideoModel:
         if (directory / "residual.safetensors").is_file():
             from x2video.model.residual import load as load_residual
 
-            model.residual_net = load_residual(directory, model.device)
+            from x2video.model.residual import engine
+
+            model.residual_net = engine(load_residual(directory, model.device), model.device)
         return model
 
     def save_pretrained(self, directory: str | os.PathLike, *, dtype: torch.dtype = torch.float32) -> Path:

@@ -116,11 +116,11 @@ def features(ch: Mapping[str, np.ndarray | None]) -> tuple[np.ndarray, np.ndarra
     return np.ascontiguousarray(x.transpose(2, 0, 1)), np.ascontiguousarray(shading.transpose(2, 0, 1))
 
 
-def apply(net: ResidualNet, x: torch.Tensor, shading: torch.Tensor) -> torch.Tensor:
+def apply(net, x: torch.Tensor, shading: torch.Tensor) -> torch.Tensor:
     """Linear radiance (N, 3, H, W) from features and the formula (`features`' second output) of any size
     (reflect-padded to the net's factor, cropped back)."""
     h, w = x.shape[-2:]
-    f = net.cfg.factor
+    f = net.cfg.factor  # an OnnxResidual carries the same cfg
     ph, pw = (-h) % f, (-w) % f
     xp = F.pad(x, (0, pw, 0, ph), mode="reflect" if min(h, w) > max(ph, pw) else "replicate") if ph or pw else x
     delta = net(xp)[..., :h, :w]
@@ -155,3 +155,45 @@ def load(folder: str | Path, device: str | torch.device = "cpu") -> ResidualNet:
     state = load_file(str(folder / "residual.safetensors"))
     net.load_state_dict({k: v.float() for k, v in state.items()})
     return net.to(device).eval()
+
+
+class OnnxResidual:
+    """The tier-1 net run by ONNX Runtime (several times faster than PyTorch on a CPU for this conv stack),
+    exported from the PyTorch net when loaded; called like the net: features (N, C_in, H, W) -> delta.
+    PyTorch stays the reference: `tests/test_tiers.py` checks the two agree."""
+
+    def __init__(self, net: ResidualNet, threads: int | None = None):
+        import io
+
+        import onnxruntime as ort
+
+        self.cfg = net.cfg
+        buf = io.BytesIO()
+        x = torch.zeros(1, net.cfg.in_channels, 8 * net.cfg.factor, 8 * net.cfg.factor)
+        axes = {0: "n", 2: "h", 3: "w"}
+        with torch.no_grad():
+            torch.onnx.export(net.float().cpu().eval(), (x,), buf, input_names=["features"], output_names=["delta"],
+                              dynamic_axes={"features": axes, "delta": axes}, opset_version=17, dynamo=False)
+        so = ort.SessionOptions()
+        so.intra_op_num_threads = int(threads or torch.get_num_threads())
+        so.log_severity_level = 3
+        self.session = ort.InferenceSession(buf.getvalue(), so, providers=["CPUExecutionProvider"])
+
+    def __call__(self, x: torch.Tensor) -> torch.Tensor:
+        out = self.session.run(None, {"features": x.detach().float().cpu().numpy()})[0]
+        return torch.from_numpy(out).to(x.device)
+
+
+def engine(net: ResidualNet, device: torch.device | str = "cpu", prefer: str = "auto"):
+    """What runs the net for rendering: ONNX Runtime on a CPU when it is installed ("auto"/"onnx"), else the
+    PyTorch module ("torch", or any CUDA device)."""
+    if prefer not in ("auto", "onnx", "torch"):
+        raise ValueError(f"unknown tier-1 engine {prefer!r} (auto, onnx, torch)")
+    if prefer == "torch" or torch.device(device).type != "cpu":
+        return net
+    try:
+        return OnnxResidual(net)
+    except ImportError:
+        if prefer == "onnx":
+            raise
+        return net
