@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from x2video.cli.args import BF16_ENCODER_HELP, CHANNEL_ENCODER_HELP, MAX_LEVELS_HELP, NOISE_HELP, NOISE_SHARED_HELP, REF_DC_HELP, RESAMPLE_HELP, SEAMS_HELP
+from x2video.io.units import OutputUnits
 from x2video.model.config import CHANNEL_ENCODERS, DEFAULT_CHANNEL_ENCODER
 from x2video.sampling.events import (
     FramesReady,
@@ -36,6 +37,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--demo-dir", type=Path, default=DEMO_CACHE, help=f"where the demo shot is cached (default {DEMO_CACHE})")
     p.add_argument("--project", type=Path, help="project file with edits, masks, prompts and reference frame (its shot is used when SHOT is not given)")
     p.add_argument("--out", type=Path, required=True, help="output: OUT.mp4 (H.264, sRGB) or a folder of linear EXR frames")
+    p.add_argument("--quality", choices=["formula", "diffusion"], default=d.quality,
+                   help="diffusion (default): the model; formula: no network, albedo x irradiance (+ GGX where "
+                        "roughness and normals are given), exact for diffuse light, any frame size, no weights needed")
+    p.add_argument("--exposure", type=_exposure, default=d.exposure,
+                   help="MP4 exposure in stops on the input's units, or 'auto' (default): the shot's own irradiance "
+                        "normalisation (stated in the log). EXR output is always in the input's units")
     p.add_argument("--preset", choices=["fast", "quality"], help="fast = LCM-2 with distilled weights, else DDIM-4; quality = DDIM-20")
     p.add_argument("--sampler", choices=["ddim", "lcm"], default=d.sampler, help="sampler (ignored with --preset)")
     p.add_argument("--steps", type=int, default=d.steps, help=f"denoising steps per window (default {d.steps}; ignored with --preset)")
@@ -62,6 +69,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--channel-encoder", choices=CHANNEL_ENCODERS, default=DEFAULT_CHANNEL_ENCODER, help=CHANNEL_ENCODER_HELP)
     p.add_argument("--fps", type=float, help="MP4 frame rate (default: the shot's)")
     p.set_defaults(func=run)
+
+
+def _exposure(text: str) -> float | str:
+    from x2video.io.units import parse_exposure
+
+    try:
+        return parse_exposure(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"--exposure: {exc}") from None
 
 
 def _frame_range(text: str) -> tuple[int, int]:
@@ -175,22 +191,31 @@ def run(args: argparse.Namespace) -> int:
         max_levels=args.max_levels,
         noise=args.noise,
         noise_shared=args.noise_shared,
+        quality=args.quality,
+        exposure=args.exposure,
     )
     shot, edits, base_dir = load_inputs(args)
     start, stop = settings.frames or (0, shot.num_frames)
     if not 0 <= start < stop <= shot.num_frames:
         raise ValueError(f"--frames: frame range [{start}, {stop}) outside the shot's {shot.num_frames} frames")
-    plan(settings.scheme, stop - start, settings.window, max_levels=settings.max_levels)  # bad window sizes or levels fail before the model loads
-    model = load_model(args.weights, args.untrained, args.device, args.fp16, args.bf16_encoder, args.channel_encoder)
-    resolved = select_steps(settings, model)
-    renderer = Renderer(model)
+    units = OutputUnits.for_shot(shot, settings.exposure)
+    log.info("%s: %s", args.out, units.describe())
+    if settings.quality == "formula":
+        from x2video.sampling.formula import formula_frames
+
+        render, steps_label, steps = formula_frames, "formula", 1
+    else:
+        plan(settings.scheme, stop - start, settings.window, max_levels=settings.max_levels)  # bad window sizes or levels fail before the model loads
+        model = load_model(args.weights, args.untrained, args.device, args.fp16, args.bf16_encoder, args.channel_encoder)
+        resolved = select_steps(settings, model)
+        render, steps_label, steps = Renderer(model).render, f"{resolved.sampler}-{resolved.steps}", resolved.steps
     t0 = time.perf_counter()
-    bar = tqdm(unit="step", desc=f"render {resolved.sampler}-{resolved.steps}", dynamic_ncols=True)
-    with FrameSink(args.out, fps=args.fps or shot.info.fps, expected=list(range(start, stop))) as sink:
+    bar = tqdm(unit="step", desc=f"render {steps_label}", dynamic_ncols=True)
+    with FrameSink(args.out, fps=args.fps or shot.info.fps, expected=list(range(start, stop)), units=units) as sink:
 
         def on_event(event: RenderEvent) -> None:
             if isinstance(event, RenderStarted):
-                bar.reset(total=event.num_windows * resolved.steps)
+                bar.reset(total=event.num_windows * steps)
             elif isinstance(event, StepDone):
                 bar.update(1)
             elif isinstance(event, FramesReady):
@@ -198,7 +223,7 @@ def run(args: argparse.Namespace) -> int:
             sink(event)
 
         try:
-            renderer.render(shot, edits, settings, on_event=on_event, base_dir=base_dir)
+            render(shot, edits, settings, on_event=on_event, base_dir=base_dir)
         finally:
             bar.close()
     seconds = time.perf_counter() - t0

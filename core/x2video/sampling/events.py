@@ -73,6 +73,14 @@ class RenderSettings:
     noise in between, so the generated frames are denoised again against the references pasted in
     at that level (`x2video.sampling.samplers.sample_ddim`). 1 (default): off; r costs those
     windows about r times the network passes."""
+    quality: Literal["formula", "diffusion"] = "diffusion"
+    """'diffusion' (default): the diffusion sampler. 'formula': no network, the classical shading
+    of the (edited) channels, albedo x irradiance (+ split-sum GGX where roughness and normals are
+    given), frame by frame (`x2video.sampling.formula.formula_frames`)."""
+    exposure: float | str = "auto"
+    """MP4 exposure in stops on the input's radiometric units, or 'auto' (default): the shot's own
+    irradiance normalisation, i.e. what the model saw (`x2video.io.units.OutputUnits`). EXR output
+    is always in the input's units."""
     preset: Literal["fast", "quality"] | None = None
     """Overrides sampler and steps when set: 'fast' = LCM-2 if distilled weights are loaded, else
     DDIM-4; 'quality' = DDIM-20 (`x2video.sampling.renderer.select_steps`)."""
