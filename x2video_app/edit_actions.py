@@ -186,7 +186,7 @@ class EditActions(QObject):
         except Exception as e:
             self.win.show_error("Cannot write the reference frame", f"{path}:\n{e}")
             return False
-        self._set(("reference",), f"Use rendered frame {t} as reference", lambda val: setattr(self.e, "reference", val), self.e.reference, edit_ops.Reference(path=str(path)), "reference")
+        self._set(("reference",), f"Use rendered frame {t} as reference", lambda val: setattr(self.e, "reference", val), self.e.reference, edit_ops.Reference(path=str(path), at=t), "reference")
         return True
 
     def clear_reference(self) -> None:

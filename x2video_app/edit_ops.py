@@ -321,7 +321,7 @@ def reference_text(e: Edits) -> str:
     if r is None:
         return "No reference: the model follows the channels and prompts only."
     if r.path is not None:
-        return f"Image {Path(r.path).name} (placed at frame 0)"
+        return f"Image {Path(r.path).name} (placed at frame {r.position})"
     return f"Shot frame {r.frame} (rgb channel)"
 
 
