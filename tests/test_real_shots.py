@@ -88,3 +88,64 @@ def test_exposure_must_be_auto_or_stops(tmp_path, capsys):
     with pytest.raises(SystemExit):
         cli(["render", "--demo", "--exposure", "bright", "--out", str(tmp_path / "a.mp4")])
     assert "--exposure" in capsys.readouterr().err
+
+
+def _shot_folder(root, frames, h, w, seed=0):
+    from x2video.io.shotdir import ShotWriter
+    from x2video.shot import ArrayShot
+
+    rng = np.random.default_rng(seed)
+    n = np.zeros((frames, h, w, 3), np.float32)
+    n[..., 2] = 1
+    shot = ArrayShot({
+        "albedo": rng.uniform(0, 1, (frames, h, w, 3)).astype(np.float32),
+        "normal": n,
+        "roughness": np.full((frames, h, w, 1), 0.5, np.float32),
+        "irradiance": rng.uniform(0, 2, (frames, h, w, 3)).astype(np.float32),
+    })
+    with ShotWriter(root, shot.info) as wr:
+        for t in range(frames):
+            wr.write_frame(t, shot.frame(t))
+    return root
+
+
+def test_53x37_renders_with_the_tiny_model(tmp_path):
+    """Not a multiple of the VAE factor 8: padded for the model (real UNet and VAE, untrained) and cropped back."""
+    import torch
+
+    torch.set_num_threads(1)
+    shot = _shot_folder(tmp_path / "odd", 3, 37, 53)
+    out = tmp_path / "frames"
+    assert cli(["render", str(shot), "--untrained", "--device", "cpu", "--steps", "1", "--window", "3", "--out", str(out)]) == 0
+    for t in range(3):
+        img = read_image(out / f"{t:06d}.exr")
+        assert (img.height, img.width) == (37, 53)
+        assert np.isfinite(img.stack(["R", "G", "B"])).all()
+
+
+def test_1366x768_formula_and_model_sizes(tmp_path):
+    """1366 is not a multiple of 8: the formula path needs no padding, the Renderer pads to 1368 and crops back."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from sampling_fake import FakeModel, make_shot
+    from x2video.sampling.events import FramesReady, RenderSettings
+    from x2video.sampling.renderer import Renderer
+
+    shot = _shot_folder(tmp_path / "hd", 1, 768, 1366)
+    out = tmp_path / "hd_out"
+    assert cli(["render", str(shot), "--quality", "formula", "--out", str(out)]) == 0
+    img = read_image(out / "000000.exr")
+    assert (img.height, img.width) == (768, 1366)
+    from x2video.model.shading import classical_shading
+
+    want = classical_shading(load_shot(shot).frame(0))
+    np.testing.assert_allclose(img.stack(["R", "G", "B"])[::7, ::9], want[::7, ::9], rtol=2e-3, atol=2e-3)
+
+    events: list = []
+    model = FakeModel()
+    Renderer(model).render(make_shot(2, height=768, width=1366), None, RenderSettings(steps=1, window=2), on_event=events.append)
+    frames = {f: a for e in events if isinstance(e, FramesReady) for f, a in e.frames.items()}
+    assert sorted(frames) == [0, 1] and all(a.shape == (768, 1366, 3) for a in frames.values())
+    assert model.windows[0].cond.shape[-2:] == (96, 171)  # 768 x 1368 in the model
