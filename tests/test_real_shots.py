@@ -149,3 +149,20 @@ def test_1366x768_formula_and_model_sizes(tmp_path):
     frames = {f: a for e in events if isinstance(e, FramesReady) for f, a in e.frames.items()}
     assert sorted(frames) == [0, 1] and all(a.shape == (768, 1366, 3) for a in frames.values())
     assert model.windows[0].cond.shape[-2:] == (96, 171)  # 768 x 1368 in the model
+
+
+def test_info_exits_1_on_a_corrupt_png(tmp_path, capsys):
+    from x2video.io.image import write_ldr
+
+    rng = np.random.default_rng(0)
+    for t in range(3):
+        write_ldr(tmp_path / "shot" / "albedo" / f"{t:04d}.png", rng.uniform(0, 1, (8, 10, 3)))
+    assert cli(["info", str(tmp_path / "shot"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["problems"] == []
+    bad = tmp_path / "shot" / "albedo" / "0002.png"
+    bad.write_bytes(bad.read_bytes()[:40])  # truncated
+    assert cli(["info", str(tmp_path / "shot"), "--json"]) == 1
+    rep = json.loads(capsys.readouterr().out)
+    assert len(rep["problems"]) == 1 and "0002.png" in rep["problems"][0]
+    assert cli(["info", str(tmp_path / "shot")]) == 1
+    assert "problems (1)" in capsys.readouterr().out
