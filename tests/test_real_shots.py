@@ -166,3 +166,148 @@ def test_info_exits_1_on_a_corrupt_png(tmp_path, capsys):
     assert len(rep["problems"]) == 1 and "0002.png" in rep["problems"][0]
     assert cli(["info", str(tmp_path / "shot")]) == 1
     assert "problems (1)" in capsys.readouterr().out
+
+
+# -- other tools' layouts -------------------------------------------------------------------------
+
+def write_video(path, frames_u8, fps=12, lossless=True):
+    """(T, H, W, 3) uint8 RGB frames as a video with PyAV: lossless RGB H.264 (exact values), or yuv420p as most tools write."""
+    import av
+
+    with av.open(str(path), mode="w") as c:
+        s = c.add_stream("libx264rgb" if lossless else "libx264", rate=fps)
+        s.width, s.height = frames_u8.shape[2], frames_u8.shape[1]
+        s.pix_fmt = "rgb24" if lossless else "yuv420p"
+        s.options = {"crf": "0"} if lossless else {"crf": "12"}
+        for f in frames_u8:
+            for pkt in s.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(f), format="rgb24")):
+                c.mux(pkt)
+        for pkt in s.encode():
+            c.mux(pkt)
+
+
+def vrgbx_frames(T=4, h=16, w=24, seed=0):
+    """uint8 frames of the four V-RGBX channels: Albedo (sRGB), Normal (0.5 n + 0.5), Material (R roughness,
+    G metallic), Irradiance (sRGB)."""
+    rng = np.random.default_rng(seed)
+    n = _unit(rng, (T, h, w, 3))
+    return {
+        "Albedo": rng.integers(0, 256, (T, h, w, 3), dtype=np.uint8),
+        "Normal": np.round((n * 0.5 + 0.5) * 255).astype(np.uint8),
+        "Material": np.concatenate([rng.integers(0, 256, (T, h, w, 2), dtype=np.uint8), np.zeros((T, h, w, 1), np.uint8)], -1),
+        "Irradiance": rng.integers(0, 256, (T, h, w, 3), dtype=np.uint8),
+    }
+
+
+def test_vrgbx_video_set_loads_with_packed_material(tmp_path):
+    from x2video.channels import srgb_to_linear
+
+    frames = vrgbx_frames()
+    for name, f in frames.items():
+        write_video(tmp_path / f"scene_{name}.mp4", f)
+    shot = load_shot(tmp_path)
+    assert shot.channels == ("albedo", "normal", "roughness", "metallic", "irradiance")
+    assert (shot.num_frames, *shot.size) == (4, 16, 24) and shot.info.fps == 12.0
+    for t in (2, 0, 3):  # out of order: the decoder goes back
+        np.testing.assert_allclose(shot.channel("albedo", t), srgb_to_linear(frames["Albedo"][t] / 255), atol=1e-6)
+        np.testing.assert_allclose(shot.channel("roughness", t)[..., 0], frames["Material"][t, ..., 0] / 255, atol=1e-6)
+        np.testing.assert_allclose(shot.channel("metallic", t)[..., 0], frames["Material"][t, ..., 1] / 255, atol=1e-6)
+        n = frames["Normal"][t] / 255 * 2 - 1
+        np.testing.assert_allclose(shot.channel("normal", t), n / np.linalg.norm(n, axis=-1, keepdims=True), atol=1e-5)
+    irr = [srgb_to_linear(frames["Irradiance"][t] / 255) for t in range(4)]
+    from x2video.io.convention import LUM_WEIGHTS
+
+    lum = np.concatenate([(f @ LUM_WEIGHTS).ravel() for f in irr])
+    scale = 0.18 / np.exp(np.log(np.maximum(lum, 1e-6)).mean())
+    assert shot.info.irradiance_scale == pytest.approx(scale, rel=1e-4)
+    np.testing.assert_allclose(shot.channel("irradiance", 1), irr[1] * scale, rtol=1e-5, atol=1e-6)
+    # one file picks its shot among several in the folder
+    write_video(tmp_path / "other_Albedo.mov", frames["Albedo"][:2])
+    with pytest.raises(ValueError, match="several shots"):
+        load_shot(tmp_path)
+    assert load_shot(tmp_path / "other_Albedo.mov").num_frames == 2
+    assert load_shot(tmp_path / "scene_Normal.mp4").channels == shot.channels
+
+
+def test_yuv420p_videos_decode_close_to_their_frames(tmp_path):
+    """What tools usually write (H.264 yuv420p): flat colours come back within 8-bit rounding and chroma loss."""
+    T, h, w = 3, 16, 24
+    colour = np.array([200, 120, 40], np.uint8)
+    write_video(tmp_path / "clip_Albedo.mp4", np.broadcast_to(colour, (T, h, w, 3)).copy(), lossless=False)
+    shot = load_shot(tmp_path)
+    from x2video.channels import srgb_to_linear
+
+    np.testing.assert_allclose(shot.channel("albedo", 1).mean((0, 1)), srgb_to_linear(colour / 255), atol=0.02)
+
+
+def test_mismatched_videos_name_the_file(tmp_path):
+    frames = vrgbx_frames()
+    write_video(tmp_path / "s_Albedo.mp4", frames["Albedo"])
+    write_video(tmp_path / "s_Normal.mp4", frames["Normal"][:3])
+    with pytest.raises(ValueError, match="s_Normal.mp4: 3 frames"):
+        load_shot(tmp_path)
+
+
+@pytest.mark.parametrize("layout", ["vrgbx", "diffusionrenderer"])
+def test_per_channel_frame_folders(tmp_path, layout):
+    from x2video.channels import srgb_to_linear
+    from x2video.io.image import write_ldr
+
+    frames = vrgbx_frames(T=3)
+    names = ({"Albedo": "Albedo", "Normal": "Normal", "Material": "Material", "Irradiance": "Irradiance"} if layout == "vrgbx"
+             else {"Albedo": "basecolor", "Normal": "normal", "roughness": "roughness", "metallic": "metallic"})
+    for t in range(3):
+        for key, folder in names.items():
+            if key in frames:
+                data = frames[key][t]
+            else:  # DiffusionRenderer: one grey image per material channel
+                data = np.repeat(frames["Material"][t][..., :1] if key == "roughness" else frames["Material"][t][..., 1:2], 3, -1)
+            write_ldr(tmp_path / folder / f"{t:04d}.png", data)
+    shot = load_shot(tmp_path)
+    assert {"albedo", "normal", "roughness", "metallic"} <= set(shot.channels)
+    np.testing.assert_allclose(shot.channel("albedo", 2), srgb_to_linear(frames["Albedo"][2] / 255), atol=1e-6)
+    np.testing.assert_allclose(shot.channel("roughness", 1)[..., 0], frames["Material"][1, ..., 0] / 255, atol=1e-6)
+    np.testing.assert_allclose(shot.channel("metallic", 1)[..., 0], frames["Material"][1, ..., 1] / 255, atol=1e-6)
+
+
+def _look_at(eye, target):
+    """4x4 OpenGL camera-to-world looking from eye at target (+Y up)."""
+    eye, target = np.asarray(eye, float), np.asarray(target, float)
+    z = eye - target
+    z /= np.linalg.norm(z)
+    x = np.cross([0, 1, 0], z)
+    x /= np.linalg.norm(x)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = x, np.cross(z, x), z, eye
+    return m
+
+
+def test_transforms_json_nerfstudio_and_instant_ngp(tmp_path):
+    import math
+
+    from x2video.io.image import write_ldr
+
+    T, h, w = 3, 16, 24
+    for t in range(T):
+        write_ldr(tmp_path / "albedo" / f"{t:06d}.png", np.full((h, w, 3), 0.5))
+    mats = [_look_at([t, 1.7, 3], [0, 1, 0]) for t in range(T)]
+    # nerfstudio: focal lengths in pixels, frames listed out of order, 3x4 matrices allowed
+    doc = {"camera_model": "OPENCV", "fl_x": 20.0, "fl_y": 20.0, "cx": 12, "cy": 8, "w": w, "h": h,
+           "frames": [{"file_path": f"images/frame_{t + 1:05d}.png", "transform_matrix": mats[t].tolist()} for t in (2, 0, 1)]}
+    (tmp_path / "transforms.json").write_text(json.dumps(doc))
+    poses = load_shot(tmp_path).info.poses
+    assert len(poses) == T
+    for t in range(T):
+        np.testing.assert_allclose(poses[t].cam_to_world, mats[t])
+        assert poses[t].fov_y_deg == pytest.approx(math.degrees(2 * math.atan(h / 2 / 20.0)))
+    # instant-ngp / NeRF-synthetic: only the horizontal angle, the aspect ratio from the frames
+    doc = {"camera_angle_x": math.radians(90), "frames": [{"file_path": f"./r_{t}", "transform_matrix": mats[t].tolist()} for t in range(T)]}
+    (tmp_path / "transforms.json").write_text(json.dumps(doc))
+    p = load_shot(tmp_path).info.poses[1]
+    assert p.fov_y_deg == pytest.approx(math.degrees(2 * math.atan(math.tan(math.radians(45)) * h / w)))
+    # our cameras.json wins when both are there; anything else names both forms
+    (tmp_path / "cameras.json").write_text(json.dumps({"frames": [{"frame": t, "cam_to_world": np.eye(4).tolist()} for t in range(T)]}))
+    assert np.array_equal(load_shot(tmp_path).info.poses[2].cam_to_world, np.eye(4))
+    (tmp_path / "cameras.json").write_text(json.dumps({"poses": [np.eye(4).tolist()] * T}))
+    with pytest.raises(ValueError, match="cameras.json: not a camera file.*opengl_cam_to_world.*transforms.json"):
+        load_shot(tmp_path)

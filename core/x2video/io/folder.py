@@ -15,22 +15,27 @@ import numpy as np
 
 from x2video.channels import SPECS
 from x2video.io.cache import LRU
-from x2video.io.convention import exposure_scale, log_luminance_sum, to_memory
-from x2video.io.image import read_image, read_spec
+from x2video.io.convention import exposure_scale, log_luminance_sum, sanitize, to_memory, zero_nonfinite
+from x2video.io.image import ImageData, read_image, read_spec
 from x2video.io.sequence import find_frames
-from x2video.io.shotdir import parse_cameras_json, parse_shot_json
+from x2video.io.shotdir import find_poses, parse_shot_json
 from x2video.shot import Shot, ShotInfo
 
 log = logging.getLogger(__name__)
 
-#: folder names accepted for each channel besides its own name
+#: folder names accepted for each channel besides its own name (matched ignoring case, so the
+#: V-RGBX layout's Albedo/ Normal/ Irradiance/ and DiffusionRenderer's basecolor/ load as they are)
 ALIASES: dict[str, tuple[str, ...]] = {
-    "albedo": ("basecolor", "base_color"),
+    "albedo": ("basecolor", "base_color", "diffuse_albedo"),
     "normal": ("normals",),
+    "metallic": ("metalness",),
     "irradiance": ("shading",),
-    "rgb": ("beauty", "image"),
+    "rgb": ("beauty", "image", "images"),
     "ids": ("id", "object_id"),
 }
+#: a packed material folder (V-RGBX): roughness in R, metallic in G; used for the channels that
+#: have no folder of their own
+PACKED = {"material": {"roughness": 0, "metallic": 1}}
 #: at most this many frames (evenly spaced) are read to measure a shot's irradiance exposure
 EXPOSURE_SAMPLES = 16
 
@@ -38,12 +43,21 @@ EXPOSURE_SAMPLES = 16
 def channel_folders(root: Path) -> dict[str, Path]:
     """Channel name -> folder, for the channel folders present in `root`."""
     found: dict[str, Path] = {}
+    if not root.is_dir():
+        return found
+    dirs: dict[str, Path] = {}
+    for p in sorted(root.iterdir()):
+        if p.is_dir() and not p.name.startswith(".") and (p.name.lower() not in dirs or p.name == p.name.lower()):
+            dirs[p.name.lower()] = p  # an exact lower-case name wins over Albedo/ALBEDO
     for name in (*SPECS, "motion"):
         for cand in (name, *ALIASES.get(name, ())):
-            d = root / cand
-            if d.is_dir():
-                found[name] = d
+            if cand in dirs:
+                found[name] = dirs[cand]
                 break
+    for pack, parts in PACKED.items():
+        if pack in dirs:
+            for name in parts:
+                found.setdefault(name, dirs[pack])
     return found
 
 
@@ -69,6 +83,8 @@ class FolderShot(Shot):
                 f"{self.root}: no channel folders (expected some of {', '.join((*SPECS, 'motion'))}/ with numbered frames)"
             )
         self._frames: dict[str, list[Path]] = {name: find_frames(d) for name, d in folders.items()}
+        #: channel -> component index, for channels read from a packed material folder
+        self._packed = {name: PACKED[d.name.lower()][name] for name, d in folders.items() if d.name.lower() in PACKED}
         motion = self._frames.pop("motion", None)
         counts = {name: len(f) for name, f in self._frames.items()}
         if not counts:
@@ -83,9 +99,7 @@ class FolderShot(Shot):
             raise ValueError(f"{folders['motion']}: {len(motion)} motion frames for a shot of {n} frames (expected {n - 1} or {n})")
         self._motion = motion
         h, w = self._check_headers(meta)
-        poses = None
-        if (self.root / "cameras.json").is_file():
-            poses = parse_cameras_json(self.root / "cameras.json", n)
+        poses = find_poses(self.root, n, (h, w))
         order = tuple(c for c in SPECS if c in self._frames)
         self._cache = LRU(cache_size)
         self.info = ShotInfo(
@@ -137,7 +151,10 @@ class FolderShot(Shot):
         img = read_image(path)
         if (img.height, img.width) != (self.info.height, self.info.width):
             raise ValueError(f"{path}: size {img.width}x{img.height}, the shot is {self.info.width}x{self.info.height}")
-        a = to_memory(name, img, where=f"{path} (frame {t})")
+        if name in self._packed:
+            a = _packed_component(img, self._packed[name], name, f"{path} (frame {t})")
+        else:
+            a = to_memory(name, img, where=f"{path} (frame {t})")
         if name == "irradiance":
             s = self.info.irradiance_scale if scale is None else scale
             if s != 1.0:
@@ -152,3 +169,13 @@ class FolderShot(Shot):
         if self._motion is None or not 0 <= t < len(self._motion):
             return None
         return self._cache.get_or(("motion", t), lambda: self._decode("motion", t))
+
+
+def _packed_component(img: ImageData, index: int, name: str, where: str) -> np.ndarray:
+    """Component `index` (0 = R, 1 = G) of a packed material image, as channel `name` in [0, 1]
+    (integer files are taken as values, not sRGB-decoded)."""
+    colour = [c for c in img.channel_names if c not in ("A", "a")]
+    if len(colour) <= index:
+        raise ValueError(f"{where}: a packed material image needs roughness in R and metallic in G; it has {', '.join(img.channel_names)}")
+    a = zero_nonfinite(img.stack([("R", "G", "B")[index] if ("R", "G", "B")[index] in img.planes else colour[index]]), where, name)
+    return sanitize(name, a, where, check_finite=False)
