@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import re
+import threading
 from fractions import Fraction
 from pathlib import Path
 from typing import Any
@@ -89,7 +90,7 @@ def video_prefix(path: Path) -> str | None:
 
 
 class _Decoder:
-    """Sequential frame access to one video file; reopens it to go back."""
+    """Sequential frame access to one video file; reopens it to go back. One reader at a time (a lock)."""
 
     def __init__(self, path: Path) -> None:
         import av
@@ -113,9 +114,14 @@ class _Decoder:
         self._container: Any = None
         self._frames: Any = None
         self._next = 0
+        self._lock = threading.Lock()
 
     def read(self, t: int) -> np.ndarray:
         """uint8 (H, W, 3) RGB of frame t."""
+        with self._lock:
+            return self._read(t)
+
+    def _read(self, t: int) -> np.ndarray:
         if self._container is None or t < self._next:
             self.close()
             self._container = self._av.open(str(self.path))
