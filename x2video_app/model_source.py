@@ -41,12 +41,32 @@ def weights_dir() -> Path:
     return REPO_RESOURCES
 
 
+def cuda_available() -> bool:
+    """Whether torch sees a CUDA device (False where torch cannot tell)."""
+    try:
+        import torch
+
+        return bool(torch.cuda.is_available())
+    except Exception:  # noqa: BLE001 - a broken CUDA install means the CPU
+        return False
+
+
+def resolve_device(choice: str | None) -> str:
+    """The torch device for the Render panel's choice: "auto" (or None) = cuda when available, else cpu."""
+    if choice in (None, "", "auto"):
+        return "cuda" if cuda_available() else "cpu"
+    if choice not in ("cpu", "cuda"):
+        raise ValueError(f"unknown device {choice!r} (use auto, cpu or cuda)")
+    return choice
+
+
 @dataclass(frozen=True)
 class ModelChoice:
-    """What to load: 'pretrained' (from `path`) or 'untrained' (the tiny preset, random weights)."""
+    """What to load: 'pretrained' (from `path`) or 'untrained' (the tiny preset, random weights), on `device`."""
 
     kind: str
     path: Path | None = None
+    device: str = "cpu"
 
     @property
     def label(self) -> str:
@@ -66,7 +86,7 @@ def load_model(choice: ModelChoice):
     if choice.kind == "pretrained":
         if choice.path is None or not has_weights(choice.path):
             raise FileNotFoundError(HOW_TO_GET_WEIGHTS.format(dir=choice.path))
-        return X2VideoModel.from_pretrained(choice.path)
+        return X2VideoModel.from_pretrained(choice.path, device=choice.device)
     if choice.kind == "untrained":
-        return X2VideoModel.untrained("tiny")
+        return X2VideoModel.untrained("tiny", device=choice.device)
     raise ValueError(f"unknown model choice {choice.kind!r}")
