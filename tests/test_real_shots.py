@@ -311,3 +311,19 @@ def test_transforms_json_nerfstudio_and_instant_ngp(tmp_path):
     (tmp_path / "cameras.json").write_text(json.dumps({"poses": [np.eye(4).tolist()] * T}))
     with pytest.raises(ValueError, match="cameras.json: not a camera file.*opengl_cam_to_world.*transforms.json"):
         load_shot(tmp_path)
+
+
+@pytest.mark.parametrize("fmt", ["folder", "multilayer"])
+def test_convert_writes_irradiance_in_the_inputs_units(tmp_path, fmt):
+    shot_dir = tmp_path / "blender"
+    shot_dir.mkdir()
+    write_blender_shot(shot_dir, frames=2, h=8, w=12)
+    src = load_shot(shot_dir)
+    out = tmp_path / fmt
+    assert cli(["convert", str(shot_dir), str(out), "--format", fmt]) == 0
+    img = read_image(out / "irradiance" / "000000.exr" if fmt == "folder" else out / "000000.exr")
+    stored = img.stack(["R", "G", "B"] if fmt == "folder" else ["irradiance.R", "irradiance.G", "irradiance.B"])
+    np.testing.assert_allclose(stored, src.channel("irradiance", 0) / src.info.irradiance_scale, rtol=2e-3)  # Cycles' units
+    back = load_shot(out)
+    assert back.info.irradiance_scale == pytest.approx(src.info.irradiance_scale, rel=1e-3)
+    np.testing.assert_allclose(back.channel("irradiance", 1), src.channel("irradiance", 1), rtol=3e-3, atol=1e-4)

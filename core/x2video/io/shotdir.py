@@ -314,13 +314,22 @@ class ShotWriter:
 
 
 def write_shot_folder(shot: Shot, out_dir: str | Path, *, overwrite: bool = False, progress: Any = None) -> Path:
-    """Copy every frame of `shot` (and its motion, when it has some) into a shot folder."""
+    """Copy every frame of `shot` (and its motion, when it has some) into a shot folder.
+
+    Units in = units out: irradiance is written in the input's units (the loader's exposure
+    normalisation undone, `x2video.io.units`), and shot.json says it is normalised only when the
+    input was (scale 1), so loading the copy gives what loading the original gave."""
+    from x2video.io.units import OutputUnits
+
     info = shot.info
-    normalized = True  # what the loader returns is already in the model's exposure
+    units = OutputUnits.for_shot(shot)
+    normalized = units.irradiance_scale == 1.0
     with ShotWriter(out_dir, info, irradiance_normalized=normalized, overwrite=overwrite) as w:
         motion = getattr(shot, "motion", None)
         for t in range(info.num_frames):
             frame = shot.frame(t)
+            if "irradiance" in frame:
+                frame["irradiance"] = units.scene(frame["irradiance"])
             if callable(motion) and t < info.num_frames - 1:
                 m = motion(t)
                 if m is not None:
