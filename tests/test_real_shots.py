@@ -248,7 +248,7 @@ def test_mismatched_videos_name_the_file(tmp_path):
         load_shot(tmp_path)
 
 
-@pytest.mark.parametrize("layout", ["vrgbx", "diffusionrenderer"])
+@pytest.mark.parametrize("layout", ["vrgbx", "pass_folders"])
 def test_per_channel_frame_folders(tmp_path, layout):
     from x2video.channels import srgb_to_linear
     from x2video.io.image import write_ldr
@@ -260,7 +260,7 @@ def test_per_channel_frame_folders(tmp_path, layout):
         for key, folder in names.items():
             if key in frames:
                 data = frames[key][t]
-            else:  # DiffusionRenderer: one grey image per material channel
+            else:  # one grey image per material channel
                 data = np.repeat(frames["Material"][t][..., :1] if key == "roughness" else frames["Material"][t][..., 1:2], 3, -1)
             write_ldr(tmp_path / folder / f"{t:04d}.png", data)
     shot = load_shot(tmp_path)
@@ -327,3 +327,25 @@ def test_convert_writes_irradiance_in_the_inputs_units(tmp_path, fmt):
     back = load_shot(out)
     assert back.info.irradiance_scale == pytest.approx(src.info.irradiance_scale, rel=1e-3)
     np.testing.assert_allclose(back.channel("irradiance", 1), src.channel("irradiance", 1), rtol=3e-3, atol=1e-4)
+
+
+def test_diffusionrenderer_gbuffer_frames(tmp_path):
+    """DiffusionRenderer's inverse renderer writes gbuffer_frames/<clip>/<chunk>.<index:04d>.<pass>.png in one folder."""
+    from x2video.channels import srgb_to_linear
+    from x2video.io.image import write_ldr
+
+    frames = vrgbx_frames(T=3)
+    clip = tmp_path / "gbuffer_frames" / "clip"
+    for t in range(3):
+        write_ldr(clip / f"0000.{t:04d}.basecolor.png", frames["Albedo"][t])
+        write_ldr(clip / f"0000.{t:04d}.normal.png", frames["Normal"][t])
+        write_ldr(clip / f"0000.{t:04d}.roughness.png", np.repeat(frames["Material"][t][..., :1], 3, -1))
+        write_ldr(clip / f"0000.{t:04d}.metallic.png", np.repeat(frames["Material"][t][..., 1:2], 3, -1))
+        write_ldr(clip / f"0000.{t:04d}.depth.png", np.zeros((16, 24, 3)))  # display-normalised: not read as metres
+    shot = load_shot(clip)
+    assert shot.channels == ("albedo", "normal", "roughness", "metallic") and shot.num_frames == 3
+    np.testing.assert_allclose(shot.channel("albedo", 2), srgb_to_linear(frames["Albedo"][2] / 255), atol=1e-6)
+    np.testing.assert_allclose(shot.channel("metallic", 1)[..., 0], frames["Material"][1, ..., 1] / 255, atol=1e-6)
+    write_ldr(clip / "0001.0000.basecolor.png", frames["Albedo"][0])
+    with pytest.raises(ValueError, match="2 chunks.*stitched"):
+        load_shot(clip)

@@ -8,6 +8,7 @@ in a small LRU cache.
 from __future__ import annotations
 
 import logging
+import re
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +39,48 @@ ALIASES: dict[str, tuple[str, ...]] = {
 PACKED = {"material": {"roughness": 0, "metallic": 1}}
 #: at most this many frames (evenly spaced) are read to measure a shot's irradiance exposure
 EXPOSURE_SAMPLES = 16
+
+
+#: DiffusionRenderer's G-buffer frames, all in one folder: ``<chunk>.<index>.<pass>.<ext>`` (its
+#: inverse renderer's ``gbuffer_frames/<clip>/``); pass name -> our channel. Its depth pass is
+#: normalised for display, not metres, so it is not read.
+PASS_NAMES = {"basecolor": "albedo", "base_color": "albedo", "diffuse_albedo": "albedo", "normal": "normal",
+              "roughness": "roughness", "metallic": "metallic", "irradiance": "irradiance", "rgb": "rgb"}
+_PASS_RE = re.compile(r"^(?P<nums>\d+(?:\.\d+)*)\.(?P<pass>[A-Za-z_]+)\.(?P<ext>png|jpe?g|exr|tiff?)$", re.IGNORECASE)
+
+
+def pass_files(root: Path) -> dict[str, list[Path]]:
+    """Channel -> frame files, for a folder of ``<chunk>.<index>.<pass>.<ext>`` files (DiffusionRenderer);
+    {} when the folder holds none. Frames are ordered by their numbers; a missing frame, or frames of
+    several chunks (DiffusionRenderer's chunks overlap: stitch them first), are errors naming the folder."""
+    if not root.is_dir():
+        return {}
+    found: dict[str, dict[tuple[int, ...], Path]] = {}
+    preferred: dict[str, str] = {}
+    for p in sorted(root.iterdir()):
+        m = _PASS_RE.match(p.name) if p.is_file() else None
+        if m is None or m["pass"].lower() not in PASS_NAMES:
+            continue
+        ch, pas = PASS_NAMES[m["pass"].lower()], m["pass"].lower()
+        if ch in preferred and preferred[ch] != pas:  # basecolor wins over diffuse_albedo
+            if list(PASS_NAMES).index(pas) > list(PASS_NAMES).index(preferred[ch]):
+                continue
+            found.pop(ch, None)
+        preferred[ch] = pas
+        found.setdefault(ch, {})[tuple(int(v) for v in m["nums"].split("."))] = p
+    out: dict[str, list[Path]] = {}
+    for ch, frames in found.items():
+        keys = sorted(frames)
+        chunks = sorted({k[:-1] for k in keys})
+        if len(chunks) > 1:
+            raise ValueError(f"{root}: {preferred[ch]} frames of {len(chunks)} chunks ({', '.join('.'.join(map(str, c)) for c in chunks[:3])}); "
+                             "overlapping chunks must be stitched into one sequence first")
+        idx = [k[-1] for k in keys]
+        if idx != list(range(idx[0], idx[0] + len(idx))):
+            gap = next(a + 1 for a, b in zip(idx, idx[1:]) if b != a + 1)
+            raise ValueError(f"{root}: {preferred[ch]} frame {gap} is missing")
+        out[ch] = [frames[k] for k in keys]
+    return out
 
 
 def channel_folders(root: Path) -> dict[str, Path]:
@@ -78,11 +121,12 @@ class FolderShot(Shot):
         meta: dict[str, Any] = {}
         if (self.root / "shot.json").is_file():
             meta = parse_shot_json(self.root / "shot.json")
-        if not folders:
+        passes = {} if folders else pass_files(self.root)
+        if not folders and not passes:
             raise ValueError(
                 f"{self.root}: no channel folders (expected some of {', '.join((*SPECS, 'motion'))}/ with numbered frames)"
             )
-        self._frames: dict[str, list[Path]] = {name: find_frames(d) for name, d in folders.items()}
+        self._frames: dict[str, list[Path]] = passes or {name: find_frames(d) for name, d in folders.items()}
         #: channel -> component index, for channels read from a packed material folder
         self._packed = {name: PACKED[d.name.lower()][name] for name, d in folders.items() if d.name.lower() in PACKED}
         motion = self._frames.pop("motion", None)
@@ -94,7 +138,8 @@ class FolderShot(Shot):
         ref_name = "shot.json" if "num_frames" in meta else f"{first}/"
         for name, c in counts.items():
             if c != n:
-                raise ValueError(f"{self.root / folders[name].name}: {c} frames, but {ref_name} has {n}")
+                where = self.root / folders[name].name if name in folders else f"{self.root} ({name} pass)"
+                raise ValueError(f"{where}: {c} frames, but {ref_name} has {n}")
         if motion is not None and len(motion) not in (n, n - 1):
             raise ValueError(f"{folders['motion']}: {len(motion)} motion frames for a shot of {n} frames (expected {n - 1} or {n})")
         self._motion = motion

@@ -9,7 +9,7 @@ from x2video.shot import Shot
 
 def detect_format(path: str | Path) -> str:
     """"folder" | "multilayer" | "xrgb" | "video" for what `path` holds; ValueError when none fits."""
-    from x2video.io.folder import channel_folders
+    from x2video.io.folder import channel_folders, pass_files
 
     p = Path(path)
     if not p.exists():
@@ -25,7 +25,7 @@ def detect_format(path: str | Path) -> str:
             return "xrgb"
         raise ValueError(f"{p}: not a shot (give a shot folder, a multi-layer EXR, an XRGB '<name>-albedo.png' file,"
                          " or a per-channel video '<name>_Albedo.mp4')")
-    if channel_folders(p):
+    if channel_folders(p) or pass_files(p):
         return "folder"
     from x2video.io.video import channel_videos
 
