@@ -130,12 +130,12 @@ def test_device_setting_defaults_to_auto_and_shows_in_the_status_bar(qtbot, shot
 
     monkeypatch.setenv("X2VIDEO_WEIGHTS", str(tmp_path / "no-weights"))
     for cuda in (False, True):
-        monkeypatch.setattr(model_source, "cuda_available", lambda: cuda)
-        monkeypatch.setattr(main_window, "cuda_available", lambda: cuda)
+        monkeypatch.setattr(model_source, "cuda_available", lambda c=cuda: c)
+        monkeypatch.setattr(main_window, "cuda_available", lambda c=cuda: c)
         w = MainWindow(bench_dir=tmp_path / "bench", autosave_ms=0)
         qtbot.addWidget(w)
-        built = []
-        w.render_ctl.renderer_factory = lambda choice: built.append(choice.device)  # no model build here
+        built: list[str] = []
+        w.render_ctl.renderer_factory = lambda choice, b=built: b.append(choice.device)  # no model build here
         p = w.render_panel
         assert p.device.currentData() == "auto"
         assert [p.device.itemData(i) for i in range(p.device.count())] == (["auto", "cpu", "cuda"] if cuda else ["auto", "cpu"])

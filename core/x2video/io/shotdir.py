@@ -171,7 +171,7 @@ def parse_transforms_json(path: Path, num_frames: int, size: tuple[int, int] | N
         if m.shape != (4, 4) or not np.isfinite(m).all():
             raise ValueError(f"{path}: frames[{i}].transform_matrix is not a finite 4x4 matrix (shape {m.shape})")
 
-        def get(key: str) -> float | None:
+        def get(key: str, f: dict[str, Any] = f) -> float | None:
             v = f.get(key, doc.get(key))
             return None if v is None else float(v)
 

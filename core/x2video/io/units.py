@@ -55,7 +55,7 @@ class OutputUnits:
         object.__setattr__(self, "exposure", parse_exposure(self.exposure))
 
     @classmethod
-    def for_shot(cls, shot: Any, exposure: Any = AUTO) -> "OutputUnits":
+    def for_shot(cls, shot: Any, exposure: Any = AUTO) -> OutputUnits:
         """The units of renders of `shot` (a `Shot` or a `ShotInfo`)."""
         info = getattr(shot, "info", shot)
         return cls(float(getattr(info, "irradiance_scale", 1.0) or 1.0), exposure)
