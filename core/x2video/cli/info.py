@@ -94,7 +94,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"{report['path']}  ({report['format']})")
     print(f"  frames   {report['frames']}  at {report['fps']:g} fps, {report['width']}x{report['height']}")
     print(f"  channels {', '.join(report['channels'])}" + (f"  (dropped: {', '.join(report['dropped'])})" if report["dropped"] else ""))
-    print(f"  poses    {'yes' if report['poses'] else 'no'}   irradiance scale {report['irradiance_scale']:.4g}")
+    scale = report["irradiance_scale"]
+    print(f"  poses    {'yes' if report['poses'] else 'no'}   irradiance scale {scale:.4g}"
+          + ("" if scale == 1.0 else " (the model sees irradiance x this; renders are written back in the file's units)"))
     if report["caption"]:
         print(f"  caption  {report['caption']}")
     for k, v in report["objects"].items():
