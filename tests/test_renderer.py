@@ -514,3 +514,15 @@ def test_mean_anchor_moves_only_the_region_to_infer() -> None:
     assert mean_anchor(window, 0.0, ref, offset, regions) is None
     key = Window(frames=(0, 4, 8), generate=(0, 4, 8), refs=(), mode="key", level=2)
     assert mean_anchor(key, 1.0, ref[:3], offset[:3], regions[:3]) is None
+
+
+def test_quality_formula_runs_no_network() -> None:
+    from x2video.model.shading import classical_shading
+
+    shot = make_shot(5, height=12, width=20)
+    model = FakeModel()
+    events = run(Renderer(model), shot, RenderSettings(quality="formula", frames=(1, 4)))
+    frames = frames_of(events)
+    assert sorted(frames) == [1, 2, 3] and model.predict_calls == 0 and model.encoded_frames == 0
+    np.testing.assert_array_equal(frames[2], classical_shading(shot.frame(2)))
+    assert isinstance(events[-1], RenderFinished)

@@ -227,6 +227,10 @@ class Renderer:
         frames and returns. Any error emits RenderFailed and is re-raised. `base_dir` resolves
         relative paths of a reference image in the edits (the project file's folder).
         """
+        if settings.quality == "formula":  # no network: the classical shading, frame by frame
+            from x2video.sampling.formula import formula_frames
+
+            return formula_frames(shot, edits, settings, on_event, cancel, base_dir=base_dir)
         emit: Callable[[RenderEvent], None] = on_event if on_event is not None else (lambda e: None)
         done: set[int] = set()  # frames delivered so far
         self.encode_seconds = 0.0
