@@ -349,3 +349,30 @@ def test_diffusionrenderer_gbuffer_frames(tmp_path):
     write_ldr(clip / "0001.0000.basecolor.png", frames["Albedo"][0])
     with pytest.raises(ValueError, match="2 chunks.*stitched"):
         load_shot(clip)
+
+
+def test_video_random_access_seeks(tmp_path):
+    """Scrubbing a longer video (keyframe every 8 frames) back and forth gives exactly the frames of a sequential decode."""
+    import av
+
+    from x2video.io.video import _Decoder
+
+    rng = np.random.default_rng(3)
+    frames = rng.integers(0, 256, (120, 8, 8, 3), dtype=np.uint8)
+    path = tmp_path / "long_Albedo.mp4"
+    with av.open(str(path), mode="w") as c:
+        s = c.add_stream("libx264rgb", rate=24)
+        s.width, s.height, s.pix_fmt = 8, 8, "rgb24"
+        s.options = {"crf": "0", "g": "8", "keyint_min": "8"}
+        for f in frames:
+            for pkt in s.encode(av.VideoFrame.from_ndarray(f, format="rgb24")):
+                c.mux(pkt)
+        for pkt in s.encode():
+            c.mux(pkt)
+    d = _Decoder(path)
+    assert d.num_frames == 120
+    opens, reopen = [], d._open
+    d._open = lambda: (opens.append(1), reopen())[1]
+    for t in (100, 3, 99, 60, 119, 0, 61, 118, 50):
+        np.testing.assert_array_equal(d.read(t), frames[t])
+    assert len(opens) <= 3, "going back seeks instead of decoding from the start each time"

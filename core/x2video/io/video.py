@@ -10,9 +10,9 @@ ext one of .mp4 .mov .mkv .avi .webm, channel matched ignoring case:
 - Irradiance / shading -> irradiance (8-bit sRGB, decoded to linear; exposure normalised once per shot)
 - RGB / image / beauty -> rgb
 
-Every video must have the same frame count and size. Frames are decoded in order and kept in a
-small LRU cache; asking for an earlier frame than the last decoded one reopens the file (video
-decoders only run forward). Poses come from cameras.json or transforms.json beside the videos.
+Every video must have the same frame count and size. Frames are decoded forward and kept in a
+small LRU cache; going back (or far ahead) seeks to the keyframe before the frame and decodes
+forward from there. Poses come from cameras.json or transforms.json beside the videos.
 """
 from __future__ import annotations
 
@@ -90,7 +90,13 @@ def video_prefix(path: Path) -> str | None:
 
 
 class _Decoder:
-    """Sequential frame access to one video file; reopens it to go back. One reader at a time (a lock)."""
+    """Frame access to one video file: decodes forward from where it is, and seeks (to the keyframe
+    before, then forward) to go back or far ahead, so scrubbing a long video does not re-decode it
+    from the start. Frame index = presentation time x frame rate (constant-rate video). One reader
+    at a time (a lock)."""
+
+    #: frames ahead of the decoder that are decoded through rather than sought
+    AHEAD = 48
 
     def __init__(self, path: Path) -> None:
         import av
@@ -105,10 +111,14 @@ class _Decoder:
                 self.width, self.height = s.codec_context.width, s.codec_context.height
                 rate = s.average_rate or s.guessed_rate
                 self.fps = float(rate) if rate else 10.0
+                self._time_base = s.time_base
                 n = s.frames
                 if not n:  # container without a frame count: count the packets that hold frames
                     n = sum(1 for pkt in c.demux(s) if pkt.size > 0)
+                    c.seek(0)
                 self.num_frames = int(n)
+                first = next(c.decode(video=0), None)
+                self._start = None if first is None or first.pts is None or rate is None else first.pts
         except av.error.FFmpegError as exc:
             raise ValueError(f"{path}: cannot read the video ({exc})") from None
         self._container: Any = None
@@ -119,25 +129,48 @@ class _Decoder:
     def read(self, t: int) -> np.ndarray:
         """uint8 (H, W, 3) RGB of frame t."""
         with self._lock:
-            return self._read(t)
+            try:
+                return self._read(t)
+            except self._av.error.FFmpegError as exc:
+                raise ValueError(f"{self.path}: frame {t} cannot be decoded ({exc})") from None
+
+    def _index(self, frame: Any) -> int | None:
+        if self._start is None or frame.pts is None:
+            return None
+        return int(round(float((frame.pts - self._start) * self._time_base) * self.fps))
+
+    def _open(self) -> None:
+        self.close()
+        self._container = self._av.open(str(self.path))
+        self._frames = self._container.decode(video=0)
+        self._next = 0
 
     def _read(self, t: int) -> np.ndarray:
-        if self._container is None or t < self._next:
-            self.close()
-            self._container = self._av.open(str(self.path))
-            self._frames = self._container.decode(video=0)
-            self._next = 0
-        try:
-            while True:
-                frame = next(self._frames)
-                i = self._next
-                self._next += 1
-                if i == t:
-                    return frame.to_ndarray(format="rgb24")
-        except StopIteration:
-            raise ValueError(f"{self.path}: frame {t} missing (the video has {self._next} decodable frames)") from None
-        except self._av.error.FFmpegError as exc:
-            raise ValueError(f"{self.path}: frame {t} cannot be decoded ({exc})") from None
+        if self._container is None or not self._next <= t <= self._next + self.AHEAD:
+            if self._container is None or t < self.AHEAD or self._start is None:
+                self._open()
+            else:  # seek to the keyframe at or before t, then decode forward
+                s = self._container.streams.video[0]
+                self._container.seek(self._start + int(round(t / self.fps / self._time_base)), stream=s, backward=True)
+                self._frames = self._container.decode(s)
+                self._next = -1  # unknown until a frame says
+        for frame in self._frames:
+            i = self._index(frame)
+            i = self._next if i is None or self._next >= 0 and i < self._next else i
+            self._next = i + 1
+            if i == t:
+                return frame.to_ndarray(format="rgb24")
+            if i > t:  # the seek landed past t: decode from the start instead
+                self._open()
+                return self._read_from_start(t)
+        raise ValueError(f"{self.path}: frame {t} missing (the video has {self._next} decodable frames)")
+
+    def _read_from_start(self, t: int) -> np.ndarray:
+        for i, frame in enumerate(self._frames):
+            self._next = i + 1
+            if i == t:
+                return frame.to_ndarray(format="rgb24")
+        raise ValueError(f"{self.path}: frame {t} missing (the video has {self._next} decodable frames)")
 
     def close(self) -> None:
         if self._container is not None:
