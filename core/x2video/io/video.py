@@ -156,6 +156,9 @@ class _Decoder:
                 self._next = -1  # unknown until a frame says
         for frame in self._frames:
             i = self._index(frame)
+            if i is None and self._next < 0:  # after a seek a frame without a time cannot be placed
+                self._open()
+                return self._read_from_start(t)
             i = self._next if i is None or self._next >= 0 and i < self._next else i
             self._next = i + 1
             if i == t:
