@@ -131,6 +131,7 @@ def test_fill_by_id_propagate_mask_out_and_drop(win, qtbot):
     m[8:30, 6:30] = 1  # object 1 on frame 0
     doc.set_mask_frame(1, 0, m)
     win.mask_panel.propagate_button.click()
+    qtbot.waitUntil(lambda: win.edits.propagate_worker is None, timeout=30_000)  # runs in a worker
     painted = edit_ops.mask_frames(doc.edits, 1)
     assert painted == list(range(9))
     win.act_undo.trigger()

@@ -38,7 +38,7 @@ def test_info_reports_nan(shot_dir, capsys):
 
     a = np.full((H, W), np.nan, np.float32)
     write_exr(shot_dir / "roughness" / "000001.exr", {"Y": a})
-    assert main(["info", str(shot_dir), "--frames", "0"]) == 0
+    assert main(["info", str(shot_dir), "--frames", "0"]) == 1  # it lists a problem
     assert "80 NaN/Inf value(s) in 'roughness'" in capsys.readouterr().out
 
 

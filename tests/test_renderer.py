@@ -190,10 +190,30 @@ def test_presets_and_lcm() -> None:
 
 def test_bad_input_fails_with_event() -> None:
     events: list = []
-    shot = make_shot(5, height=12, width=24)  # 12 is not a multiple of 8
-    with pytest.raises(ValueError, match="multiple of the model's downsampling"):
-        Renderer(FakeModel()).render(shot, None, RenderSettings(), on_event=events.append)
-    assert isinstance(events[-1], RenderFailed) and "downsampling" in events[-1].error
+    shot = make_shot(5)
+    with pytest.raises(ValueError, match="steps must be at least 1"):
+        Renderer(FakeModel()).render(shot, None, RenderSettings(steps=0), on_event=events.append)
+    assert isinstance(events[-1], RenderFailed) and "steps" in events[-1].error
+
+
+@pytest.mark.parametrize("size", [(12, 24), (37, 53)])
+def test_any_frame_size_is_padded_and_cropped_back(size) -> None:
+    """A size that is not a multiple of the model's factor (8) is reflect-padded for the model and cropped back."""
+    h, w = size
+    shot = make_shot(5, height=h, width=w)
+    model = FakeModel()
+    events = run(Renderer(model), shot, RenderSettings(steps=1, window=5))
+    frames = frames_of(events)
+    assert sorted(frames) == list(range(5)) and all(f.shape == (h, w, 3) for f in frames.values())
+    assert model.windows[0].cond.shape[-2:] == ((h + 7) // 8, (w + 7) // 8)  # the model saw the padded frame
+    # reflect padding, not a resize: the model's input equals the frame inside, mirrored outside
+    from x2video.sampling.renderer import pad_conditioning, plain_conditioning
+
+    c = pad_conditioning(plain_conditioning(shot, 0), (-h) % 8, (-w) % 8)
+    a = c.channels["albedo"]
+    assert a.shape[:2] == (h + (-h) % 8, w + (-w) % 8)
+    np.testing.assert_array_equal(a[:h, :w], shot.channel("albedo", 0))
+    np.testing.assert_array_equal(a[h, :w], shot.channel("albedo", 0)[h - 2])
 
 
 def test_cancel_mid_render_keeps_finished_frames(tmp_path) -> None:
@@ -494,3 +514,15 @@ def test_mean_anchor_moves_only_the_region_to_infer() -> None:
     assert mean_anchor(window, 0.0, ref, offset, regions) is None
     key = Window(frames=(0, 4, 8), generate=(0, 4, 8), refs=(), mode="key", level=2)
     assert mean_anchor(key, 1.0, ref[:3], offset[:3], regions[:3]) is None
+
+
+def test_quality_formula_runs_no_network() -> None:
+    from x2video.model.shading import classical_shading
+
+    shot = make_shot(5, height=12, width=20)
+    model = FakeModel()
+    events = run(Renderer(model), shot, RenderSettings(quality="formula", frames=(1, 4)))
+    frames = frames_of(events)
+    assert sorted(frames) == [1, 2, 3] and model.predict_calls == 0 and model.encoded_frames == 0
+    np.testing.assert_array_equal(frames[2], classical_shading(shot.frame(2)))
+    assert isinstance(events[-1], RenderFinished)

@@ -7,9 +7,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from PySide6.QtCore import QObject
-from PySide6.QtWidgets import QFileDialog
+from PySide6.QtCore import QObject, Signal
+from PySide6.QtWidgets import QFileDialog, QProgressDialog
+from superqt.utils import create_worker
 
+from x2video.edits.propagate import propagate_mask
 from x2video.io.image import write_exr
 from x2video_app import edit_ops
 from x2video_app.commands import MaskCommand, PaintCommand, SetValueCommand, SnapshotCommand
@@ -19,6 +21,12 @@ if TYPE_CHECKING:
     from x2video_app.main_window import MainWindow
 
 
+class _Progress(QObject):
+    """Carries (done, total) from a worker thread to the GUI thread (a queued signal)."""
+
+    sig = Signal(int, int)
+
+
 class EditActions(QObject):
     def __init__(self, win: "MainWindow") -> None:
         super().__init__(win)
@@ -26,6 +34,8 @@ class EditActions(QObject):
         self.doc = win.doc
         self.undo = win.undo
         self._erase = False
+        self.propagate_worker: Any = None  # the running mask propagation (superqt worker), if any
+        self.propagate_progress: tuple[int, int] | None = None  # (frames done, total) the GUI last showed
         self._connect()
 
     @property
@@ -112,16 +122,73 @@ class EditActions(QObject):
         if before.any():
             self.undo.push(PaintCommand(self.doc, i, t, before, np.zeros_like(before), "Clear mask"))
 
-    def propagate(self, i: int) -> None:
+    def propagate(self, i: int) -> Any:
+        """Carry mask i from the current frame along the shot (optical flow) in a worker, with a progress
+        dialog that can cancel; the window stays responsive. One undo step when it finishes, nothing
+        when cancelled. Returns the worker (tests wait on it), or None when there is nothing to do."""
         t = self.doc.frame
-        if not edit_ops.get_mask(self.e, i, t, self.doc.size).any():
-            self.win.statusBar().showMessage(f"Mask '{edit_ops.mask_name(self.e, i)}' is empty on frame {t}: paint it first.", 5000)
-            return
-        self.win.statusBar().showMessage("Propagating the mask along the shot (optical flow)…")
-        self.win.repaint()
         name = edit_ops.mask_name(self.e, i)
-        self.undo.push(MaskCommand(self.doc, name, f"Propagate {name} from frame {t}", lambda: edit_ops.propagate(self.doc.shot, self.e, i, t)))
-        self.win.statusBar().showMessage(f"Mask propagated from frame {t} to {self.doc.num_frames} frames.", 5000)
+        if self.propagate_worker is not None:
+            self.win.statusBar().showMessage("A mask is already being propagated.", 5000)
+            return None
+        src = edit_ops.get_mask(self.e, i, t, self.doc.size)
+        if not src.any():
+            self.win.statusBar().showMessage(f"Mask '{name}' is empty on frame {t}: paint it first.", 5000)
+            return None
+        shot = self.doc.shot
+        dlg = QProgressDialog(f"Propagating '{name}' from frame {t} (optical flow)…", "Cancel", 0, max(1, self.doc.num_frames - 1), self.win)
+        dlg.setWindowTitle("Propagate mask")
+        dlg.setMinimumDuration(400)
+        progress = _Progress(dlg)  # lives on the GUI thread: the worker's emits are queued to it
+        self.propagate_progress = None
+
+        def show_progress(done: int, total: int) -> None:
+            self.propagate_progress = (done, total)
+            dlg.setMaximum(max(1, total))
+            dlg.setValue(done)
+
+        progress.sig.connect(show_progress)
+        self.win.statusBar().showMessage(f"Propagating '{name}' along the shot (optical flow)…")
+
+        def work() -> dict[int, np.ndarray]:
+            return propagate_mask(shot, src, t, on_progress=progress.sig.emit, should_stop=lambda: worker.abort_requested)
+
+        worker = create_worker(work)
+
+        def returned(result: dict[int, np.ndarray]) -> None:  # superqt does not emit it after quit()
+            if self.doc.shot is not shot or name not in self.e.masks:
+                self.win.statusBar().showMessage(f"Propagation of '{name}' dropped: the shot or the mask changed meanwhile.", 5000)
+            else:
+                self.undo.push(MaskCommand(self.doc, name, f"Propagate {name} from frame {t}", lambda: edit_ops.paint_frames(self.e, name, result)))
+                self.win.statusBar().showMessage(f"Mask propagated from frame {t} to {len(result)} frames.", 5000)
+
+        def failed(exc: BaseException) -> None:
+            self.win.show_error("Mask propagation failed", f"{type(exc).__name__}: {exc}\n\nThe mask is unchanged.")
+
+        def finished() -> None:
+            dlg.reset()
+            dlg.close()
+            dlg.deleteLater()
+            self.propagate_worker = None
+            if worker.abort_requested:
+                self.win.statusBar().showMessage(f"Propagation of '{name}' cancelled; the mask is unchanged.", 5000)
+
+        worker.returned.connect(returned)
+        worker.errored.connect(failed)
+        worker.finished.connect(finished)
+        dlg.canceled.connect(worker.quit)
+        self.propagate_worker = worker
+        worker.start()
+        return worker
+
+    def cancel_propagation(self, wait_ms: int = 10_000) -> None:
+        """Stop a running propagation (closing the window) and wait for its thread."""
+        w = self.propagate_worker
+        if w is not None:
+            w.quit()
+            from superqt.utils._qthreading import WorkerBase
+
+            WorkerBase.await_workers(wait_ms)
 
     # -- masks -----------------------------------------------------------------
     def add_mask(self) -> None:
@@ -186,7 +253,7 @@ class EditActions(QObject):
         except Exception as e:
             self.win.show_error("Cannot write the reference frame", f"{path}:\n{e}")
             return False
-        self._set(("reference",), f"Use rendered frame {t} as reference", lambda val: setattr(self.e, "reference", val), self.e.reference, edit_ops.Reference(path=str(path)), "reference")
+        self._set(("reference",), f"Use rendered frame {t} as reference", lambda val: setattr(self.e, "reference", val), self.e.reference, edit_ops.Reference(path=str(path), at=t), "reference")
         return True
 
     def clear_reference(self) -> None:

@@ -196,7 +196,13 @@ def propagate(shot: Shot, e: Edits, i: int, t: int) -> None:
     src = m.frames.get(t)
     if src is None:
         raise ValueError(f"mask {mask_name(e, i)!r} is not painted on frame {t}")
-    for f, a in propagate_mask(shot, src, t).items():
+    paint_frames(e, mask_name(e, i), propagate_mask(shot, src, t))
+
+
+def paint_frames(e: Edits, name: str, frames: dict[int, np.ndarray]) -> None:
+    """Paint mask `name` on each frame of `frames` (what a propagation computed)."""
+    m = e.masks[name]
+    for f, a in frames.items():
         m.paint(f, a)
 
 
@@ -320,7 +326,7 @@ def reference_text(e: Edits) -> str:
     if r is None:
         return "No reference: the model follows the channels and prompts only."
     if r.path is not None:
-        return f"Image {Path(r.path).name} (placed at frame 0)"
+        return f"Image {Path(r.path).name} (placed at frame {r.position})"
     return f"Shot frame {r.frame} (rgb channel)"
 
 

@@ -1,6 +1,7 @@
 """The X2Video Studio main window: viewer, timeline, docks for masks/edits/scene/render/charts, menus; `run(argv)`."""
 from __future__ import annotations
 
+import dataclasses
 import logging
 import sys
 import time
@@ -30,7 +31,7 @@ from x2video_app.document import Document
 from x2video_app.edit_actions import EditActions
 from x2video_app.edit_panel import EditPanel
 from x2video_app.mask_panel import MaskPanel
-from x2video_app.model_source import ModelChoice, has_weights, weights_dir, weights_hint
+from x2video_app.model_source import ModelChoice, cuda_available, has_weights, resolve_device, weights_dir, weights_hint
 from x2video_app.project_controller import ProjectController
 from x2video_app.render_controller import RenderController
 from x2video_app.render_panel import RenderPanel
@@ -112,6 +113,10 @@ class MainWindow(QMainWindow):
         self.resizeDocks([self.docks["Render"], self.docks["Charts"]], [420, 380], Qt.Orientation.Vertical)
         self.model_status = QLabel()
         self.statusBar().addPermanentWidget(self.model_status)
+        self.device_status = QLabel()
+        self.device_status.setToolTip("Where the model runs (Render settings: Device)")
+        self.statusBar().addPermanentWidget(self.device_status)
+        self.render_panel.set_devices(cuda_available())
 
         # controllers
         self.render_ctl = RenderController(self.doc, self)
@@ -182,6 +187,7 @@ class MainWindow(QMainWindow):
         self.viewer.sigHover.connect(self._hover)
         self.render_panel.sigRender.connect(self.start_render)
         self.render_panel.sigCancel.connect(self.render_ctl.cancel)
+        self.render_panel.sigDevice.connect(self._device_changed)
         self.render_ctl.sigEvent.connect(self._render_event)
         self.render_ctl.sigRunning.connect(self._running)
         self.render_ctl.sigError.connect(self._render_error)
@@ -190,10 +196,21 @@ class MainWindow(QMainWindow):
         self._eta_timer.timeout.connect(lambda: self.render_panel.show_state(self.doc.render))
 
     # -- model -----------------------------------------------------------------
+    def device(self) -> str:
+        """The torch device renders use: the Render panel's choice, auto = cuda when available."""
+        return resolve_device(self.render_panel.device.currentData())
+
+    def _device_changed(self, _choice: str) -> None:
+        c = self.render_ctl.choice
+        if c is not None:
+            self.render_ctl.set_model(dataclasses.replace(c, device=self.device()))  # a new Renderer on that device
+            self.render_ctl.preload()
+        self._update_model_label()
+
     def choose_default_model(self) -> None:
         d = weights_dir()
         if has_weights(d):
-            self.render_ctl.set_model(ModelChoice("pretrained", d))
+            self.render_ctl.set_model(ModelChoice("pretrained", d, device=self.device()))
             self.model_status.setText(f"Model: {d}")
         else:
             self.render_ctl.set_model(None)
@@ -202,7 +219,7 @@ class MainWindow(QMainWindow):
 
     def _untrained_toggled(self, on: bool) -> None:
         if on:
-            self.render_ctl.set_model(ModelChoice("untrained"))
+            self.render_ctl.set_model(ModelChoice("untrained", device=self.device()))
         else:
             self.choose_default_model()
         self._update_model_label()
@@ -221,6 +238,7 @@ class MainWindow(QMainWindow):
         self.render_panel.model_label.setText(text)
         self.render_panel.model_label.setToolTip(tip)
         self.render_panel.model_label.setStyleSheet("color: #ffb347;" if c is None or c.kind == "untrained" else "")
+        self.device_status.setText(f"Device: {self.device()}")
 
     # -- rendering ---------------------------------------------------------------
     def start_render(self) -> bool:
@@ -396,6 +414,7 @@ class MainWindow(QMainWindow):
         if not self.project.confirm_discard("quit"):
             ev.ignore()
             return
+        self.edits.cancel_propagation()
         if self.render_ctl.running or self.render_ctl.preload_worker is not None:
             self.render_ctl.cancel()
             self.render_ctl.wait(120000)

@@ -33,12 +33,32 @@ def weights_hint() -> str:
     return HOW_TO_GET_WEIGHTS.format(where=str(d) if d is not None else where_weights_are_looked_for())
 
 
+def cuda_available() -> bool:
+    """Whether torch sees a CUDA device (False where torch cannot tell)."""
+    try:
+        import torch
+
+        return bool(torch.cuda.is_available())
+    except Exception:  # noqa: BLE001 - a broken CUDA install means the CPU
+        return False
+
+
+def resolve_device(choice: str | None) -> str:
+    """The torch device for the Render panel's choice: "auto" (or None) = cuda when available, else cpu."""
+    if choice in (None, "", "auto"):
+        return "cuda" if cuda_available() else "cpu"
+    if choice not in ("cpu", "cuda"):
+        raise ValueError(f"unknown device {choice!r} (use auto, cpu or cuda)")
+    return choice
+
+
 @dataclass(frozen=True)
 class ModelChoice:
-    """What to load: 'pretrained' (from `path`) or 'untrained' (the tiny preset, random weights)."""
+    """What to load: 'pretrained' (from `path`) or 'untrained' (the tiny preset, random weights), on `device`."""
 
     kind: str
     path: Path | None = None
+    device: str = "cpu"
 
     @property
     def label(self) -> str:
@@ -58,7 +78,7 @@ def load_model(choice: ModelChoice):
     if choice.kind == "pretrained":
         if choice.path is None or not has_weights(choice.path):
             raise FileNotFoundError(HOW_TO_GET_WEIGHTS.format(where=choice.path))
-        return load(choice.path, device="cpu")
+        return load(choice.path, device=choice.device)
     if choice.kind == "untrained":
-        return load(untrained=True, device="cpu")
+        return load(untrained=True, device=choice.device)
     raise ValueError(f"unknown model choice {choice.kind!r}")

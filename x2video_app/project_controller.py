@@ -13,6 +13,7 @@ from PySide6.QtWidgets import QApplication, QCheckBox, QFileDialog, QMessageBox,
 from shiboken6 import isValid
 from superqt.utils import create_worker
 
+from x2video.io.units import OutputUnits
 from x2video_app import edit_ops, exporter
 from x2video_app.demo import ensure_demo
 
@@ -235,10 +236,12 @@ class ProjectController(QObject):
         dlg = QProgressDialog(f"Exporting {path.name}…", "Cancel", 0, len(frames), self.win)
         dlg.setWindowTitle("Export")
         dlg.setMinimumDuration(300)
+        units = OutputUnits.for_shot(shot, self.win.render_panel.values()["exposure"])
+        log.info("export %s: %s", path, units.describe())
         if kind == "mp4":
-            worker = create_worker(exporter.export_mp4, frames, path, fps)
+            worker = create_worker(exporter.export_mp4, frames, path, fps, units)
         else:
-            worker = create_worker(exporter.export_exr, frames, path, shot, edits if with_channels else None)
+            worker = create_worker(exporter.export_exr, frames, path, shot, edits if with_channels else None, units)
         worker.yielded.connect(lambda i: dlg.setValue(i))
         dlg.canceled.connect(worker.quit)
 

@@ -1,4 +1,5 @@
-"""Render settings (preset, seed, window N, scheme, seam pass, noise shared across frames), Render/Cancel, a progress bar per level and the ETA."""
+"""Render settings (preset, seed, window N, scheme, seam pass, noise shared across frames, exposure, device), Render/Cancel,
+a progress bar per level and the ETA."""
 from __future__ import annotations
 
 from PySide6.QtCore import Signal
@@ -27,6 +28,7 @@ class RenderPanel(QWidget):
     sigRender = Signal()
     sigCancel = Signal()
     sigSettingsChanged = Signal()
+    sigDevice = Signal(str)  # "auto" | "cpu" | "cuda"
 
     def __init__(self, parent=None) -> None:
         super().__init__(parent)
@@ -67,6 +69,23 @@ class RenderPanel(QWidget):
                                      f"{RenderSettings.noise_shared:g}: a quarter less flicker with all channels at the same "
                                      "accuracy; 40-60 % less where a channel is missing or masked, about 1 dB less accurate "
                                      "there (model card).")
+        self.exposure_auto = QCheckBox("auto")
+        self.exposure_auto.setChecked(True)
+        self.exposure_auto.setToolTip("MP4 exposure = the shot's own irradiance normalisation (what the model saw). "
+                                      "EXR export is always in the input's units.")
+        self.exposure = QDoubleSpinBox()
+        self.exposure.setRange(-16.0, 16.0)
+        self.exposure.setSingleStep(0.5)
+        self.exposure.setSuffix(" stops")
+        self.exposure.setEnabled(False)
+        self.exposure.setToolTip("MP4 exposure in stops on the input's units (0: as the input's radiance is)")
+        self.exposure_auto.toggled.connect(lambda on: self.exposure.setEnabled(not on))
+        exposure_row = QHBoxLayout()
+        exposure_row.addWidget(self.exposure_auto)
+        exposure_row.addWidget(self.exposure, 1)
+        self.device = QComboBox()
+        self.device.setToolTip("Where the model runs. auto: CUDA when torch sees a GPU, else the CPU.")
+        self.set_devices(cuda=False)
         form = QFormLayout()
         form.addRow("Preset", self.preset)
         form.addRow("Seed", self.seed)
@@ -75,8 +94,13 @@ class RenderPanel(QWidget):
         form.addRow("", self.seams)
         form.addRow("Max levels", self.levels)
         form.addRow("Noise shared", self.noise_shared)
+        form.addRow("Exposure", exposure_row)
+        form.addRow("Device", self.device)
         self.noise_shared.valueChanged.connect(lambda _v: self.sigSettingsChanged.emit())
         self.seams.toggled.connect(lambda _on: self.sigSettingsChanged.emit())
+        self.exposure_auto.toggled.connect(lambda _on: self.sigSettingsChanged.emit())
+        self.exposure.valueChanged.connect(lambda _v: self.sigSettingsChanged.emit())
+        self.device.currentIndexChanged.connect(lambda _i: self.sigDevice.emit(self.device.currentData()))
         for w in (self.preset, self.scheme):
             w.currentIndexChanged.connect(lambda _i: self.sigSettingsChanged.emit())
         for w in (self.seed, self.window, self.levels):
@@ -124,7 +148,21 @@ class RenderPanel(QWidget):
             "seams": self.seams.isChecked() and self.scheme.currentData() == "recursive",
             "noise_shared": self.noise_shared.value(),
             "max_levels": self.levels.value() or None if self.scheme.currentData() == "recursive" else None,
+            "exposure": "auto" if self.exposure_auto.isChecked() else float(self.exposure.value()),
         }
+
+    def set_devices(self, cuda: bool) -> None:
+        """Offer auto and cpu, and cuda where torch sees a GPU; keeps the current choice where it can."""
+        current = self.device.currentData() or "auto"
+        self.device.blockSignals(True)
+        self.device.clear()
+        self.device.addItem(f"auto ({'cuda' if cuda else 'cpu'})", "auto")
+        self.device.addItem("cpu", "cpu")
+        if cuda:
+            self.device.addItem("cuda", "cuda")
+        i = self.device.findData(current)
+        self.device.setCurrentIndex(max(i, 0))
+        self.device.blockSignals(False)
 
     def set_running(self, running: bool) -> None:
         self.render_button.setEnabled(not running)

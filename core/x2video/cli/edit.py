@@ -12,7 +12,9 @@ from x2video.shot import Shot, ShotInfo
 
 class EditedShot(Shot):
     """`shot` seen through `apply_edits`: edited intrinsic channels (dropped ones absent); the extra
-    channels (ids, rgb, depth) pass through unchanged. Reads lazily, one frame's edits at a time."""
+    channels (ids, rgb, depth) pass through unchanged. Reads lazily, one frame's edits at a time.
+    The edited irradiance is in the source's normalised exposure, so `irradiance_scale` is the
+    source's: writers undo it (units in = units out)."""
 
     def __init__(self, shot: Shot, edits):
         from x2video.edits import apply_edits
@@ -23,7 +25,7 @@ class EditedShot(Shot):
         i = shot.info
         self.info = ShotInfo(
             num_frames=i.num_frames, height=i.height, width=i.width, channels=kept, fps=i.fps, caption=i.caption,
-            object_captions=dict(i.object_captions), poses=i.poses, irradiance_scale=1.0, source=f"{i.source} (edited)",
+            object_captions=dict(i.object_captions), poses=i.poses, irradiance_scale=i.irradiance_scale, source=f"{i.source} (edited)",
             extra=dict(i.extra),
         )
         self._last: tuple[int, dict[str, np.ndarray | None]] | None = None

@@ -47,9 +47,20 @@ def frame_range(text: str) -> tuple[int, int]:
     return a, b
 
 
+def stops_or_auto(text: str) -> float | str:
+    """argparse type: an exposure in stops, or 'auto' (`x2video.io.units.parse_exposure`)."""
+    from x2video.io.units import parse_exposure
+
+    try:
+        return parse_exposure(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 #: how a value of a (non-optional) field type is read from the command line, and its metavar
 PARSERS: dict[Any, tuple[Callable[[str], Any], str | None]] = {
     int: (int, None), float: (float, None), str: (str, None), Path: (Path, "DIR"), tuple[int, int]: (frame_range, "START:STOP"),
+    float | str: (stops_or_auto, "STOPS|auto"),
 }
 
 

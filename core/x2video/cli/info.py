@@ -1,4 +1,9 @@
-"""`x2video info SHOT`: frames, size, channels present, value ranges and problems found."""
+"""`x2video info SHOT`: frames, size, channels present, value ranges and problems found.
+
+Exit status: 0 when no problems were found, 1 when the report lists some (a file that cannot be
+read, NaN/Inf values, ...), 2 when the shot cannot be loaded at all; `--json` prints the same
+report for scripts. Notes (pixels without a normal: background) are reported but are no problem.
+"""
 from __future__ import annotations
 
 import argparse
@@ -16,7 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("info", help="describe a shot: frames, size, channels, value ranges, problems")
     p.add_argument("shot", type=Path, help="shot folder, multi-layer EXR (folder or file), or XRGB set")
     p.add_argument("--frames", type=int, default=8, help="scan this many evenly spaced frames for ranges (0 = all; default 8)")
-    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.add_argument("--json", action="store_true", help="print the report as JSON (the exit status is the same: 1 when it lists problems)")
     p.set_defaults(func=run)
 
 
@@ -25,6 +30,7 @@ def inspect(path: Path, frames: int = 8, progress: Any = None) -> dict[str, Any]
     from x2video.io import detect_format, load_shot
 
     problems: list[str] = []
+    notes: list[str] = []
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         fmt = detect_format(path)
@@ -36,7 +42,7 @@ def inspect(path: Path, frames: int = 8, progress: Any = None) -> dict[str, Any]
             for c in shot.channels:
                 try:
                     a = shot.channel(c, t)
-                except ValueError as exc:
+                except (ValueError, OSError) as exc:
                     problems.append(str(exc))
                     continue
                 lo, hi = float(a.min()), float(a.max())
@@ -46,7 +52,7 @@ def inspect(path: Path, frames: int = 8, progress: Any = None) -> dict[str, Any]
                     norms = np.linalg.norm(a, axis=-1)
                     zero = int((norms < 0.5).sum())
                     if zero:
-                        problems.append(f"frame {t}: {zero} pixel(s) without a normal (zero vector)")
+                        notes.append(f"frame {t}: {zero} pixel(s) without a normal (zero vector: background?)")
             if progress is not None:
                 progress(i, len(ts))
         problems += [str(w.message) for w in caught]
@@ -69,6 +75,7 @@ def inspect(path: Path, frames: int = 8, progress: Any = None) -> dict[str, Any]
         "scanned_frames": ts,
         "ranges": ranges,
         "problems": problems,
+        "notes": notes,
     }
 
 
@@ -82,13 +89,16 @@ def run(args: argparse.Namespace) -> int:
 
     report = inspect(args.shot, args.frames, progress)
     bar.close()
+    status = 1 if report["problems"] else 0
     if args.json:
         print(json.dumps(report, indent=1))
-        return 0
+        return status
     print(f"{report['path']}  ({report['format']})")
     print(f"  frames   {report['frames']}  at {report['fps']:g} fps, {report['width']}x{report['height']}")
     print(f"  channels {', '.join(report['channels'])}" + (f"  (dropped: {', '.join(report['dropped'])})" if report["dropped"] else ""))
-    print(f"  poses    {'yes' if report['poses'] else 'no'}   irradiance scale {report['irradiance_scale']:.4g}")
+    scale = report["irradiance_scale"]
+    print(f"  poses    {'yes' if report['poses'] else 'no'}   irradiance scale {scale:.4g}"
+          + ("" if scale == 1.0 else " (the model sees irradiance x this; renders are written back in the file's units)"))
     if report["caption"]:
         print(f"  caption  {report['caption']}")
     for k, v in report["objects"].items():
@@ -102,4 +112,6 @@ def run(args: argparse.Namespace) -> int:
             print(f"    - {p}")
     else:
         print("  problems: none found")
-    return 0
+    for note in report["notes"][:20]:
+        print(f"  note: {note}")
+    return status

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from x2video.cli.fields import add_fields, from_args
+from x2video.io.units import OutputUnits
 from x2video.procedural.demo import demo_cache
 from x2video.sampling.events import FramesReady, RenderEvent, RenderSettings, RenderStarted, StepDone
 from x2video.weights import ModelOptions
@@ -77,32 +78,47 @@ def run(args: argparse.Namespace) -> int:
     start, stop = settings.frames or (0, shot.num_frames)
     if not 0 <= start < stop <= shot.num_frames:
         raise ValueError(f"--frames: frame range [{start}, {stop}) outside the shot's {shot.num_frames} frames")
-    plan(settings.scheme, stop - start, settings.window, max_levels=settings.max_levels)  # bad window sizes or levels fail before the model loads
-    if options.untrained and options.weights is not None:
-        raise ValueError("--untrained and --weights exclude each other")
-    if not options.untrained and options.weights is None and shipped_weights() is None:
-        from x2video.weights import HOW_TO_GET_WEIGHTS, where_weights_are_looked_for
+    units = OutputUnits.for_shot(shot, settings.exposure)
+    log.info("%s: %s", args.out, units.describe())
+    if settings.quality == "formula":  # no network, no weights: albedo x irradiance frame by frame
+        from x2video.sampling.formula import formula_frames
 
-        raise FileNotFoundError(HOW_TO_GET_WEIGHTS.format(where=where_weights_are_looked_for())
-                                + "; or pass --weights DIR, or add --untrained for a smoke render with random weights")
-    model = load_model(**dataclasses.asdict(options))
-    resolved = select_steps(settings, model)
-    renderer = Renderer(model)
+        render, steps_label, steps = formula_frames, "formula", 1
+    else:
+        plan(settings.scheme, stop - start, settings.window, max_levels=settings.max_levels)  # bad window sizes or levels fail before the model loads
+        if options.untrained and options.weights is not None:
+            raise ValueError("--untrained and --weights exclude each other")
+        if not options.untrained and options.weights is None and shipped_weights() is None:
+            from x2video.weights import HOW_TO_GET_WEIGHTS, where_weights_are_looked_for
+
+            raise FileNotFoundError(HOW_TO_GET_WEIGHTS.format(where=where_weights_are_looked_for())
+                                    + "; or pass --weights DIR, or add --untrained for a smoke render with random weights")
+        model = load_model(**dataclasses.asdict(options))
+        resolved = select_steps(settings, model)
+        render, steps_label, steps = Renderer(model).render, f"{resolved.sampler}-{resolved.steps}", resolved.steps
     t0 = time.perf_counter()
-    bar = tqdm(unit="step", desc=f"render {resolved.sampler}-{resolved.steps}", dynamic_ncols=True)
-    with FrameSink(args.out, fps=args.fps or shot.info.fps, expected=list(range(start, stop))) as sink:
+    bar = tqdm(unit="step", desc=f"render {steps_label}", dynamic_ncols=True)
+    with FrameSink(args.out, fps=args.fps or shot.info.fps, expected=list(range(start, stop)), units=units) as sink:
 
         def on_event(event: RenderEvent) -> None:
             if isinstance(event, RenderStarted):
-                bar.reset(total=event.num_windows * resolved.steps)
+                if event.tier == "diffusion":
+                    bar.reset(total=event.num_windows * steps)
+                else:  # tiers 0 and 1: one pass per frame
+                    bar.unit, bar.desc = "frame", f"render {event.tier}"
+                    bar.reset(total=event.num_frames)
+                if event.reason:
+                    log.info("tier %s: %s", event.tier, event.reason)
             elif isinstance(event, StepDone):
                 bar.update(1)
             elif isinstance(event, FramesReady):
+                if event.mode in ("residual", "formula"):
+                    bar.update(len(event.frames))
                 bar.set_postfix(level=event.level, frames=len(event.frames))
             sink(event)
 
         try:
-            renderer.render(shot, edits, settings, on_event=on_event, base_dir=base_dir)
+            render(shot, edits, settings, on_event=on_event, base_dir=base_dir)
         finally:
             bar.close()
     seconds = time.perf_counter() - t0

@@ -49,7 +49,7 @@ def apply_edits(shot: Shot, edits: Edits, t: int) -> FrameConditioning:
 def resolve_reference(shot: Shot, edits: Edits, base_dir: str | Path | None = None) -> tuple[int, np.ndarray] | None:
     """(frame index where the reference sits, linear RGB float32 (H, W, 3) at the shot's size), or None.
 
-    An image file sits at frame 0; PNG/JPG are sRGB-decoded, EXR taken as linear (negatives and
+    An image file sits at `reference.at` (default 0); PNG/JPG are sRGB-decoded, EXR taken as linear (negatives and
     NaN zeroed). A different aspect ratio is centre-cropped to the shot's before resizing. A shot
     frame reference is `rgb/` of that frame.
     """
@@ -66,6 +66,8 @@ def resolve_reference(shot: Shot, edits: Edits, base_dir: str | Path | None = No
     from x2video.io.convention import zero_nonfinite
     from x2video.io.image import read_image
 
+    if not 0 <= ref.position < shot.num_frames:
+        raise ValueError(f"reference image {ref.path}: placed at frame {ref.position}, outside the shot's {shot.num_frames} frames")
     path = Path(ref.path)  # type: ignore[arg-type]
     if not path.is_absolute() and base_dir is not None:
         path = Path(base_dir) / path
@@ -77,7 +79,7 @@ def resolve_reference(shot: Shot, edits: Edits, base_dir: str | Path | None = No
     rgb = img.stack(names)
     rgb = zero_nonfinite(rgb, str(path), "reference")
     rgb = srgb_to_linear(rgb) if img.max_int is not None else np.maximum(rgb, 0)
-    return 0, fit_image(rgb, shot.size)
+    return ref.position, fit_image(rgb, shot.size)
 
 
 def fit_image(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:

@@ -28,29 +28,41 @@ _EDIT_FIELDS = {"masks", "ops", "dropped", "global_prompt", "local_prompts", "re
 @dataclass
 class Reference:
     """The reference frame: an image file (`path`, relative to the project folder allowed) that sits
-    at frame 0, or frame `frame` of the shot's `rgb/` channel, which sits at that frame."""
+    at frame `at` (default 0: a photo or a look to follow from the start; a rendered frame used as
+    the reference sits where it was rendered), or frame `frame` of the shot's `rgb/` channel, which
+    sits at that frame."""
 
     path: str | None = None
     frame: int | None = None
+    at: int | None = None
 
     def __post_init__(self) -> None:
         if (self.path is None) == (self.frame is None):
             raise ValueError("reference: give exactly one of 'path' (an image file) or 'frame' (a shot frame index)")
         if self.frame is not None and (not isinstance(self.frame, int) or self.frame < 0):
             raise ValueError(f"reference.frame: {self.frame!r} is not a frame index")
+        if self.at is not None and (self.path is None or not isinstance(self.at, int) or self.at < 0):
+            raise ValueError(f"reference.at: {self.at!r} is not a frame index for an image file (a shot frame sits at 'frame')")
+
+    @property
+    def position(self) -> int:
+        """The shot frame the reference sits at."""
+        return self.frame if self.frame is not None else (self.at or 0)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"path": self.path} if self.path is not None else {"frame": self.frame}
+        if self.path is None:
+            return {"frame": self.frame}
+        return {"path": self.path} if self.at is None else {"path": self.path, "at": self.at}
 
     @classmethod
     def from_dict(cls, d: Any, where: str = "reference") -> "Reference":
         if not isinstance(d, dict):
             raise ValueError(f"{where}: expected an object")
-        unknown = set(d) - {"path", "frame"}
+        unknown = set(d) - {"path", "frame", "at"}
         if unknown:
             raise ValueError(f"{where}: unknown field(s) {', '.join(sorted(unknown))}")
         try:
-            return cls(path=d.get("path"), frame=d.get("frame"))
+            return cls(path=d.get("path"), frame=d.get("frame"), at=d.get("at"))
         except ValueError as exc:
             raise ValueError(f"{where}: {exc}") from None
 

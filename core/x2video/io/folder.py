@@ -8,6 +8,7 @@ in a small LRU cache.
 from __future__ import annotations
 
 import logging
+import re
 from pathlib import Path
 from typing import Any
 
@@ -15,35 +16,91 @@ import numpy as np
 
 from x2video.channels import SPECS
 from x2video.io.cache import LRU
-from x2video.io.convention import exposure_scale, log_luminance_sum, to_memory
-from x2video.io.image import read_image, read_spec
+from x2video.io.convention import exposure_scale, log_luminance_sum, sanitize, to_memory, zero_nonfinite
+from x2video.io.image import ImageData, read_image, read_spec
 from x2video.io.sequence import find_frames
-from x2video.io.shotdir import parse_cameras_json, parse_shot_json
+from x2video.io.shotdir import find_poses, parse_shot_json
 from x2video.shot import Shot, ShotInfo
 
 log = logging.getLogger(__name__)
 
-#: folder names accepted for each channel besides its own name
+#: folder names accepted for each channel besides its own name (matched ignoring case, so the
+#: V-RGBX layout's Albedo/ Normal/ Irradiance/ and DiffusionRenderer's basecolor/ load as they are)
 ALIASES: dict[str, tuple[str, ...]] = {
-    "albedo": ("basecolor", "base_color"),
+    "albedo": ("basecolor", "base_color", "diffuse_albedo"),
     "normal": ("normals",),
+    "metallic": ("metalness",),
     "irradiance": ("shading",),
-    "rgb": ("beauty", "image"),
+    "rgb": ("beauty", "image", "images"),
     "ids": ("id", "object_id"),
 }
+#: a packed material folder (V-RGBX): roughness in R, metallic in G; used for the channels that
+#: have no folder of their own
+PACKED = {"material": {"roughness": 0, "metallic": 1}}
 #: at most this many frames (evenly spaced) are read to measure a shot's irradiance exposure
 EXPOSURE_SAMPLES = 16
+
+
+#: DiffusionRenderer's G-buffer frames, all in one folder: ``<chunk>.<index>.<pass>.<ext>`` (its
+#: inverse renderer's ``gbuffer_frames/<clip>/``); pass name -> our channel. Its depth pass is
+#: normalised for display, not metres, so it is not read.
+PASS_NAMES = {"basecolor": "albedo", "base_color": "albedo", "diffuse_albedo": "albedo", "normal": "normal",
+              "roughness": "roughness", "metallic": "metallic", "irradiance": "irradiance", "rgb": "rgb"}
+_PASS_RE = re.compile(r"^(?P<nums>\d+(?:\.\d+)*)\.(?P<pass>[A-Za-z_]+)\.(?P<ext>png|jpe?g|exr|tiff?)$", re.IGNORECASE)
+
+
+def pass_files(root: Path) -> dict[str, list[Path]]:
+    """Channel -> frame files, for a folder of ``<chunk>.<index>.<pass>.<ext>`` files (DiffusionRenderer);
+    {} when the folder holds none. Frames are ordered by their numbers; a missing frame, or frames of
+    several chunks (DiffusionRenderer's chunks overlap: stitch them first), are errors naming the folder."""
+    if not root.is_dir():
+        return {}
+    found: dict[str, dict[tuple[int, ...], Path]] = {}
+    preferred: dict[str, str] = {}
+    for p in sorted(root.iterdir()):
+        m = _PASS_RE.match(p.name) if p.is_file() else None
+        if m is None or m["pass"].lower() not in PASS_NAMES:
+            continue
+        ch, pas = PASS_NAMES[m["pass"].lower()], m["pass"].lower()
+        if ch in preferred and preferred[ch] != pas:  # basecolor wins over diffuse_albedo
+            if list(PASS_NAMES).index(pas) > list(PASS_NAMES).index(preferred[ch]):
+                continue
+            found.pop(ch, None)
+        preferred[ch] = pas
+        found.setdefault(ch, {})[tuple(int(v) for v in m["nums"].split("."))] = p
+    out: dict[str, list[Path]] = {}
+    for ch, frames in found.items():
+        keys = sorted(frames)
+        chunks = sorted({k[:-1] for k in keys})
+        if len(chunks) > 1:
+            raise ValueError(f"{root}: {preferred[ch]} frames of {len(chunks)} chunks ({', '.join('.'.join(map(str, c)) for c in chunks[:3])}); "
+                             "overlapping chunks must be stitched into one sequence first")
+        idx = [k[-1] for k in keys]
+        if idx != list(range(idx[0], idx[0] + len(idx))):
+            gap = next(a + 1 for a, b in zip(idx, idx[1:]) if b != a + 1)
+            raise ValueError(f"{root}: {preferred[ch]} frame {gap} is missing")
+        out[ch] = [frames[k] for k in keys]
+    return out
 
 
 def channel_folders(root: Path) -> dict[str, Path]:
     """Channel name -> folder, for the channel folders present in `root`."""
     found: dict[str, Path] = {}
+    if not root.is_dir():
+        return found
+    dirs: dict[str, Path] = {}
+    for p in sorted(root.iterdir()):
+        if p.is_dir() and not p.name.startswith(".") and (p.name.lower() not in dirs or p.name == p.name.lower()):
+            dirs[p.name.lower()] = p  # an exact lower-case name wins over Albedo/ALBEDO
     for name in (*SPECS, "motion"):
         for cand in (name, *ALIASES.get(name, ())):
-            d = root / cand
-            if d.is_dir():
-                found[name] = d
+            if cand in dirs:
+                found[name] = dirs[cand]
                 break
+    for pack, parts in PACKED.items():
+        if pack in dirs:
+            for name in parts:
+                found.setdefault(name, dirs[pack])
     return found
 
 
@@ -64,11 +121,14 @@ class FolderShot(Shot):
         meta: dict[str, Any] = {}
         if (self.root / "shot.json").is_file():
             meta = parse_shot_json(self.root / "shot.json")
-        if not folders:
+        passes = {} if folders else pass_files(self.root)
+        if not folders and not passes:
             raise ValueError(
                 f"{self.root}: no channel folders (expected some of {', '.join((*SPECS, 'motion'))}/ with numbered frames)"
             )
-        self._frames: dict[str, list[Path]] = {name: find_frames(d) for name, d in folders.items()}
+        self._frames: dict[str, list[Path]] = passes or {name: find_frames(d) for name, d in folders.items()}
+        #: channel -> component index, for channels read from a packed material folder
+        self._packed = {name: PACKED[d.name.lower()][name] for name, d in folders.items() if d.name.lower() in PACKED}
         motion = self._frames.pop("motion", None)
         counts = {name: len(f) for name, f in self._frames.items()}
         if not counts:
@@ -78,14 +138,13 @@ class FolderShot(Shot):
         ref_name = "shot.json" if "num_frames" in meta else f"{first}/"
         for name, c in counts.items():
             if c != n:
-                raise ValueError(f"{self.root / folders[name].name}: {c} frames, but {ref_name} has {n}")
+                where = self.root / folders[name].name if name in folders else f"{self.root} ({name} pass)"
+                raise ValueError(f"{where}: {c} frames, but {ref_name} has {n}")
         if motion is not None and len(motion) not in (n, n - 1):
             raise ValueError(f"{folders['motion']}: {len(motion)} motion frames for a shot of {n} frames (expected {n - 1} or {n})")
         self._motion = motion
         h, w = self._check_headers(meta)
-        poses = None
-        if (self.root / "cameras.json").is_file():
-            poses = parse_cameras_json(self.root / "cameras.json", n)
+        poses = find_poses(self.root, n, (h, w))
         order = tuple(c for c in SPECS if c in self._frames)
         self._cache = LRU(cache_size)
         self.info = ShotInfo(
@@ -137,7 +196,10 @@ class FolderShot(Shot):
         img = read_image(path)
         if (img.height, img.width) != (self.info.height, self.info.width):
             raise ValueError(f"{path}: size {img.width}x{img.height}, the shot is {self.info.width}x{self.info.height}")
-        a = to_memory(name, img, where=f"{path} (frame {t})")
+        if name in self._packed:
+            a = _packed_component(img, self._packed[name], name, f"{path} (frame {t})")
+        else:
+            a = to_memory(name, img, where=f"{path} (frame {t})")
         if name == "irradiance":
             s = self.info.irradiance_scale if scale is None else scale
             if s != 1.0:
@@ -152,3 +214,13 @@ class FolderShot(Shot):
         if self._motion is None or not 0 <= t < len(self._motion):
             return None
         return self._cache.get_or(("motion", t), lambda: self._decode("motion", t))
+
+
+def _packed_component(img: ImageData, index: int, name: str, where: str) -> np.ndarray:
+    """Component `index` (0 = R, 1 = G) of a packed material image, as channel `name` in [0, 1]
+    (integer files are taken as values, not sRGB-decoded)."""
+    colour = [c for c in img.channel_names if c not in ("A", "a")]
+    if len(colour) <= index:
+        raise ValueError(f"{where}: a packed material image needs roughness in R and metallic in G; it has {', '.join(img.channel_names)}")
+    a = zero_nonfinite(img.stack([("R", "G", "B")[index] if ("R", "G", "B")[index] in img.planes else colour[index]]), where, name)
+    return sanitize(name, a, where, check_finite=False)

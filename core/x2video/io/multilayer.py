@@ -7,7 +7,7 @@ Blender's (``<ViewLayer>.<Pass>.<comp>``, short or long pass names):
 - albedo: a shader AOV named basecolor / base_color (preferred: Diffuse Color is black on
   metals), else ``DiffCol`` / ``Diffuse Color``;
 - normal: ``Normal`` is world space: turned into camera space with the per-frame
-  ``cameras.json`` beside the frames (docs/SHOT_FORMAT.md), with a warning when it is absent;
+  ``cameras.json`` (or nerfstudio ``transforms.json``) beside the frames (docs/SHOT_FORMAT.md), with a warning when it is absent;
 - irradiance: ``DiffDir`` + ``DiffInd`` (Blender's diffuse light passes are already divided by
   the diffuse colour: our convention), exposure-normalised once per shot;
 - roughness / metallic: shader AOVs with those names (value ``.X`` or colour ``.R``);
@@ -28,7 +28,7 @@ from x2video.io.cache import LRU
 from x2video.io.convention import exposure_scale, log_luminance_sum, normalize, sanitize, zero_nonfinite
 from x2video.io.image import ImageData, read_image, read_spec
 from x2video.io.sequence import find_frames
-from x2video.io.shotdir import parse_cameras_json, parse_shot_json
+from x2video.io.shotdir import find_poses, parse_shot_json
 from x2video.shot import Shot, ShotInfo
 
 log = logging.getLogger(__name__)
@@ -147,12 +147,12 @@ class MultilayerShot(Shot):
         n = len(self._files)
         if "num_frames" in meta and meta["num_frames"] != n:
             raise ValueError(f"{folder / 'shot.json'}: says {meta['num_frames']} frames, {p} has {n}")
-        poses = parse_cameras_json(folder / "cameras.json", n) if (folder / "cameras.json").is_file() else None
+        poses = find_poses(folder, n, (spec.height, spec.width))
         src_n = self._sources.get("normal")
         self._world_normals = bool(src_n and src_n.blender)
         if self._world_normals and poses is None:
             warnings.warn(
-                f"{folder}: Blender Normal pass is in world space and there is no cameras.json beside the frames;"
+                f"{folder}: Blender Normal pass is in world space and there is no cameras.json or transforms.json beside the frames;"
                 " normals are used as they are (world space)",
                 RuntimeWarning,
                 stacklevel=2,

@@ -104,12 +104,97 @@ def parse_shot_json(path: Path) -> dict[str, Any]:
     return doc
 
 
+#: the two camera files a shot folder may hold, in order of preference
+POSE_FILES = ("cameras.json", "transforms.json")
+POSE_FORMS = (
+    "our cameras.json {'convention': 'opengl_cam_to_world', 'frames': [{'frame': 0, 'cam_to_world': 4x4, 'fov_y_deg': 60}]}"
+    " or a nerfstudio / instant-ngp transforms.json {'frames': [{'file_path': ..., 'transform_matrix': 4x4}],"
+    " 'fl_y'/'h' or 'camera_angle_x'}"
+)
+
+
+def find_poses(folder: Path, num_frames: int, size: tuple[int, int] | None = None) -> list[CameraPose] | None:
+    """Per-frame poses from `folder`'s cameras.json or transforms.json (the first present), or None.
+
+    `size` (H, W) of the frames lets a transforms.json with only `camera_angle_x` give a vertical fov."""
+    for name in POSE_FILES:
+        path = Path(folder) / name
+        if path.is_file():
+            return read_poses(path, num_frames, size)
+    return None
+
+
+def read_poses(path: Path, num_frames: int, size: tuple[int, int] | None = None) -> list[CameraPose]:
+    """Poses from either camera file form, told apart by content; an error naming both forms otherwise."""
+    doc = read_json(path)
+    frames = doc.get("frames") if isinstance(doc, dict) else None
+    if isinstance(frames, list) and frames and all(isinstance(f, dict) and "transform_matrix" in f for f in frames):
+        return parse_transforms_json(path, num_frames, size, doc)
+    if isinstance(frames, list) and all(isinstance(f, dict) and "cam_to_world" in f for f in frames):
+        return parse_cameras_json(path, num_frames)
+    raise ValueError(f"{path}: not a camera file this x2video reads; expected {POSE_FORMS}")
+
+
+def _frame_order(frames: list[dict[str, Any]]) -> list[int]:
+    """Indices of transforms.json frames in shot order: by the number in each file name (nerfstudio sorts
+    by file name too), else as listed."""
+    import re
+
+    nums = []
+    for f in frames:
+        m = re.search(r"(\d+)(?!.*\d)", Path(str(f.get("file_path", ""))).stem)
+        nums.append(None if m is None else int(m.group(1)))
+    if all(n is not None for n in nums) and len(set(nums)) == len(nums):
+        return sorted(range(len(frames)), key=lambda i: nums[i])  # type: ignore[arg-type, return-value]
+    return list(range(len(frames)))
+
+
+def parse_transforms_json(path: Path, num_frames: int, size: tuple[int, int] | None = None, doc: Any = None) -> list[CameraPose]:
+    """A nerfstudio / instant-ngp transforms.json: `frames[].transform_matrix` is camera-to-world with an
+    OpenGL camera (as ours); the vertical fov comes from `fl_y` and `h` (per frame or top level), else
+    `camera_angle_y`, else `camera_angle_x` with the aspect ratio (`w`/`h`, else the frames' size)."""
+    import math
+
+    doc = read_json(path) if doc is None else doc
+    frames = doc["frames"]
+    if len(frames) != num_frames:
+        raise ValueError(f"{path}: {len(frames)} frames in transforms.json for a shot of {num_frames} frames")
+    poses = []
+    for i in _frame_order(frames):
+        f = frames[i]
+        try:
+            m = np.asarray(f["transform_matrix"], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"{path}: frames[{i}].transform_matrix is not a matrix") from None
+        if m.shape == (3, 4):
+            m = np.vstack([m, [0, 0, 0, 1]])
+        if m.shape != (4, 4) or not np.isfinite(m).all():
+            raise ValueError(f"{path}: frames[{i}].transform_matrix is not a finite 4x4 matrix (shape {m.shape})")
+
+        def get(key: str, f: dict[str, Any] = f) -> float | None:
+            v = f.get(key, doc.get(key))
+            return None if v is None else float(v)
+
+        fl_y, fl_x, h, w = get("fl_y"), get("fl_x"), get("h"), get("w")
+        h = h if h is not None else (None if size is None else float(size[0]))
+        w = w if w is not None else (None if size is None else float(size[1]))
+        fov = None
+        if (fl_y or fl_x) and h:
+            fov = 2 * math.atan(h / (2 * (fl_y or fl_x)))  # type: ignore[operator]
+        elif get("camera_angle_y") is not None:
+            fov = get("camera_angle_y")
+        elif get("camera_angle_x") is not None and h and w:
+            fov = 2 * math.atan(math.tan(get("camera_angle_x") / 2) * h / w)  # type: ignore[operator]
+        poses.append(CameraPose(cam_to_world=m, fov_y_deg=None if fov is None else math.degrees(fov)))
+    return poses
+
+
 def parse_cameras_json(path: Path, num_frames: int) -> list[CameraPose]:
     """Read cameras.json; one pose per frame, in frame order."""
     doc = read_json(path)
     frames = doc.get("frames") if isinstance(doc, dict) else None
     if not isinstance(frames, list):
-        raise ValueError(f"{path}: expected {{'convention': 'opengl_cam_to_world', 'frames': [...]}}")
+        raise ValueError(f"{path}: not a camera file this x2video reads; expected {POSE_FORMS}")
     conv = doc.get("convention", "opengl_cam_to_world")
     if conv != "opengl_cam_to_world":
         raise ValueError(f"{path}: field 'convention' is {conv!r}, expected 'opengl_cam_to_world'")
@@ -229,13 +314,22 @@ class ShotWriter:
 
 
 def write_shot_folder(shot: Shot, out_dir: str | Path, *, overwrite: bool = False, progress: Any = None) -> Path:
-    """Copy every frame of `shot` (and its motion, when it has some) into a shot folder."""
+    """Copy every frame of `shot` (and its motion, when it has some) into a shot folder.
+
+    Units in = units out: irradiance is written in the input's units (the loader's exposure
+    normalisation undone, `x2video.io.units`), and shot.json says it is normalised only when the
+    input was (scale 1), so loading the copy gives what loading the original gave."""
+    from x2video.io.units import OutputUnits
+
     info = shot.info
-    normalized = True  # what the loader returns is already in the model's exposure
+    units = OutputUnits.for_shot(shot)
+    normalized = units.irradiance_scale == 1.0
     with ShotWriter(out_dir, info, irradiance_normalized=normalized, overwrite=overwrite) as w:
         motion = getattr(shot, "motion", None)
         for t in range(info.num_frames):
             frame = shot.frame(t)
+            if "irradiance" in frame:
+                frame["irradiance"] = units.scene(frame["irradiance"])
             if callable(motion) and t < info.num_frames - 1:
                 m = motion(t)
                 if m is not None:

@@ -15,6 +15,7 @@ from x2video.channels import SPECS, linear_to_srgb, tonemap
 from x2video.io.atomic import atomic_path, write_json_atomic
 from x2video.io.image import write_exr, write_ldr
 from x2video.io.shotdir import cameras_json, frame_name, shot_json
+from x2video.io.units import OutputUnits
 from x2video.shot import Shot
 
 Progress = Callable[[int], None] | None
@@ -28,20 +29,25 @@ def _prepare(out_dir: str | Path, overwrite: bool) -> Path:
     return out
 
 
-def _metadata(shot: Shot, out: Path) -> None:
+def _metadata(shot: Shot, out: Path, irradiance_normalized: bool = True) -> None:
     if shot.info.poses is not None:
         write_json_atomic(out / "cameras.json", cameras_json(shot.info.poses))
-    write_json_atomic(out / "shot.json", shot_json(shot.info, irradiance_normalized=True))
+    write_json_atomic(out / "shot.json", shot_json(shot.info, irradiance_normalized=irradiance_normalized))
 
 
 def write_multilayer(shot: Shot, out_dir: str | Path, *, overwrite: bool = False, progress: Progress = None) -> Path:
-    """One half-float multi-layer EXR per frame with our names (``albedo.R`` ...); ids and depth as float."""
+    """One half-float multi-layer EXR per frame with our names (``albedo.R`` ...); ids and depth as float.
+    Irradiance in the input's units (the loader's exposure normalisation undone, as `write_shot_folder`)."""
     out = _prepare(out_dir, overwrite)
     motion = getattr(shot, "motion", None)
+    units = OutputUnits.for_shot(shot)
+    normalized = units.irradiance_scale == 1.0
     for t in range(shot.num_frames):
         planes: dict[str, np.ndarray] = {}
         types: dict[str, str] = {}
         frame = shot.frame(t)
+        if "irradiance" in frame:
+            frame["irradiance"] = units.scene(frame["irradiance"])
         if callable(motion) and (m := motion(t)) is not None:
             frame["motion"] = m
         for name, a in frame.items():
@@ -49,11 +55,11 @@ def write_multilayer(shot: Shot, out_dir: str | Path, *, overwrite: bool = False
             for i, s in enumerate(suffixes):
                 planes[f"{name}.{s}"] = a[..., i].astype(np.float32)
                 types[f"{name}.{s}"] = "float" if name in ("ids", "depth", "motion") else "half"
-        attrs = {"x2video:frame": t, "x2video:irradiance_normalized": 1, "FramesPerSecond": float(shot.info.fps)}
+        attrs = {"x2video:frame": t, "x2video:irradiance_normalized": int(normalized), "FramesPerSecond": float(shot.info.fps)}
         write_exr(out / frame_name(t), planes, types, attrs)
         if progress is not None:
             progress(t)
-    _metadata(shot, out)
+    _metadata(shot, out, normalized)
     return out
 
 
@@ -81,7 +87,8 @@ def write_png_sequence(
     shot: Shot, out_dir: str | Path, *, bits: int = 16, channels: Iterable[str] | None = None, overwrite: bool = False, progress: Progress = None
 ) -> Path:
     """A folder per channel of PNGs: albedo/irradiance/rgb sRGB-encoded (irradiance and rgb clipped to
-    [0, 1]: lossy for HDR), normals ``0.5 n + 0.5``, roughness/metallic as is, ids as integers
+    [0, 1]: lossy for HDR; irradiance stays in the loader's normalised exposure, which is what fits
+    8/16-bit, and shot.json says so), normals ``0.5 n + 0.5``, roughness/metallic as is, ids as integers
     (16-bit: up to 65535); depth is not written (no meaningful PNG form)."""
     out = _prepare(out_dir, overwrite)
     names = [c for c in (shot.channels if channels is None else channels) if c != "depth"]

@@ -153,9 +153,8 @@ class X2VideoModel:
         model = cls(cfg, unet, vae, text_encoder, lcm, device=device, dtype=dtype, encoder_dtype=encoder_dtype, channel_encoder=enc)
         model._content_key = None
         if (directory / "residual.safetensors").is_file():
-            from x2video.model.residual import load as load_residual
-
             from x2video.model.residual import engine
+            from x2video.model.residual import load as load_residual
 
             model.residual_net = engine(load_residual(directory, model.device), model.device)
         return model

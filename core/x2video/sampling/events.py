@@ -59,12 +59,16 @@ class RenderSettings:
     step but the first and last is taken this many times, going back one step's worth of noise in between
     (`x2video.sampling.samplers.sample_ddim`); 1: off; r costs those windows about r times the network passes."""
     quality: Literal["auto", "formula", "residual", "diffusion"] = "auto"
-    """Which tier renders (`x2video.sampling.tiers`): 'formula' = albedo x irradiance; 'residual' = one pass of
-    the tier-1 network over it (needs residual.safetensors beside the weights); 'diffusion' = the video
-    diffusion sampler. 'auto': the tier-1 network where nothing must be generated, the diffusion sampler where
-    something must (a dropped channel, a masked A|M|R region, a local prompt, a reference) and, when only some
-    regions must be generated, tier 1 around them with a feathered seam; a model without the tier-1 network
-    renders with the diffusion sampler. The log says what ran and why."""
+    """Which tier renders (`x2video.sampling.tiers`): 'formula' = albedo x irradiance, no network, no weights;
+    'residual' = one pass of the tier-1 network over it (needs residual.safetensors beside the weights);
+    'diffusion' = the video diffusion sampler. 'auto': the tier-1 network where nothing must be generated, the
+    diffusion sampler where something must (a dropped channel, a masked A|M|R region, a local prompt, a
+    reference) and, when only some regions must be generated, tier 1 around them with a feathered seam; a model
+    without the tier-1 network renders with the diffusion sampler. The log says what ran and why."""
+    exposure: float | str = "auto"
+    """MP4 exposure in stops on the input's radiometric units, or 'auto': the shot's own irradiance
+    normalisation, i.e. what the model saw (`x2video.io.units.OutputUnits`). EXR output is always in the
+    input's units."""
     preset: Literal["fast", "quality"] | None = None
     """Overrides sampler and steps when set: 'fast' = LCM-2 if distilled weights are loaded, else DDIM-4;
     'quality' = DDIM-20 (`x2video.sampling.renderer.select_steps`)."""

@@ -76,6 +76,35 @@ def plain_conditioning(shot: Shot, t: int) -> FrameConditioning:
     )
 
 
+def pad_amounts(size: tuple[int, int], factor: int) -> tuple[int, int]:
+    """(rows, columns) to add at the bottom and right so that (H, W) become multiples of `factor`."""
+    h, w = size
+    return (-h) % factor, (-w) % factor
+
+
+def pad_image(a: np.ndarray, ph: int, pw: int) -> np.ndarray:
+    """Reflect-pad the first two axes (H, W, ...) of `a` by `ph` rows at the bottom and `pw` columns at
+    the right (edge where an axis has one pixel); never a resize."""
+    if not ph and not pw:
+        return a
+    widths = [(0, ph), (0, pw)] + [(0, 0)] * (a.ndim - 2)
+    mode = "reflect" if min(a.shape[:2]) > 1 else "edge"
+    return np.pad(a, widths, mode=mode)
+
+
+def pad_conditioning(cond: FrameConditioning, ph: int, pw: int) -> FrameConditioning:
+    """`cond` reflect-padded at the bottom/right (channels, A|M|R mask and local masks alike)."""
+    if not ph and not pw:
+        return cond
+    masks = np.asarray(cond.local_masks)
+    return dataclasses.replace(
+        cond,
+        channels={k: None if v is None else pad_image(np.asarray(v), ph, pw) for k, v in cond.channels.items()},
+        amr_mask=pad_image(np.asarray(cond.amr_mask), ph, pw),
+        local_masks=np.stack([pad_image(m, ph, pw) for m in masks]) if masks.shape[0] else np.zeros((0, masks.shape[1] + ph, masks.shape[2] + pw), np.float32),
+    )
+
+
 def window_seed(seed: int, window: Window) -> int:
     """Seed of one window's initial noise: depends on the user seed and the window's frames and level only."""
     return int(np.random.SeedSequence([seed, window.level, *window.frames]).generate_state(1, np.uint64)[0] >> 1)
@@ -200,6 +229,10 @@ class Renderer:
         frames and returns. Any error emits RenderFailed and is re-raised. `base_dir` resolves
         relative paths of a reference image in the edits (the project file's folder).
         """
+        if settings.quality == "formula":  # tier 0: no network, albedo x irradiance frame by frame
+            from x2video.sampling.formula import formula_frames
+
+            return formula_frames(shot, edits, settings, on_event, cancel, base_dir=base_dir)
         emit: Callable[[RenderEvent], None] = on_event if on_event is not None else (lambda e: None)
         done: set[int] = set()  # frames delivered so far
         self.encode_seconds = 0.0
@@ -234,10 +267,6 @@ class Renderer:
             raise ValueError(f"ref_dc must lie in [0, 1] (0 = off), got {settings.ref_dc}")
         if settings.resample < 1:
             raise ValueError(f"resample must be at least 1 (1 = off), got {settings.resample}")
-        h, w = shot.size
-        d = self.model.downsample
-        if h % d or w % d:
-            raise ValueError(f"shot size {w}x{h} is not a multiple of the model's downsampling factor {d}")
         return settings
 
     def _render(
@@ -269,9 +298,19 @@ class Renderer:
         if choice.tier in ("formula", "residual"):
             self._render_direct(shot, settings, choice, conditioning, emit, cancel, done, t0)
             return
+        # any frame size: reflect-pad to the model's factor, crop every decoded frame back
+        height, width = shot.size
+        ph, pw = pad_amounts((height, width), model.downsample)
+        if ph or pw:
+            log.info("shot size %dx%d: reflect-padded to %dx%d (the model's factor %d), frames cropped back",
+                     width, height, width + pw, height + ph, model.downsample)
+            unpadded = conditioning
+            conditioning = lambda t: pad_conditioning(unpadded(t), ph, pw)  # noqa: E731
+            if reference is not None:
+                reference = (reference[0], pad_image(reference[1], ph, pw))
         settings = self._validate(shot, settings)
         if choice.regions:
-            emit = self._composite(emit, conditioning, net)
+            emit = self._composite(emit, unpadded if (ph or pw) else conditioning, net)
         windows = self.plan(shot, settings, None if reference is None else reference[0])
         keep_until = last_use(windows)
 
@@ -304,7 +343,7 @@ class Renderer:
                 for f in window.refs:
                     if keep_until.get(f) == index:
                         latents.pop(f, None)
-                frames = {f: np.asarray(images[i], dtype=np.float32) for i, f in enumerate(window.generate)}
+                frames = {f: np.ascontiguousarray(images[i][:height, :width], dtype=np.float32) for i, f in enumerate(window.generate)}
                 again = tuple(f for f in window.generate if f in done)  # the seam pass makes frames a second time
                 done.update(window.generate)
                 emit(FramesReady(window=index, frames=frames, level=window.level, mode=window.mode, seconds=time.perf_counter() - tw,

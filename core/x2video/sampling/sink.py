@@ -13,50 +13,21 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
-from x2video.io.atomic import atomic_path
+from x2video.io.units import OutputUnits
 from x2video.sampling.events import FramesReady, RenderCancelled, RenderEvent, RenderFailed, RenderFinished
 
 log = logging.getLogger(__name__)
 
 
-def _write_exr(path: Path, rgb: np.ndarray) -> None:
-    """Linear RGB (H, W, 3) as a half-float EXR with channels R, G, B."""
+def _write_exr(path: Path, rgb: np.ndarray, units: OutputUnits) -> None:
+    """Rendered linear RGB (H, W, 3) as a half-float EXR with channels R, G, B, in the input's units."""
     from x2video.io.image import write_exr
 
-    rgb = np.asarray(rgb, dtype=np.float32)
-    write_exr(path, {"R": rgb[..., 0], "G": rgb[..., 1], "B": rgb[..., 2]}, "half")
-
-
-def _encode_mp4(path: Path, frames: Iterator[np.ndarray], fps: float, crf: int = 18) -> int:
-    """H.264 yuv420p MP4 of linear RGB frames (tone-mapped with `channels.tonemap`); returns the frame count."""
-    from fractions import Fraction
-
-    import av
-
-    from x2video.channels import tonemap
-
-    count = 0
-    with av.open(str(path), mode="w", format="mp4") as container:
-        stream = container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1000))
-        stream.pix_fmt = "yuv420p"
-        stream.options = {"crf": str(crf)}
-        for rgb in frames:
-            h, w = rgb.shape[:2]
-            if count == 0:
-                if h % 2 or w % 2:
-                    raise ValueError(f"MP4 (yuv420p) needs an even frame size, got {w}x{h}")
-                stream.width, stream.height = w, h
-            srgb = (tonemap(rgb) * 255.0 + 0.5).astype(np.uint8)  # (H, W, 3)
-            for packet in stream.encode(av.VideoFrame.from_ndarray(srgb, format="rgb24")):
-                container.mux(packet)
-            count += 1
-        for packet in stream.encode():
-            container.mux(packet)
-    return count
+    rgb = units.scene(rgb)
+    write_exr(path, {"R": rgb[..., 0], "G": rgb[..., 1], "B": rgb[..., 2]}, "half", units.exr_attributes())
 
 
 class FrameSink:
@@ -65,10 +36,14 @@ class FrameSink:
     `out` ending in .mp4 gives an H.264 MP4 at `fps`; anything else is a folder of
     `000123.exr` files (shot frame numbers, linear half float, channels R, G, B).
     `expected` (the frame indices of the render), when given, is checked on finish.
+    `units` (`x2video.io.units.OutputUnits`) takes the frames from the model's exposure to the
+    input's units (EXR) and to the MP4's exposure; the default is the identity.
     """
 
-    def __init__(self, out: str | Path, *, fps: float = 10.0, expected: list[int] | None = None) -> None:
+    def __init__(self, out: str | Path, *, fps: float = 10.0, expected: list[int] | None = None,
+                 units: OutputUnits | None = None) -> None:
         self.out = Path(out)
+        self.units = units if units is not None else OutputUnits()
         self.fps = float(fps)
         self.expected = None if expected is None else sorted(expected)
         self.mp4 = self.out.suffix.lower() == ".mp4"
@@ -107,7 +82,7 @@ class FrameSink:
         if self.mp4:
             np.save(self._frame_path(index), np.asarray(rgb, dtype=np.float16))
         else:
-            _write_exr(self._frame_path(index), rgb)
+            _write_exr(self._frame_path(index), rgb, self.units)
         self._frames.add(index)
 
     def finish(self) -> Path:
@@ -122,9 +97,11 @@ class FrameSink:
                 missing = sorted(set(self.expected) - set(order))
                 raise ValueError(f"render for {self.out} is missing frames {missing[:10]}")
             if self.mp4:
-                frames = (np.load(self._frame_path(i)).astype(np.float32) for i in order)
-                with atomic_path(self.out) as tmp:
-                    _encode_mp4(tmp, frames, self.fps)
+                from x2video.io.writers import MP4Writer
+
+                with MP4Writer(self.out, self.fps, encode="srgb") as video:  # atomic; pads odd sizes
+                    for i in order:
+                        video.write(self.units.display(np.load(self._frame_path(i)).astype(np.float32)))
             else:
                 self._replace_folder()
         except BaseException:
