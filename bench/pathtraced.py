@@ -90,6 +90,25 @@ def render_tier(renderer: Renderer, shot, tier: str, condition: str) -> tuple[li
     return [frames[t] for t in range(shot.num_frames)], time.perf_counter() - t0
 
 
+LABELS = {"albedo_x_irradiance|all": "formula: albedo × irradiance", "formula|all": "tier 0 (formula)", "residual|all": "tier 1 (residual net)",
+          "diffusion|all": "tier 2 (diffusion, fast preset)", "diffusion|drop_irradiance": "tier 2, irradiance dropped"}
+
+
+def markdown(summary: dict) -> list[str]:
+    """The summary as a Markdown table: PSNR, SSIM, TC, seconds per frame, then PSNR per material class."""
+    classes = [c for c in CLASSES if any(v["pixel_share"].get(c) for v in summary.values())]
+    head = ["render", "PSNR↑", "SSIM↑", "TC↓", "s/frame↓"] + [f"{c} PSNR" for c in classes]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for key, v in summary.items():
+        cells = [LABELS.get(key, key), f"{v['psnr']:.2f}", f"{v['ssim']:.4f}", "—" if v["tc"] is None else f"{v['tc']:.3f}",
+                 f"{v['sec_per_frame']:.3f}"] + ["—" if v["psnr_by_material"][c] is None else f"{v['psnr_by_material'][c]:.2f}" for c in classes]
+        lines.append("| " + " | ".join(cells) + " |")
+    share = ", ".join(f"{c} {100 * next(iter(summary.values()))['pixel_share'][c]:.1f} %" for c in classes)
+    lines.append("")
+    lines.append(f"Pixel shares: {share}.")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", required=True, help="data set folder (DATA/<split>/<shot>/) or a folder of shots with --split ''")
@@ -172,6 +191,9 @@ def main(argv: list[str] | None = None) -> int:
     dest = results_path("pathtraced", args.name or f"{Path(args.data).name}_{args.split or 'all'}")
     dest.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(dest, out)
+    from x2video.io.atomic import write_text_atomic
+
+    write_text_atomic(dest.with_suffix(".md"), "\n".join(markdown(summary)) + "\n")
     for key, v in summary.items():
         print(f"{key:28s} PSNR {v['psnr']:6.2f}  SSIM {v['ssim']:.4f}  TC {v['tc']}  s/frame {v['sec_per_frame']:.3f}  {v['psnr_by_material']}")
     print(f"wrote {dest}")
