@@ -2,17 +2,9 @@
 from __future__ import annotations
 
 import argparse
-import json
-import logging
-import multiprocessing as mp
-import os
 import time
-from dataclasses import dataclass
-from pathlib import Path
 
 from x2video.procedural.demo import DEMO
-
-log = logging.getLogger(__name__)
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -25,102 +17,35 @@ def parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def room_seed(seed: int, index: int) -> int:
-    """The scene seed of room `index` of a data set made with `--seed seed`."""
-    return int(seed) * 1_000_003 + int(index)
-
-
-def room_split(index: int, test_every: int, val: bool = False) -> str:
-    """Rooms are split, never frames: every `test_every`-th room (index % test_every == test_every - 1) is a test
-    room; with `val`, the room before it (index % test_every == test_every - 2) is a validation room."""
-    if test_every > 0 and index % test_every == test_every - 1:
-        return "test"
-    if val and test_every > 1 and index % test_every == test_every - 2:
-        return "val"
-    return "train"
-
-
-def room_dir(out: Path, index: int, test_every: int, val: bool = False) -> Path:
-    return out / room_split(index, test_every, val) / f"room_{index:05d}"
-
-
-def is_done(path: Path) -> bool:
-    """A room is finished when its shot.json exists (the writer writes it last)."""
-    return (path / "shot.json").is_file()
-
-
-@dataclass
-class _Job:
-    index: int
-    seed: int
-    out: str
-    frames: int
-    width: int
-    height: int
-
-
-_RENDERER = None
-
-
-def _work(job: _Job) -> tuple[int, float]:
-    """Worker: render one room with this process's renderer (one EGL context per process)."""
-    global _RENDERER
-    from x2video.procedural.renderer import ProceduralRenderer
-    from x2video.procedural.shotgen import write_procedural_shot
-
-    if _RENDERER is None or (_RENDERER.width, _RENDERER.height) != (job.width, job.height):
-        _RENDERER = ProceduralRenderer(job.width, job.height)
-    t0 = time.perf_counter()
-    write_procedural_shot(job.out, job.seed, job.frames, job.width, job.height, renderer=_RENDERER, overwrite=True)
-    return job.index, time.perf_counter() - t0
-
-
 def make(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from x2video.io.atomic import write_json_atomic
-
-    width, height = parse_size(args.size)
-    if getattr(args, "renderer", "raster") == "cycles":
+    if args.renderer == "cycles":  # Blender's path tracer, in processes of its own
         from x2video.cycles.dataset import make_cycles
 
-        return make_cycles(args, width, height)
-    if args.rooms < 1 or args.frames < 1:
-        raise ValueError(f"--rooms and --frames must be at least 1 (got {args.rooms}, {args.frames})")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    settings = {"rooms": args.rooms, "frames": args.frames, "width": width, "height": height, "seed": args.seed, "test_every": args.test_every}
-    meta = out / "dataset.json"
-    if meta.is_file():
-        old = json.loads(meta.read_text())
-        clash = {k: (old.get(k), v) for k, v in settings.items() if k != "rooms" and old.get(k) != v}
-        if clash:
-            raise ValueError(f"{out}: holds a data set made with other settings {clash} (old, new); use another --out")
-    write_json_atomic(meta, {**settings, "format": "x2video-procedural-dataset", "complete": False})
-    jobs = [_Job(i, room_seed(args.seed, i), str(room_dir(out, i, args.test_every)), args.frames, width, height) for i in range(args.rooms)]
-    todo = [j for j in jobs if not is_done(Path(j.out))]
-    log.info("%d rooms, %d already done, %d to render with %d worker(s)", len(jobs), len(jobs) - len(todo), len(todo), args.workers)
-    bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), unit="room", desc="rooms")
-    t0, frames = time.perf_counter(), 0
-    if args.workers <= 1:
-        it = map(_work, todo)
-    else:
-        pool = mp.get_context("spawn").Pool(args.workers)
-        it = pool.imap_unordered(_work, todo)
+        return make_cycles(args, *parse_size(args.size))
+
+    from x2video.procedural.dataset import make_dataset
+
+    bar = tqdm(unit="room", desc="rooms")
+    t0, first = time.perf_counter(), None
+
+    def on_room(done: int, total: int) -> None:
+        nonlocal first
+        if first is None:
+            first = done
+            bar.reset(total=total)
+        bar.n = done
+        frames = (done - first) * args.frames
+        bar.set_postfix(fps=f"{frames / (time.perf_counter() - t0):.2f}", refresh=True)
+
     try:
-        for _index, _secs in it:
-            frames += args.frames
-            bar.update(1)
-            bar.set_postfix(fps=f"{frames / (time.perf_counter() - t0):.2f}")
+        doc = make_dataset(args.out, args.rooms, args.frames, parse_size(args.size), seed=args.seed, test_every=args.test_every,
+                           workers=args.workers, on_room=on_room)
     finally:
         bar.close()
-        if args.workers > 1:
-            pool.terminate()
-    rooms = {"train": [], "test": []}
-    for j in jobs:
-        rooms[room_split(j.index, args.test_every)].append(os.path.relpath(j.out, out))
-    write_json_atomic(meta, {**settings, "format": "x2video-procedural-dataset", "complete": True, "splits": rooms})
-    print(f"{len(jobs)} rooms in {out} ({len(rooms['train'])} train, {len(rooms['test'])} test)")
+    splits = doc["splits"]
+    print(f"{args.rooms} rooms in {args.out} ({len(splits['train'])} train, {len(splits['test'])} test)")
     return 0
 
 

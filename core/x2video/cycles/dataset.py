@@ -67,8 +67,8 @@ def _work(job: CyclesJob) -> tuple[int, float, int]:
 def make_cycles(args: argparse.Namespace, width: int, height: int) -> int:
     from tqdm import tqdm
 
-    from x2video.cli.dataset import is_done, room_dir, room_seed, room_split
     from x2video.io.atomic import write_json_atomic
+    from x2video.procedural.dataset import is_done, room_dir, room_seed, room_split
 
     require_bpy()
     if args.rooms < 1 or args.frames < 1:

@@ -3,7 +3,7 @@ give the latents the full encoder gives, for the conditioning channels (albedo, 
 metallic, the shading prior).
 
 Encoding those channels is four or five VAE-encoder passes per frame, the same work for every
-sampler: the fixed cost per frame that bounds LCM-2's speed-up over DDIM-20 (model card, table d).
+sampler: the fixed cost per frame that bounds LCM-2's speed-up over DDIM-20 (table d).
 A third of the encoder's time goes to the mid-block self-attention over every latent position
 (1,120 at 160x112). diffusers builds the same encoder without it (`mid_block_add_attention=False`);
 started from the VAE's own weights and trained to reproduce the full encoder's posterior mode

@@ -13,26 +13,17 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 from diffusers.models.attention_processor import Attention
-from torch import nn
 
 from x2video.model.context import AttnContext
-from x2video.model.processor_io import head_mask, heads_merge, heads_split, tokens_in, tokens_out
+from x2video.model.processor_io import TokenProcessor, head_mask, heads_merge, heads_split
 
 
-class MaskedCrossAttnProcessor(nn.Module):
+class MaskedCrossAttnProcessor(TokenProcessor):
     """`attn2` processor: global cross-attention plus mask-weighted local cross-attentions. No weights of its own."""
 
-    def __call__(  # type: ignore[override]
-        self,
-        attn: Attention,
-        hidden_states: torch.Tensor,
-        encoder_hidden_states: torch.Tensor | None = None,
-        attention_mask: torch.Tensor | None = None,
-        temb: torch.Tensor | None = None,
-        x2v: AttnContext | None = None,
-    ) -> torch.Tensor:
-        residual = hidden_states
-        x, shape = tokens_in(attn, hidden_states, temb)  # (BN, Lq, C)
+    def attend(self, attn: Attention, x: torch.Tensor, encoder_hidden_states: torch.Tensor | None,
+               attention_mask: torch.Tensor | None, x2v: AttnContext | None) -> torch.Tensor:
+        """(BN, Lq, C) -> (BN, Lq, C_out): MCAttn, output projection and dropout included."""
         text = x if encoder_hidden_states is None else encoder_hidden_states  # (BN, Lt, D)
         if encoder_hidden_states is not None and attn.norm_cross:
             text = attn.norm_encoder_hidden_states(text)
@@ -51,8 +42,7 @@ class MaskedCrossAttnProcessor(nn.Module):
         if x2v is not None and x2v.text_local is not None and x2v.text_local.shape[1] > 0:
             out = out + self.local(attn, q, x2v)
 
-        out = attn.to_out[1](out)  # dropout
-        return tokens_out(attn, out, residual, shape)
+        return attn.to_out[1](out)  # dropout
 
     @staticmethod
     def local(attn: Attention, q: torch.Tensor, ctx: AttnContext) -> torch.Tensor:

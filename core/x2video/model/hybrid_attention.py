@@ -23,7 +23,7 @@ from torch import nn
 from x2video.model.config import HybridConfig
 from x2video.model.context import AttnContext
 from x2video.model.lora import SwitchableQKV
-from x2video.model.processor_io import head_mask, heads_merge, heads_split, tokens_in, tokens_out
+from x2video.model.processor_io import TokenProcessor, head_mask, heads_merge, heads_split
 
 REF_BRANCHES = ("r0", "r1")
 
@@ -51,7 +51,7 @@ def mhf_gather(kv: torch.Tensor, num_frames: int, heads: int) -> torch.Tensor:
     return diag.permute(0, 3, 4, 1, 2).reshape(bn, heads, length, d)  # (B*N, H, L, d)
 
 
-class HybridSelfAttnProcessor(nn.Module):
+class HybridSelfAttnProcessor(TokenProcessor):
     """`attn1` processor: Self + Reference + MHF temporal attention with switchable LoRA (see module doc)."""
 
     def __init__(self, attn: Attention, hybrid: HybridConfig) -> None:
@@ -65,21 +65,11 @@ class HybridSelfAttnProcessor(nn.Module):
         self.alpha_r = nn.Parameter(torch.zeros((), device=p.device, dtype=p.dtype))
         self.alpha_t = nn.Parameter(torch.zeros((), device=p.device, dtype=p.dtype))
 
-    # diffusers calls processors as processor(attn, hidden_states, encoder_hidden_states=..., attention_mask=..., **kwargs)
-    # and inspects this signature to decide which cross_attention_kwargs to pass: `x2v` is ours.
-    def __call__(  # type: ignore[override]
-        self,
-        attn: Attention,
-        hidden_states: torch.Tensor,
-        encoder_hidden_states: torch.Tensor | None = None,
-        attention_mask: torch.Tensor | None = None,
-        temb: torch.Tensor | None = None,
-        x2v: AttnContext | None = None,
-    ) -> torch.Tensor:
+    def attend(self, attn: Attention, x: torch.Tensor, encoder_hidden_states: torch.Tensor | None,
+               attention_mask: torch.Tensor | None, x2v: AttnContext | None) -> torch.Tensor:
+        """(BN, L, C) -> (BN, L, C_out): the blend of the three attentions, output projection included."""
         if encoder_hidden_states is not None:
             raise ValueError("HybridSelfAttnProcessor is a self-attention processor (attn1); got encoder_hidden_states")
-        residual = hidden_states
-        x, shape = tokens_in(attn, hidden_states, temb)  # (BN, L, C)
         mask = head_mask(attn, attention_mask, x.shape[1], x.shape[0])
 
         # 1. SelfAttn(f^i): the pretrained path, unchanged.
@@ -97,8 +87,7 @@ class HybridSelfAttnProcessor(nn.Module):
                 out = blended
 
         out = heads_merge(out).to(x.dtype)  # (BN, L, H*d)
-        out = attn.to_out[1](attn.to_out[0](out))
-        return tokens_out(attn, out, residual, shape)
+        return attn.to_out[1](attn.to_out[0](out))
 
     # -- branches ----------------------------------------------------------------
     def reference(self, attn: Attention, x: torch.Tensor, ctx: AttnContext) -> torch.Tensor:

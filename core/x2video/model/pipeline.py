@@ -122,9 +122,8 @@ class X2VideoModel:
         while everything else stays float32 (`--bf16-encoder`). Encoding the channels (four or five VAE
         passes per frame) is the same work for every sampler, the fixed cost per frame that bounds
         LCM-2's speed-up, and a convolution stack that gains most from bf16 on CPUs with native bf16
-        (AVX512-BF16, AMX; on others bf16 is emulated and slower). On the shipped model it moved the
-        held-out PSNR by at most 0.01 dB and TC by 0.3 % (model card, table d); the decoder is left in
-        float32 because decoding in bf16 too cost 1.5 % TC.
+        (AVX512-BF16, AMX; on others bf16 is emulated and slower). The decoder stays in float32: decoding in
+        bf16 too cost temporal consistency (docs/evaluations/).
 
         `channel_encoder` picks what encodes the conditioning channels: "vae" (the VAE's encoder, what
         the UNet was trained on) or "distilled" (the folder's `channel_encoder.safetensors`: the same

@@ -1,10 +1,17 @@
 """What every attention processor here does around its own math, as diffusers' `AttnProcessor2_0` does it:
 the token layout in and out (spatial norm, (B, C, H, W) -> (B, L, C), group norm; then back, residual
-connection, output rescale), the attention mask per head, and the head reshapes."""
+connection, output rescale), the attention mask per head, and the head reshapes; `TokenProcessor` is
+the processor shape both of ours take."""
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
 
 import torch
 from diffusers.models.attention_processor import Attention
+from torch import nn
+
+if TYPE_CHECKING:
+    from x2video.model.context import AttnContext
 
 
 def heads_split(x: torch.Tensor, heads: int) -> torch.Tensor:
@@ -48,3 +55,27 @@ def tokens_out(attn: Attention, out: torch.Tensor, residual: torch.Tensor, shape
     if attn.residual_connection:
         out = out + residual
     return out / attn.rescale_output_factor
+
+
+class TokenProcessor(nn.Module):
+    """A diffusers attention processor whose math (`attend`) sees tokens: (B, L, C) in, (B, L, C_out) out, before
+    the residual. diffusers calls processor(attn, hidden_states, encoder_hidden_states=..., attention_mask=...,
+    **cross_attention_kwargs) and passes only the keywords this signature names: `x2v` is ours."""
+
+    def __call__(  # type: ignore[override]
+        self,
+        attn: Attention,
+        hidden_states: torch.Tensor,
+        encoder_hidden_states: torch.Tensor | None = None,
+        attention_mask: torch.Tensor | None = None,
+        temb: torch.Tensor | None = None,
+        x2v: AttnContext | None = None,
+    ) -> torch.Tensor:
+        residual = hidden_states
+        x, shape = tokens_in(attn, hidden_states, temb)  # (B, L, C)
+        return tokens_out(attn, self.attend(attn, x, encoder_hidden_states, attention_mask, x2v), residual, shape)
+
+    def attend(self, attn: Attention, x: torch.Tensor, encoder_hidden_states: torch.Tensor | None,
+               attention_mask: torch.Tensor | None, x2v: AttnContext | None) -> torch.Tensor:
+        """(B, L, C) tokens -> (B, L, C_out), output projection and dropout included."""
+        raise NotImplementedError

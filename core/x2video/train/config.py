@@ -56,9 +56,8 @@ class AugmentConfig:
     ref_shift_p: float = 0.0
     """Probability a window with references has its target and its references shifted alike by a random
     latent offset per object (and one for the whole window), so that what the references show beyond
-    the channels is what the other frames must show too (`object_shift`); 0: off, as the shipped
-    weights were trained (on the CPU it made recursive sampling worse, docs/TRAINING.md). Windows
-    without references are never shifted."""
+    the channels is what the other frames must show too (`object_shift`); 0: off. Windows without
+    references are never shifted."""
     ref_shift_std: float = 0.3
     """Largest standard deviation of those offsets, as a fraction of each RGB latent channel's standard
     deviation over the split (each window draws its own fraction in [0, this])."""

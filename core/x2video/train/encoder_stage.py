@@ -120,7 +120,7 @@ def heldout_error(student: ChannelEncoder, images: torch.Tensor, targets: torch.
                   kinds: Sequence[str], batch: int = 32) -> dict[str, dict[str, float]]:
     """Per kind (and "all"): RMSE of the student's latents in scaled units, the squared error relative to
     the scaled teacher latents' variance (0: exact, 1: no better than their mean), and the error's norm
-    relative to the latents' norm (|student - teacher| / |teacher|, the model card's earlier probe measure)."""
+    relative to the latents' norm (|student - teacher| / |teacher|)."""
     student = student.eval()
     dev = next(student.parameters()).device
     pred = torch.cat([student(images[i : i + batch].float().to(dev)).cpu() for i in range(0, images.shape[0], batch)])

@@ -122,8 +122,7 @@ def run_lcm_stage(teacher: str | Path, cache: str | Path, out_dir: str | Path, s
     The student (and the target network, its EMA) starts from the teacher, or from `student_init`'s
     `lcm_unet.safetensors` (an LCM run or shipped folder of the same architecture), so a teacher
     continued from a distilled model's teacher can be re-distilled from that student instead of from
-    scratch. (On the 2-core CPU, at 2 windows per batch, neither start beat the GPU-distilled student
-    within 25 minutes: model card, "How the shipped weights were trained", step 11.)"""
+    scratch."""
     cache, out_dir = Path(cache), Path(out_dir)
     check_noise_shared(stage.noise_shared)
     d = model_dir(teacher)
