@@ -16,7 +16,7 @@ from typing import Any, Callable
 from PySide6.QtCore import QObject, Signal
 from superqt.utils import create_worker
 
-from x2video.sampling.events import FramesReady, RenderEvent, RenderSettings
+from x2video.sampling.events import FramesReady, RenderEvent, RenderSettings, RenderStarted
 from x2video_app.document import Document
 from x2video_app.model_source import ModelChoice, load_model
 from x2video_app.preview import PreviewReady, preview_frame, preview_frames, preview_order
@@ -45,6 +45,18 @@ def set_render_threads() -> int:
 def is_out_of_memory(exc: BaseException) -> bool:
     text = f"{type(exc).__name__}: {exc}".lower()
     return isinstance(exc, MemoryError) or "out of memory" in text or "outofmemory" in text
+
+
+def warm_up(renderer: Any) -> None:
+    """What the first render would otherwise do before its first frame, done while the model is built: load
+    the text encoder (about 1 s here; it loads on first use). Never fails the build."""
+    model = getattr(renderer, "model", None)
+    if getattr(model, "text_encoder", None) is None:
+        return
+    try:
+        model.encode_prompts([""])
+    except Exception as e:  # noqa: BLE001 - the render reports real errors
+        log.warning("warming the text encoder failed: %s", e)
 
 
 class RenderController(QObject):
@@ -92,7 +104,9 @@ class RenderController(QObject):
         with self._lock:
             choice = self.choice
             if self.renderer is None or self._renderer_for != choice:
-                self.renderer = self.renderer_factory(choice)
+                renderer = self.renderer_factory(choice)
+                warm_up(renderer)
+                self.renderer = renderer
                 self._renderer_for = choice
             return self.renderer
 
@@ -234,6 +248,9 @@ class RenderController(QObject):
     # -- slots (GUI thread) ----------------------------------------------------
     def _on_event(self, ev: RenderEvent | PreviewReady) -> None:
         self.doc.render.apply(ev)
+        if isinstance(ev, RenderStarted) and self.doc.render.per_frame:
+            # a per-frame tier fills the shot about as fast as the preview and would share the CPU with it
+            self._quit_preview()
         self.sigEvent.emit(ev)
 
     def _on_preview(self, render_id: int, ev: PreviewReady) -> None:
