@@ -47,7 +47,9 @@ BENCH_RESULTS = Path(__file__).resolve().parents[1] / "bench" / "results"
 
 
 class MainWindow(QMainWindow):
-    def __init__(self, bench_dir: Path | None = None, autosave_ms: int = 180_000) -> None:
+    def __init__(self, bench_dir: Path | None = None, autosave_ms: int = 180_000, preload: bool = True) -> None:
+        """`preload`: start building the model as soon as the event loop runs (`launch` starts it itself,
+        once the first shot is open)."""
         super().__init__()
         self.doc = Document()
         self.undo = QUndoStack(self)
@@ -131,7 +133,8 @@ class MainWindow(QMainWindow):
         self._connect()
         self.choose_default_model()
         self.refresh_all()
-        QTimer.singleShot(0, self.render_ctl.preload)
+        if preload:
+            QTimer.singleShot(0, self.render_ctl.preload)
 
     # -- construction ----------------------------------------------------------
     def _build_menus(self) -> None:
@@ -470,16 +473,23 @@ def launch(argv: list[str]) -> tuple[QApplication, MainWindow]:
     app.setApplicationName(APP_NAME)
     apply_style(app)
     settings = QSettings("x2video", "studio")
-    win = MainWindow()
+    win = MainWindow(preload=False)
     if settings.value("geometry") is not None:
         win.restoreGeometry(settings.value("geometry"))
     app.aboutToQuit.connect(lambda: settings.setValue("geometry", win.saveGeometry()))
-    if args.untrained:
-        win.act_untrained.setChecked(True)
     win.show()
+
+    def build_model() -> None:
+        if args.untrained:
+            win.act_untrained.setChecked(True)  # builds it too
+        else:
+            win.render_ctl.preload()
 
     def start() -> None:
         ok = win.project.open_path(args.path) if args.path else win.project.open_demo()
+        # The model builds in the background once the shot is painted: importing torch in a thread holds
+        # the GIL through whole shared-library loads, which stalled opening the demo by seconds here.
+        QTimer.singleShot(100, build_model)
         if args.smoke_test:
             print(f"smoke-test: opened={ok} frames={win.doc.num_frames} errors={win.errors_shown}", flush=True)
             win.render_ctl.wait(120_000)

@@ -82,7 +82,9 @@ class RenderController(QObject):
         self._render_id = 0  # which render a preview belongs to (a late one from an earlier render is dropped)
         self._lock = threading.Lock()
         self._renderer_for: ModelChoice | None = None
-        self.threads: int | None = None  # torch threads, set on the GUI thread before the first render
+        #: torch threads, set by the first model build (in its worker: importing torch on the GUI thread froze
+        #: the window for seconds at start-up; the OpenMP setting is process-wide from any non-OpenMP thread)
+        self.threads: int | None = None
 
     def ensure_threads(self) -> None:
         if self.threads is None:
@@ -102,6 +104,7 @@ class RenderController(QObject):
     def _get_renderer(self) -> Any:
         """The Renderer for the current model choice, built on first use (worker threads only)."""
         with self._lock:
+            self.ensure_threads()
             choice = self.choice
             if self.renderer is None or self._renderer_for != choice:
                 renderer = self.renderer_factory(choice)
@@ -114,7 +117,6 @@ class RenderController(QObject):
         """Build the model in the background now, so the first Render does not wait for it."""
         if self.choice is None or self.preload_worker is not None or (self.renderer is not None and self._renderer_for == self.choice):
             return
-        self.ensure_threads()
         w = create_worker(self._get_renderer)
         w.errored.connect(lambda e: log.warning("model preload failed (the render will say why): %s", e))
         w.finished.connect(self._preload_done)
@@ -155,7 +157,6 @@ class RenderController(QObject):
         if self.worker is not None or self.doc.shot is None or self.choice is None:
             return False
         self.pressed_at = time.perf_counter()
-        self.ensure_threads()
         self._quit_preview()
         self._render_id += 1
         model = getattr(self.renderer, "model", None)
