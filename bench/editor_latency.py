@@ -77,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--untrained", action="store_true", help="the untrained tiny model instead of the shipped weights")
     ap.add_argument("--tier1-standin", action="store_true", help="add an untrained tier-1 net beside the shipped weights")
     ap.add_argument("--full", action="store_true", help="let each render finish (default: cancel once its first frame shows)")
+    ap.add_argument("--preview-frame-only", action="store_true", help="preview only the frame on screen (RenderController.preview_all off)")
     ap.add_argument("--timeout", type=float, default=600.0, help="seconds to wait for any one stage")
     ap.add_argument("--out", type=Path, help="default bench/results/editor_latency/editor_latency[_tier1_standin].json")
     args = ap.parse_args(argv)
@@ -130,6 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     model_ready = age()
     win.viewer.viewport().removeEventFilter(visible)
 
+    win.render_ctl.preview_all = not args.preview_frame_only
     i = win.render_panel.quality.findData(args.quality)
     win.render_panel.quality.setCurrentIndex(i)
     renders = []
@@ -188,6 +190,7 @@ def main(argv: list[str] | None = None) -> int:
         "machine": machine_info(win.render_ctl.choice.device if win.render_ctl.choice else None),
         "model": win.render_ctl.choice.label if win.render_ctl.choice else None,
         "tier1_standin": args.tier1_standin,
+        "preview_all": not args.preview_frame_only,
         "shot": {"frames": win.doc.num_frames, "size": list(win.doc.size[::-1]), "source": "demo" if not args.shot else "argument"},
         "settings": {k: v for k, v in win.render_panel.values().items()},
         "interpreter_start_to_bench_import_s": round(started_before_import, 3),

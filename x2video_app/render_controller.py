@@ -79,6 +79,8 @@ class RenderController(QObject):
         self.pressed_at: float | None = None
         self.preload_worker: Any = None
         self.preview_worker: Any = None  # the formula's preview of the render in progress
+        #: preview every frame (False: only the frame on screen, so the rest does not share the CPU with the render)
+        self.preview_all = True
         self._render_id = 0  # which render a preview belongs to (a late one from an earlier render is dropped)
         self._lock = threading.Lock()
         self._renderer_for: ModelChoice | None = None
@@ -208,9 +210,12 @@ class RenderController(QObject):
                 done.append(first)
             except Exception as e:  # a preview must never stop the render; the render reports real errors
                 log.warning("formula preview of frame %d failed: %s", first, e)
+        if done and not self.preview_all:
+            return
+        preview_all = self.preview_all
 
         def frames():  # in the worker: the order needs the tier modules (torch), which may still be loading
-            yield from preview_frames(shot, edits, preview_order(n, first, done))
+            yield from preview_frames(shot, edits, preview_order(n, first, done) if preview_all else [first])
 
         w = create_worker(frames)
         rid = self._render_id
