@@ -106,6 +106,7 @@ class Charts(QWidget):
         self.top_level = top_level
         self.num_windows = num_windows
         self.window_plot.clear()
+        self.window_plot.setLabel("bottom", "batch of frames" if top_level <= 0 else "window (plan order)")  # 0: a per-frame tier
         self._legend_levels.clear()
         self.legend.setText("Seconds per window of the current render appear here as windows finish.")
         if num_windows:
@@ -125,7 +126,8 @@ class Charts(QWidget):
             parts = []
             for lv in sorted(self._legend_levels, reverse=True):
                 col = level_colour(lv, self.top_level).name()
-                parts.append(f"<span style='color:{col}'>&#9632;</span> {'keyframes' if lv == self.top_level else f'level {lv}'}")
+                name = "frames (one pass each)" if lv <= 0 else "keyframes" if lv == self.top_level else f"level {lv}"
+                parts.append(f"<span style='color:{col}'>&#9632;</span> {name}")
             self.legend.setText("&nbsp;&nbsp;".join(parts))
 
     # -- bench -----------------------------------------------------------------

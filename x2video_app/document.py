@@ -62,9 +62,7 @@ class Document:
         self.edit_global = self.selected_mask < 0
         self.hidden.clear()
         self.colours.clear()
-        self.render.frames.clear()
-        self.render.levels.clear()
-        self.render.keyframes.clear()
+        self.render.clear_frames()
         self.render.status = "idle"
         self._bump()
         self.shot_changed.emit()
@@ -230,7 +228,7 @@ class Document:
         return out
 
     def rendered_u8(self, t: int) -> np.ndarray:
-        img = self.render.frames.get(t)
+        img = self.render.image(t)  # the render's frame, else the formula's preview of it
         return checker(self.size) if img is None else channel_to_u8("rgb", img.astype(np.float32), self.size)
 
     def display_image(self) -> np.ndarray:

@@ -32,6 +32,7 @@ from x2video_app.edit_actions import EditActions
 from x2video_app.edit_panel import EditPanel
 from x2video_app.mask_panel import MaskPanel
 from x2video_app.model_source import ModelChoice, cuda_available, has_weights, resolve_device, weights_dir, weights_hint
+from x2video_app.preview import PreviewReady
 from x2video_app.project_controller import ProjectController
 from x2video_app.render_controller import RenderController
 from x2video_app.render_panel import RenderPanel
@@ -46,7 +47,9 @@ BENCH_RESULTS = Path(__file__).resolve().parents[1] / "bench" / "results"
 
 
 class MainWindow(QMainWindow):
-    def __init__(self, bench_dir: Path | None = None, autosave_ms: int = 180_000) -> None:
+    def __init__(self, bench_dir: Path | None = None, autosave_ms: int = 180_000, preload: bool = True) -> None:
+        """`preload`: start building the model as soon as the event loop runs (`launch` starts it itself,
+        once the first shot is open)."""
         super().__init__()
         self.doc = Document()
         self.undo = QUndoStack(self)
@@ -54,7 +57,11 @@ class MainWindow(QMainWindow):
         self.resize(1440, 900)
         self.ask = self._ask  # replaceable in tests: (title, text, buttons, default) -> button
         self.errors_shown: list[tuple[str, str]] = []  # (title, text) of every error dialog, for tests
-        #: seconds from pressing Render to the first keyframe painted in the viewer (last render)
+        #: seconds from pressing Render to the first frame painted in the viewer, the formula's preview or the
+        #: render's own (last render)
+        self.first_frame_shown_s: float | None = None
+        #: seconds from pressing Render to the render's first frame painted in the viewer (a keyframe in the
+        #: recursive scheme; the first batch of a per-frame tier) (last render)
         self.first_keyframe_shown_s: float | None = None
 
         # central: view bar + viewer + timeline
@@ -126,7 +133,8 @@ class MainWindow(QMainWindow):
         self._connect()
         self.choose_default_model()
         self.refresh_all()
-        QTimer.singleShot(0, self.render_ctl.preload)
+        if preload:
+            QTimer.singleShot(0, self.render_ctl.preload)
 
     # -- construction ----------------------------------------------------------
     def _build_menus(self) -> None:
@@ -227,6 +235,8 @@ class MainWindow(QMainWindow):
 
     def _preloading(self, busy: bool) -> None:
         self.statusBar().showMessage("Loading the model in the background…" if busy else "Model loaded.", 0 if busy else 4000)
+        if not busy:
+            self.render_panel.set_residual_available(self.render_ctl.residual_available())
 
     def _update_model_label(self) -> None:
         c = self.render_ctl.choice
@@ -239,6 +249,7 @@ class MainWindow(QMainWindow):
         self.render_panel.model_label.setToolTip(tip)
         self.render_panel.model_label.setStyleSheet("color: #ffb347;" if c is None or c.kind == "untrained" else "")
         self.device_status.setText(f"Device: {self.device()}")
+        self.render_panel.set_residual_available(self.render_ctl.residual_available())
 
     # -- rendering ---------------------------------------------------------------
     def start_render(self) -> bool:
@@ -257,7 +268,7 @@ class MainWindow(QMainWindow):
         settings = self.render_ctl.settings(**self.render_panel.values())
         if self.follow_box.isChecked() and self.doc.view not in ("rendered", "side-by-side"):
             self.doc.set_view("rendered")
-        self.first_keyframe_shown_s = None
+        self.first_keyframe_shown_s = self.first_frame_shown_s = None
         ok = self.render_ctl.start(settings)
         if ok:
             self.charts.reset(1)
@@ -272,23 +283,40 @@ class MainWindow(QMainWindow):
             self._eta_timer.start(500)
         else:
             self._eta_timer.stop()
+            self.render_panel.set_residual_available(self.render_ctl.residual_available())  # the render may have built the model
         self.render_panel.show_state(self.doc.render)
         self.refresh_timeline()
 
+    def _shown_after_press(self) -> float | None:
+        """Paint the viewer now; seconds since Render was pressed."""
+        if self.render_ctl.pressed_at is None:
+            return None
+        self.viewer.viewport().repaint()
+        return time.perf_counter() - self.render_ctl.pressed_at
+
     def _render_event(self, ev) -> None:
         st = self.doc.render
-        if isinstance(ev, RenderStarted):
-            self.charts.reset(max(ev.levels) if ev.levels else 1, ev.num_windows)
+        if isinstance(ev, PreviewReady):  # the formula's frames, until the render's own arrive; the viewer stays put
+            if self.doc.frame in ev.frames:
+                self.refresh_view()
+                if self.first_frame_shown_s is None:
+                    self.first_frame_shown_s = self._shown_after_press()
+        elif isinstance(ev, RenderStarted):
+            self.charts.reset(0 if st.per_frame else max(ev.levels) if ev.levels else 1, ev.num_windows)
+            self.statusBar().showMessage(f"Rendering with the {ev.tier} tier" + (f": {ev.reason}" if ev.reason else ""), 15000)
+            log.info("render tier %s (%s)", ev.tier, ev.reason)
         elif isinstance(ev, FramesReady):
-            self.charts.add_window(ev.window, ev.level, ev.seconds)
+            self.charts.add_window(ev.window, 0 if st.per_frame else ev.level, ev.seconds)
             if self.follow_box.isChecked():
                 self.doc.set_frame(min(ev.frames))
             if self.doc.frame in ev.frames:
                 self.refresh_view()
-            if ev.mode == "key" and self.first_keyframe_shown_s is None and self.render_ctl.pressed_at is not None:
-                self.viewer.viewport().repaint()
-                self.first_keyframe_shown_s = time.perf_counter() - self.render_ctl.pressed_at
-                log.info("first keyframe on screen %.2f s after Render was pressed", self.first_keyframe_shown_s)
+            if self.first_keyframe_shown_s is None:
+                self.first_keyframe_shown_s = self._shown_after_press()
+                if self.first_frame_shown_s is None:
+                    self.first_frame_shown_s = self.first_keyframe_shown_s
+                if self.first_keyframe_shown_s is not None:
+                    log.info("first frame of the render on screen %.2f s after Render was pressed", self.first_keyframe_shown_s)
         elif isinstance(ev, WindowStarted):
             pass
         self.render_panel.show_state(st)
@@ -361,15 +389,17 @@ class MainWindow(QMainWindow):
         self.viewer.set_image(self.doc.display_image())
         s = self.doc.shot
         if s is not None:
-            rendered = "rendered" if self.doc.frame in self.doc.render.frames else "not rendered"
-            lvl = self.doc.render.levels.get(self.doc.frame)
-            self.info_label.setText(f"frame {self.doc.frame}/{s.num_frames - 1}: {rendered}{'' if lvl is None else f' (level {lvl})'}")
+            st, t = self.doc.render, self.doc.frame
+            rendered = "rendered" if t in st.frames else "formula preview" if t in st.preview else "not rendered"
+            lvl = st.levels.get(t)
+            where = "" if lvl is None else " (one pass)" if lvl <= 0 else f" (level {lvl})"
+            self.info_label.setText(f"frame {t}/{s.num_frames - 1}: {rendered}{where}")
             self.info_label.setToolTip(f"{s.size[1]}×{s.size[0]} pixels, {s.num_frames} frames at {s.info.fps:g} fps; {s.info.source}")
 
     def refresh_timeline(self) -> None:
         st = self.doc.render
         self.timeline.set_num_frames(max(1, self.doc.num_frames), self.doc.shot.info.fps if self.doc.shot else 10.0)
-        self.timeline.bar.set_state(max(1, self.doc.num_frames), st.keyframes, st.levels, st.top_level, st.in_flight)
+        self.timeline.bar.set_state(max(1, self.doc.num_frames), st.keyframes, st.levels, st.top_level, st.in_flight, st.preview)
         self.timeline.set_current(self.doc.frame)
 
     def refresh_panels(self) -> None:
@@ -415,7 +445,7 @@ class MainWindow(QMainWindow):
             ev.ignore()
             return
         self.edits.cancel_propagation()
-        if self.render_ctl.running or self.render_ctl.preload_worker is not None:
+        if self.render_ctl.running or self.render_ctl.preload_worker is not None or self.render_ctl.preview_worker is not None:
             self.render_ctl.cancel()
             self.render_ctl.wait(120000)
         self.project.shutdown()
@@ -424,6 +454,13 @@ class MainWindow(QMainWindow):
 
 def run(argv: list[str]) -> int:
     """Start the editor: `python -m x2video_app [--untrained] [SHOT|PROJECT]` (no path: the demo shot)."""
+    app, _win = launch(argv)
+    return app.exec()
+
+
+def launch(argv: list[str]) -> tuple[QApplication, MainWindow]:
+    """Build and show the editor for `run`'s arguments, with the shot's opening queued on the event loop (the
+    model builds in the background meanwhile); the caller runs the loop (`bench.editor_latency` measures it)."""
     import argparse
 
     ap = argparse.ArgumentParser(prog="x2video-studio", description="X2Video Studio: edit intrinsic channels, render video.")
@@ -436,16 +473,23 @@ def run(argv: list[str]) -> int:
     app.setApplicationName(APP_NAME)
     apply_style(app)
     settings = QSettings("x2video", "studio")
-    win = MainWindow()
+    win = MainWindow(preload=False)
     if settings.value("geometry") is not None:
         win.restoreGeometry(settings.value("geometry"))
     app.aboutToQuit.connect(lambda: settings.setValue("geometry", win.saveGeometry()))
-    if args.untrained:
-        win.act_untrained.setChecked(True)
     win.show()
+
+    def build_model() -> None:
+        if args.untrained:
+            win.act_untrained.setChecked(True)  # builds it too
+        else:
+            win.render_ctl.preload()
 
     def start() -> None:
         ok = win.project.open_path(args.path) if args.path else win.project.open_demo()
+        # The model builds in the background once the shot is painted: importing torch in a thread holds
+        # the GIL through whole shared-library loads, which stalled opening the demo by seconds here.
+        QTimer.singleShot(100, build_model)
         if args.smoke_test:
             print(f"smoke-test: opened={ok} frames={win.doc.num_frames} errors={win.errors_shown}", flush=True)
             win.render_ctl.wait(120_000)
@@ -454,4 +498,4 @@ def run(argv: list[str]) -> int:
             app.exit(0 if ok else 1)
 
     QTimer.singleShot(0, start)
-    return app.exec()
+    return app, win

@@ -33,8 +33,30 @@ def weights_hint() -> str:
     return HOW_TO_GET_WEIGHTS.format(where=str(d) if d is not None else where_weights_are_looked_for())
 
 
+def cuda_possible() -> bool:
+    """False where no CUDA device can be there, told without importing torch (seconds at start-up): no torch,
+    a CPU-only torch build, or Linux without NVIDIA's driver (or WSL's GPU) device nodes."""
+    import sys
+    from importlib import metadata
+
+    try:
+        version = metadata.version("torch")
+    except metadata.PackageNotFoundError:
+        return False
+    if "+cpu" in version:
+        return False
+    if sys.platform.startswith("linux"):
+        return any(Path(p).exists() for p in ("/proc/driver/nvidia/version", "/dev/nvidiactl", "/dev/dxg"))
+    return True
+
+
 def cuda_available() -> bool:
-    """Whether torch sees a CUDA device (False where torch cannot tell)."""
+    """Whether torch sees a CUDA device (False where torch cannot tell); imports torch only where
+    `cuda_possible` (the window asks at start-up, on the GUI thread)."""
+    import sys
+
+    if "torch" not in sys.modules and not cuda_possible():
+        return False
     try:
         import torch
 

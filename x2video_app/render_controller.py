@@ -1,5 +1,10 @@
 """Starts, feeds and cancels renders: keeps one long-lived Renderer (its latent cache survives between
-renders), builds the model off the GUI thread, and applies the worker's events to the Document."""
+renders), builds the model off the GUI thread, shows the formula's preview of a render at once (the frame
+on screen on the GUI thread, the rest in a worker beside the render), and applies the workers' events to
+the Document.
+
+Importing this module does not import torch (the Renderer's modules do): the window opens while the
+model is still being built in the background."""
 from __future__ import annotations
 
 import copy
@@ -11,10 +16,10 @@ from typing import Any, Callable
 from PySide6.QtCore import QObject, Signal
 from superqt.utils import create_worker
 
-from x2video.sampling.events import FramesReady, RenderEvent, RenderSettings
-from x2video.sampling.renderer import select_steps
+from x2video.sampling.events import FramesReady, RenderEvent, RenderSettings, RenderStarted
 from x2video_app.document import Document
 from x2video_app.model_source import ModelChoice, load_model
+from x2video_app.preview import PreviewReady, preview_frame, preview_frames, preview_order
 from x2video_app.render_worker import RenderWorker
 
 log = logging.getLogger(__name__)
@@ -42,8 +47,21 @@ def is_out_of_memory(exc: BaseException) -> bool:
     return isinstance(exc, MemoryError) or "out of memory" in text or "outofmemory" in text
 
 
+def warm_up(renderer: Any) -> None:
+    """What the first render would otherwise do before its first frame, done while the model is built: load
+    the text encoder (about 1 s here; it loads on first use). Never fails the build."""
+    model = getattr(renderer, "model", None)
+    if getattr(model, "text_encoder", None) is None:
+        return
+    try:
+        model.encode_prompts([""])
+    except Exception as e:  # noqa: BLE001 - the render reports real errors
+        log.warning("warming the text encoder failed: %s", e)
+
+
 class RenderController(QObject):
-    """sigEvent(event) after the Document applied it; sigRunning(bool); sigError(kind, message)."""
+    """sigEvent(event) after the Document applied it (a Renderer event or a `PreviewReady`); sigRunning(bool);
+    sigError(kind, message); sigPreload(bool)."""
 
     sigEvent = Signal(object)
     sigRunning = Signal(bool)
@@ -60,9 +78,15 @@ class RenderController(QObject):
         self.renderer_factory: Callable[[ModelChoice], Any] = self._default_factory
         self.pressed_at: float | None = None
         self.preload_worker: Any = None
+        self.preview_worker: Any = None  # the formula's preview of the render in progress
+        #: preview every frame (False: only the frame on screen, so the rest does not share the CPU with the render)
+        self.preview_all = True
+        self._render_id = 0  # which render a preview belongs to (a late one from an earlier render is dropped)
         self._lock = threading.Lock()
         self._renderer_for: ModelChoice | None = None
-        self.threads: int | None = None  # torch threads, set on the GUI thread before the first render
+        #: torch threads, set by the first model build (in its worker: importing torch on the GUI thread froze
+        #: the window for seconds at start-up; the OpenMP setting is process-wide from any non-OpenMP thread)
+        self.threads: int | None = None
 
     def ensure_threads(self) -> None:
         if self.threads is None:
@@ -82,9 +106,12 @@ class RenderController(QObject):
     def _get_renderer(self) -> Any:
         """The Renderer for the current model choice, built on first use (worker threads only)."""
         with self._lock:
+            self.ensure_threads()
             choice = self.choice
             if self.renderer is None or self._renderer_for != choice:
-                self.renderer = self.renderer_factory(choice)
+                renderer = self.renderer_factory(choice)
+                warm_up(renderer)
+                self.renderer = renderer
                 self._renderer_for = choice
             return self.renderer
 
@@ -92,7 +119,6 @@ class RenderController(QObject):
         """Build the model in the background now, so the first Render does not wait for it."""
         if self.choice is None or self.preload_worker is not None or (self.renderer is not None and self._renderer_for == self.choice):
             return
-        self.ensure_threads()
         w = create_worker(self._get_renderer)
         w.errored.connect(lambda e: log.warning("model preload failed (the render will say why): %s", e))
         w.finished.connect(self._preload_done)
@@ -104,24 +130,41 @@ class RenderController(QObject):
         self.preload_worker = None
         self.sigPreload.emit(False)
 
+    def residual_available(self) -> bool | None:
+        """Whether the current model has the tier-1 network (quality 'residual'): the built model says;
+        before it is built, the weights folder does (residual.safetensors); None when there is no model."""
+        c = self.choice
+        if c is None:
+            return None
+        if self.renderer is not None and self._renderer_for == c:
+            return getattr(getattr(self.renderer, "model", None), "residual_net", None) is not None
+        return c.kind == "pretrained" and c.path is not None and (c.path / "residual.safetensors").is_file()
+
     @property
     def running(self) -> bool:
         return self.worker is not None
 
     def settings(self, preset: str, seed: int, window: int, scheme: str, seams: bool = RenderSettings.seams,
                  noise_shared: float = RenderSettings.noise_shared, max_levels: int | None = None,
-                 exposure: float | str = RenderSettings.exposure) -> RenderSettings:
+                 exposure: float | str = RenderSettings.exposure, quality: str = RenderSettings.quality) -> RenderSettings:
         return RenderSettings(preset=preset, seed=seed, window=window, scheme=scheme, seams=seams, noise="frame", noise_shared=noise_shared,
-                              max_levels=max_levels, exposure=exposure)
+                              max_levels=max_levels, exposure=exposure, quality=quality)
 
     def start(self, settings: RenderSettings) -> bool:
-        """Start a render of the document's shot and edits; False when one is running or nothing is open."""
+        """Start a render of the document's shot and edits; False when one is running or nothing is open.
+
+        Unless the render is the formula itself, the formula's preview comes first: the frame on screen
+        at once (here, when the model is built, so its modules are imported), the others in a worker
+        beside the render; the render's frames replace them as they arrive."""
         if self.worker is not None or self.doc.shot is None or self.choice is None:
             return False
         self.pressed_at = time.perf_counter()
-        self.ensure_threads()
+        self._quit_preview()
+        self._render_id += 1
         model = getattr(self.renderer, "model", None)
         if model is not None:
+            from x2video.sampling.renderer import select_steps  # torch: imported by the built model already
+
             steps = select_steps(settings, model).steps  # the Renderer's own rule: fast = LCM-2 or DDIM-4
         else:  # model still loading: an ETA estimate until StepDone says
             steps = 20 if settings.preset == "quality" else 4
@@ -135,6 +178,8 @@ class RenderController(QObject):
             log.warning("could not plan for the progress bars: %s", e)
         self.doc.render.begin(steps, per_level)
         shot, edits = self.doc.shot, copy.deepcopy(self.doc.edits)  # the person keeps editing during the render
+        if settings.quality != "formula":
+            self._preview(shot, edits, model is not None)
         base_dir = self.doc.project_path.parent if self.doc.project_path is not None else None
 
         def run(shot, edits, settings, on_event, cancel):
@@ -152,24 +197,71 @@ class RenderController(QObject):
         w.start()
         return True
 
+    def _preview(self, shot, edits, now: bool) -> None:
+        """The formula's preview: the current frame here when `now` (the model is built, so the tier modules
+        are imported and this takes milliseconds), then every other frame in a generator worker."""
+        first, n = self.doc.frame, self.doc.num_frames
+        done: list[int] = []
+        if now:
+            try:
+                t0 = time.perf_counter()
+                img = preview_frame(self.doc.conditioning(first))  # the live edits, which the copy equals now
+                self._on_event(PreviewReady(frames={first: img}, seconds=time.perf_counter() - t0))
+                done.append(first)
+            except Exception as e:  # a preview must never stop the render; the render reports real errors
+                log.warning("formula preview of frame %d failed: %s", first, e)
+        if done and not self.preview_all:
+            return
+        preview_all = self.preview_all
+
+        def frames():  # in the worker: the order needs the tier modules (torch), which may still be loading
+            yield from preview_frames(shot, edits, preview_order(n, first, done) if preview_all else [first])
+
+        w = create_worker(frames)
+        rid = self._render_id
+        w.yielded.connect(lambda ev: self._on_preview(rid, ev))
+        w.errored.connect(lambda e: log.warning("formula preview failed: %s", e))
+        w.finished.connect(lambda: self._preview_done(w))
+        self.preview_worker = w
+        w.start()
+
+    def _quit_preview(self) -> None:
+        if self.preview_worker is not None:
+            self.preview_worker.quit()
+
+    def _preview_done(self, w: Any) -> None:
+        if self.preview_worker is w:
+            self.preview_worker = None
+
     def cancel(self) -> None:
+        self._quit_preview()
         if self.worker is not None:
             self.worker.quit()
 
     def wait(self, timeout_ms: int = 30000) -> bool:
-        """Block (processing events) until the render and preload workers end; for closing the window and tests."""
+        """Block (processing events) until the render, preview and preload workers end; for closing the window and tests."""
         from PySide6.QtCore import QCoreApplication, QDeadlineTimer
 
+        def busy() -> bool:
+            return self.worker is not None or self.preload_worker is not None or self.preview_worker is not None
+
         deadline = QDeadlineTimer(timeout_ms)
-        while (self.worker is not None or self.preload_worker is not None) and not deadline.hasExpired():
+        while busy() and not deadline.hasExpired():
             QCoreApplication.processEvents()
             time.sleep(0.005)
-        return self.worker is None and self.preload_worker is None
+        return not busy()
 
     # -- slots (GUI thread) ----------------------------------------------------
-    def _on_event(self, ev: RenderEvent) -> None:
+    def _on_event(self, ev: RenderEvent | PreviewReady) -> None:
         self.doc.render.apply(ev)
+        if isinstance(ev, RenderStarted) and self.doc.render.per_frame:
+            # a per-frame tier fills the shot about as fast as the preview and would share the CPU with it
+            self._quit_preview()
         self.sigEvent.emit(ev)
+
+    def _on_preview(self, render_id: int, ev: PreviewReady) -> None:
+        if render_id == self._render_id:  # not a late one from an earlier render
+            self._on_event(ev)
 
     def _on_error(self, exc: BaseException) -> None:
         if self.doc.render.status == "running":
@@ -184,6 +276,7 @@ class RenderController(QObject):
             self.sigError.emit("render", f"{type(exc).__name__}: {exc}")
 
     def _on_finished(self) -> None:
+        self._quit_preview()  # whatever it has not made yet, the render has
         w, self.worker = self.worker, None
         if w is not None and self.doc.render.status == "running":
             # cancelled before the Renderer started: nothing emitted RenderCancelled
@@ -193,4 +286,4 @@ class RenderController(QObject):
         self.sigRunning.emit(False)
 
 
-__all__ = ["RenderController", "is_out_of_memory", "FramesReady"]
+__all__ = ["RenderController", "is_out_of_memory", "FramesReady", "PreviewReady"]

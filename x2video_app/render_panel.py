@@ -1,8 +1,8 @@
-"""Render settings (preset, seed, window N, scheme, seam pass, noise shared across frames, exposure, device), Render/Cancel,
-a progress bar per level and the ETA."""
+"""Render settings (quality tier, preset, seed, window N, scheme, seam pass, noise shared across frames, exposure, device),
+Render/Cancel, a progress bar per level and the ETA."""
 from __future__ import annotations
 
-from PySide6.QtCore import Signal
+from PySide6.QtCore import Qt, Signal
 from PySide6.QtWidgets import (
     QCheckBox,
     QComboBox,
@@ -21,6 +21,18 @@ from PySide6.QtWidgets import (
 from x2video.sampling.events import RenderSettings
 from x2video_app.render_state import RenderState
 
+#: the Quality choices (RenderSettings.quality): (value, label, tooltip)
+QUALITY_ITEMS = (
+    ("auto", "auto", "The tier-1 network where nothing must be generated, the diffusion sampler where something must "
+                     "(a dropped channel, a masked A|M|R region, a local prompt, a reference); the status bar says which ran and why."),
+    ("formula", "formula (no network)", "Albedo x irradiance of the edited channels: exact for diffuse light, instant, no weights."),
+    ("residual", "residual (tier 1)", "One pass of the tier-1 network per frame over the formula: glossy light, metals, "
+                                      "emitters. Fast, cannot flicker; generates nothing."),
+    ("diffusion", "diffusion", "The video diffusion sampler (keyframes, then interpolation levels): generates what is "
+                               "missing or masked, follows prompts and a reference."),
+)
+NO_RESIDUAL = "The loaded model has no tier-1 network (residual.safetensors beside its weights)."
+
 
 class RenderPanel(QWidget):
     """Emits sigRender / sigCancel; `show_state(render_state)` refreshes the progress display."""
@@ -32,6 +44,12 @@ class RenderPanel(QWidget):
 
     def __init__(self, parent=None) -> None:
         super().__init__(parent)
+        self.quality = QComboBox()
+        for value, label, tip in QUALITY_ITEMS:
+            self.quality.addItem(label, value)
+            self.quality.setItemData(self.quality.count() - 1, tip, Qt.ItemDataRole.ToolTipRole)
+        self.quality.setToolTip("Which tier renders (RenderSettings.quality). Whatever runs, the formula's frames show at "
+                                "once and the network's replace them as they arrive.")
         self.preset = QComboBox()
         self.preset.addItem("fast", "fast")
         self.preset.addItem("quality (DDIM-20)", "quality")
@@ -87,6 +105,7 @@ class RenderPanel(QWidget):
         self.device.setToolTip("Where the model runs. auto: CUDA when torch sees a GPU, else the CPU.")
         self.set_devices(cuda=False)
         form = QFormLayout()
+        form.addRow("Quality", self.quality)
         form.addRow("Preset", self.preset)
         form.addRow("Seed", self.seed)
         form.addRow("Window N", self.window)
@@ -101,7 +120,7 @@ class RenderPanel(QWidget):
         self.exposure_auto.toggled.connect(lambda _on: self.sigSettingsChanged.emit())
         self.exposure.valueChanged.connect(lambda _v: self.sigSettingsChanged.emit())
         self.device.currentIndexChanged.connect(lambda _i: self.sigDevice.emit(self.device.currentData()))
-        for w in (self.preset, self.scheme):
+        for w in (self.quality, self.preset, self.scheme):
             w.currentIndexChanged.connect(lambda _i: self.sigSettingsChanged.emit())
         for w in (self.seed, self.window, self.levels):
             w.valueChanged.connect(lambda _v: self.sigSettingsChanged.emit())
@@ -121,7 +140,7 @@ class RenderPanel(QWidget):
         self.model_label = QLabel()
         self.status_label = QLabel("Ready")
         self.status_label.setWordWrap(True)
-        self.status_label.setMinimumHeight(2 * self.status_label.fontMetrics().lineSpacing() + 4)
+        self.status_label.setMinimumHeight(3 * self.status_label.fontMetrics().lineSpacing() + 4)
         self.bars_box = QGroupBox("Progress per level")
         self.bars_layout = QVBoxLayout(self.bars_box)
         self.bars_layout.setContentsMargins(6, 4, 6, 4)
@@ -149,7 +168,19 @@ class RenderPanel(QWidget):
             "noise_shared": self.noise_shared.value(),
             "max_levels": self.levels.value() or None if self.scheme.currentData() == "recursive" else None,
             "exposure": "auto" if self.exposure_auto.isChecked() else float(self.exposure.value()),
+            "quality": self.quality.currentData(),
         }
+
+    def set_residual_available(self, available: bool | None) -> None:
+        """Grey out quality 'residual' (with the reason as its tooltip) unless the model has the tier-1 network;
+        a selected 'residual' falls back to auto. None: no model yet, so nothing to say."""
+        i = self.quality.findData("residual")
+        item = self.quality.model().item(i)
+        on = available is not False
+        item.setEnabled(on)
+        self.quality.setItemData(i, QUALITY_ITEMS[i][2] if on else NO_RESIDUAL, Qt.ItemDataRole.ToolTipRole)
+        if not on and self.quality.currentData() == "residual":
+            self.quality.setCurrentIndex(self.quality.findData("auto"))
 
     def set_devices(self, cuda: bool) -> None:
         """Offer auto and cpu, and cuda where torch sees a GPU; keeps the current choice where it can."""
@@ -188,16 +219,22 @@ class RenderPanel(QWidget):
         progress = st.level_progress()
         top = st.top_level
         self._ensure_bars(progress, top)
+        unit = "frames" if st.per_frame else "windows"
         for lv, done, planned in progress:
             b = self._bars[lv]
-            name = "keyframes" if lv == top and st.level_order and len(st.level_order) > 1 else (f"level {lv}" if len(st.level_order) > 1 else "windows")
+            if st.per_frame:
+                name = f"{st.tier} frames"
+            else:
+                name = "keyframes" if lv == top and st.level_order and len(st.level_order) > 1 else (f"level {lv}" if len(st.level_order) > 1 else "windows")
             b.setMaximum(max(planned, done, 1) if planned else 0)  # 0 = busy indicator when the plan is unknown
             if planned:
                 b.setValue(done)
-            b.setFormat(f"{name}: {done}/{planned} windows" if planned else f"{name}: {done} windows")
+            b.setFormat(f"{name}: {done}/{planned} {unit}" if planned else f"{name}: {done} {unit}")
         eta = st.eta_seconds()
         if st.status == "running":
             msg = f"Rendering: {len(st.frames)}/{st.num_frames or '?'} frames"
+            if st.preview:
+                msg += f" (+{len(st.preview)} formula previews)"
             if eta is not None:
                 msg += f", about {eta:.0f} s left"
         elif st.status == "finished":
@@ -208,7 +245,9 @@ class RenderPanel(QWidget):
             msg = f"Render failed: {st.error}"
         else:
             msg = "Ready"
+        if st.tier:
+            msg += f"\nTier: {st.tier}" + (f" ({st.reason})" if st.reason else "")
         ttk = st.time_to_first_keyframe()
         if ttk is not None:
-            msg += f"\nFirst keyframe after {ttk:.2f} s"
+            msg += f"\nFirst {'network frame' if st.per_frame else 'keyframe'} after {ttk:.2f} s"
         self.status_label.setText(msg)

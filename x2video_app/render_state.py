@@ -1,4 +1,5 @@
-"""Qt-free record of one render as its events arrive: frames, their levels, keyframes, per-level progress, ETA."""
+"""Qt-free record of one render as its events arrive: frames, their levels, keyframes, per-level progress, ETA,
+and the formula's preview frames that stand in until the render's own arrive."""
 from __future__ import annotations
 
 import time
@@ -17,7 +18,11 @@ from x2video.sampling.events import (
     StepDone,
     WindowStarted,
 )
+from x2video_app.preview import PreviewReady
 from x2video_app.signals import Signal
+
+#: tiers that render each frame on its own in one pass (no windows, no levels): progress counts frames
+PER_FRAME_TIERS = ("formula", "residual")
 
 
 @dataclass
@@ -34,10 +39,14 @@ class RenderState:
     """What the viewer, timeline, progress bars and charts show about the current render.
 
     `apply(event)` is the only mutator; `changed` fires after each event with the event.
-    Frames are kept as float16 linear RGB (H, W, 3) to halve memory on long shots.
+    Frames are kept as float16 linear RGB (H, W, 3) to halve memory on long shots. `frames` holds
+    only what the render made (export and references read it); `preview` holds the formula's frames
+    (`PreviewReady`) of the frames the render has not delivered yet, for the viewer and timeline.
+    Per-frame tiers (formula, residual) record their frames at level 0.
     """
 
     frames: dict[int, np.ndarray] = field(default_factory=dict)
+    preview: dict[int, np.ndarray] = field(default_factory=dict)
     levels: dict[int, int] = field(default_factory=dict)
     keyframes: set[int] = field(default_factory=set)
     level_order: list[int] = field(default_factory=list)
@@ -51,11 +60,14 @@ class RenderState:
     in_flight: list[int] = field(default_factory=list)
     status: str = "idle"  # idle | running | finished | cancelled | failed
     error: str = ""
+    tier: str = ""  # what renders (RenderStarted.tier): formula, residual or diffusion; "" before it says
+    reason: str = ""  # why that tier (RenderStarted.reason)
     started_at: float = 0.0
     first_frame_at: float | None = None
-    first_keyframe_at: float | None = None
+    first_keyframe_at: float | None = None  # the render's first frame (a keyframe in the recursive scheme)
     finished_at: float | None = None
-    #: order in which frames arrived, with their mode: [(t, level, mode)] — tests and the demo read it
+    #: order in which frames arrived, with their mode: [(t, level, mode)], mode "preview" for the formula's
+    #: preview (level 0) — tests and the demo read it
     arrivals: list[tuple[int, int, str]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
@@ -65,9 +77,7 @@ class RenderState:
     def begin(self, steps_per_window: int, windows_per_level: dict[int, int] | None = None, keep_frames: bool = False) -> None:
         """Reset for a new render (called on the GUI thread when Render is pressed)."""
         if not keep_frames:
-            self.frames.clear()
-            self.levels.clear()
-            self.keyframes.clear()
+            self.clear_frames()
         self.arrivals.clear()
         self.windows.clear()
         self.windows_per_level = dict(windows_per_level or {})
@@ -77,10 +87,26 @@ class RenderState:
         self.steps_done = 0
         self.in_flight = []
         self.status = "running"
-        self.error = ""
+        self.error = self.tier = self.reason = ""
         self.started_at = time.perf_counter()
         self.first_frame_at = self.first_keyframe_at = self.finished_at = None
         self.changed.emit(None)
+
+    def clear_frames(self) -> None:
+        self.frames.clear()
+        self.preview.clear()
+        self.levels.clear()
+        self.keyframes.clear()
+
+    @property
+    def per_frame(self) -> bool:
+        """The render runs a per-frame tier (formula, residual): no windows or levels, progress in frames."""
+        return self.tier in PER_FRAME_TIERS
+
+    def image(self, t: int) -> np.ndarray | None:
+        """What the viewer shows for frame `t`: the render's frame, else its preview, else None."""
+        img = self.frames.get(t)
+        return self.preview.get(t) if img is None else img
 
     @property
     def top_level(self) -> int:
@@ -88,8 +114,19 @@ class RenderState:
 
     def apply(self, ev: RenderEvent) -> None:
         now = time.perf_counter()
-        if isinstance(ev, RenderStarted):
+        if isinstance(ev, PreviewReady):
+            for t, img in ev.frames.items():
+                if t in self.frames:  # the render's frame came first: it stays
+                    continue
+                self.preview[t] = np.asarray(img, dtype=np.float16)
+                self.arrivals.append((t, 0, "preview"))
+            if self.first_frame_at is None and self.preview:
+                self.first_frame_at = now
+        elif isinstance(ev, RenderStarted):
             self.num_frames, self.num_windows, self.level_order = ev.num_frames, ev.num_windows, list(ev.levels)
+            self.tier, self.reason = ev.tier, ev.reason
+            if self.per_frame:  # the window plan the controller guessed does not apply
+                self.windows_per_level, self.level_order = {}, [0]
         elif isinstance(ev, WindowStarted):
             self.windows[ev.index] = WindowRecord(ev.index, ev.level, ev.mode, list(ev.frames))
             self.in_flight = list(ev.frames)
@@ -101,17 +138,19 @@ class RenderState:
             if rec is not None:
                 rec.seconds = ev.seconds
             self.windows_done[ev.level] += 1
+            level = 0 if self.per_frame else ev.level
             for t, img in ev.frames.items():
                 self.frames[t] = np.asarray(img, dtype=np.float16)
-                self.levels[t] = ev.level
-                if ev.mode == "key" and ev.level == self.top_level:
+                self.preview.pop(t, None)
+                self.levels[t] = level
+                if ev.mode == "key" and level == self.top_level and not self.per_frame:
                     self.keyframes.add(t)
                 else:  # the seam pass makes keyframes again in interpolation windows
                     self.keyframes.discard(t)
-                self.arrivals.append((t, ev.level, ev.mode))
+                self.arrivals.append((t, level, ev.mode))
             if self.first_frame_at is None:
                 self.first_frame_at = now
-            if ev.mode == "key" and self.first_keyframe_at is None:
+            if self.first_keyframe_at is None:
                 self.first_keyframe_at = now
             self.in_flight = []
         elif isinstance(ev, RenderFinished):
@@ -128,12 +167,19 @@ class RenderState:
 
     # -- derived figures -------------------------------------------------------
     def level_progress(self) -> list[tuple[int, int, int]]:
-        """[(level, windows finished, windows planned)] in run order; planned is 0 when unknown."""
+        """[(level, windows finished, windows planned)] in run order; planned is 0 when unknown.
+        Per-frame tiers: [(0, frames finished, frames planned)]."""
+        if self.per_frame:
+            return [(0, len(self.frames), self.num_frames)]
         levels = self.level_order or sorted(set(self.windows_done), reverse=True)
         return [(lv, self.windows_done.get(lv, 0), self.windows_per_level.get(lv, 0)) for lv in levels]
 
     def eta_seconds(self) -> float | None:
-        """Remaining seconds, from the mean time per denoising step so far (None before the first step)."""
+        """Remaining seconds, from the mean time per denoising step (per frame for per-frame tiers) so far
+        (None before the first)."""
+        if self.status == "running" and self.per_frame and self.frames and self.num_frames:
+            elapsed = time.perf_counter() - self.started_at
+            return max(0.0, elapsed / len(self.frames) * (self.num_frames - len(self.frames)))
         if self.status != "running" or self.steps_done == 0 or not self.num_windows or not self.steps_per_window:
             return None
         elapsed = time.perf_counter() - self.started_at

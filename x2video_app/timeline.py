@@ -1,16 +1,23 @@
-"""Timeline: a scrubber that marks keyframes, the level each rendered frame came from, and the window in flight."""
+"""Timeline: a scrubber that marks keyframes, the level each rendered frame came from, the formula's preview
+frames still waiting for the network, and the window in flight."""
 from __future__ import annotations
 
 from PySide6.QtCore import QPointF, QRectF, QSize, Qt, QTimer, Signal
-from PySide6.QtGui import QColor, QFont, QPainter, QPen, QPolygonF
+from PySide6.QtGui import QBrush, QColor, QFont, QPainter, QPen, QPolygonF
 from PySide6.QtWidgets import QHBoxLayout, QLabel, QSpinBox, QStyle, QToolButton, QWidget
 
 #: colour of a rendered frame by level; the top level (keyframes) is gold, lower levels cooler
 LEVEL_COLOURS = [QColor(255, 196, 0), QColor(64, 170, 255), QColor(90, 210, 140), QColor(200, 120, 255), QColor(255, 120, 120)]
+#: level 0: a frame from a per-frame tier (formula or tier-1 network: no windows, no levels)
+PER_FRAME_COLOUR = QColor(0, 200, 200)
+#: the formula's preview of a frame the render has not delivered yet (hatched)
+PREVIEW_COLOUR = QColor(150, 150, 160)
 
 
 def level_colour(level: int, top: int) -> QColor:
-    """Colour of `level` when `top` is the keyframe level (so keyframes always look the same)."""
+    """Colour of `level` when `top` is the keyframe level (so keyframes always look the same); level 0 is a per-frame tier."""
+    if level <= 0:
+        return PER_FRAME_COLOUR
     return LEVEL_COLOURS[max(0, top - level) % len(LEVEL_COLOURS)]
 
 
@@ -27,15 +34,18 @@ class TimelineBar(QWidget):
         self.levels: dict[int, int] = {}  # rendered frame -> level
         self.top_level = 1
         self.in_flight: list[int] = []
+        self.preview: set[int] = set()  # frames showing the formula's preview
         self.setMinimumHeight(46)
         self.setMouseTracking(False)
-        self.setToolTip("Timeline: click or drag to scrub. Triangles mark keyframes; cell colour is the level a frame was rendered at.")
+        self.setToolTip("Timeline: click or drag to scrub. Triangles mark keyframes; cell colour is the level a frame was rendered at "
+                        "(cyan: one pass per frame); hatched grey: the formula's preview, until the network's frame arrives.")
 
     def sizeHint(self) -> QSize:
         return QSize(600, 46)
 
-    def set_state(self, num_frames: int, keyframes, levels: dict[int, int], top_level: int, in_flight=()) -> None:
+    def set_state(self, num_frames: int, keyframes, levels: dict[int, int], top_level: int, in_flight=(), preview=()) -> None:
         self.num_frames = max(1, num_frames)
+        self.preview = set(preview)
         self.keyframes = set(keyframes)
         self.levels = dict(levels)
         self.top_level = max(1, top_level)
@@ -62,6 +72,9 @@ class TimelineBar(QWidget):
         p.fillRect(QRectF(self._x(0), top, self._x(self.num_frames) - self._x(0), bot - top), QColor(58, 58, 64))
         for t in self.in_flight:
             p.fillRect(QRectF(self._x(t), top, max(1.0, self._x(t + 1) - self._x(t)), bot - top), QColor(255, 255, 255, 60))
+        for t in self.preview:
+            x0, x1 = self._x(t), self._x(t + 1)
+            p.fillRect(QRectF(x0, top + 3, max(1.0, x1 - x0 - (1 if x1 - x0 > 3 else 0)), bot - top - 6), QBrush(PREVIEW_COLOUR, Qt.BrushStyle.BDiagPattern))
         for t, lvl in self.levels.items():
             x0, x1 = self._x(t), self._x(t + 1)
             p.fillRect(QRectF(x0, top + 3, max(1.0, x1 - x0 - (1 if x1 - x0 > 3 else 0)), bot - top - 6), level_colour(lvl, self.top_level))

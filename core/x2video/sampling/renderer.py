@@ -352,24 +352,25 @@ class Renderer:
 
     def _render_direct(self, shot: Shot, settings: RenderSettings, choice: tiers.TierChoice, conditioning: Callable[[int], FrameConditioning],
                        emit: Callable[[RenderEvent], None], cancel: CancelToken | None, done: set[int], t0: float) -> None:
-        """Tiers 0 and 1: every frame on its own, coarse to fine (the timeline fills evenly), a few per event."""
+        """Tiers 0 and 1: every frame on its own, coarse to fine (the timeline fills evenly), a few per event;
+        the first frame alone, so it shows as soon as one pass allows (an editor waits for it)."""
         start, stop = self._range(shot, settings)
         order = tiers.coarse_to_fine(start, stop)
         emit(RenderStarted(num_frames=len(order), num_windows=0, levels=[0], tier=choice.tier, reason=choice.reason))
         net = getattr(self.model, "residual_net", None)
         batch = 4
-        for i in range(0, len(order), batch):
+        for index, i in enumerate([0, *range(1, len(order), batch)]):
             if cancel is not None and cancel.cancelled:
                 raise Cancelled(f"cancelled after {len(done)} frames")
             tw = time.perf_counter()
-            fs = order[i:i + batch]
+            fs = order[i:i + batch] if i else order[:1]
             conds = [conditioning(f) for f in fs]
             if choice.tier == "residual":
                 images = tiers.residual_frames(net, conds, self.model.device, batch)
             else:
                 images = [tiers.formula_frame(c) for c in conds]
             done.update(fs)
-            emit(FramesReady(window=i // batch, frames=dict(zip(fs, images)), level=0, mode=choice.tier, seconds=time.perf_counter() - tw))
+            emit(FramesReady(window=index, frames=dict(zip(fs, images)), level=0, mode=choice.tier, seconds=time.perf_counter() - tw))
         emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))
 
     def _composite(self, emit: Callable[[RenderEvent], None], conditioning: Callable[[int], FrameConditioning], net) -> Callable[[RenderEvent], None]:

@@ -1,0 +1,216 @@
+"""Editor latency (issue 31): how soon the editor shows something, measured on its real start-up path.
+
+    xvfb-run -a python -m bench.editor_latency [SHOT] [--renders 3] [--untrained] [--quality auto]
+
+Starts X2Video Studio as `python -m x2video_app` does (`x2video_app.main_window.launch`: the demo shot,
+the shipped weights built in the background) and measures, on the wall clock:
+
+  startup_to_demo_visible_s   process start -> the viewer painted the shot (the demo by default)
+  model_ready_s               process start -> the background model build finished
+  then, with the model built, per press of the Render button (mouse click):
+  press_to_frame_on_screen_s  -> the viewer painted a frame (the formula's preview of the frame on screen)
+  press_to_first_network_s    -> the viewer painted the render's first frame (a keyframe; tier 1: the first batch)
+  render_s                    -> the render finished (--full; by default each render is cancelled once its
+                              first frame is on screen, to spare a shared machine)
+
+The first render encodes every frame's conditioning; later ones reuse the Renderer's cache unless
+--cold (cleared before each press). --tier1-standin adds an UNTRAINED tier-1 network of the default
+architecture beside (links to) the shipped weights, so quality auto runs tier 1 as it will once
+residual.safetensors ships (its cost does not depend on its weights); it is prepared in a child process,
+outside the measured start-up. The machine is shared: the JSON keeps the load average before and after
+and `x2video.eval.machine.machine_info`. Writes bench/results/editor_latency/editor_latency.json
+(editor_latency_tier1_standin.json with --tier1-standin).
+"""
+from __future__ import annotations
+
+import time
+
+T_IMPORT = time.perf_counter()  # before Qt and the app are imported
+
+import argparse  # noqa: E402
+import os  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Callable  # noqa: E402
+
+from bench.common import command, results_path  # noqa: E402
+
+#: issue 31's targets, seconds
+TARGETS = {"startup_to_demo_visible_s": 5.0, "press_to_frame_on_screen_s": 0.5, "press_to_first_network_s": 1.5}
+
+
+def process_age() -> float:
+    """Seconds since this process started (Linux /proc), else since this module was imported."""
+    try:
+        ticks = int(Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()[19])
+        uptime = float(Path("/proc/uptime").read_text().split()[0])
+        return uptime - ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return time.perf_counter() - T_IMPORT
+
+
+STANDIN = """
+import sys
+from pathlib import Path
+from x2video.model.residual import ResidualConfig, ResidualNet, save
+from x2video.weights import shipped_weights
+src, out = shipped_weights(), Path(sys.argv[1])
+for f in src.iterdir():
+    (out / f.name).symlink_to(f)
+save(ResidualNet(ResidualConfig()), out, {"note": "untrained stand-in (bench.editor_latency --tier1-standin)"})
+"""
+
+
+def tier1_standin(folder: Path) -> None:
+    """The shipped weights (links) plus an untrained tier-1 net in `folder`, made by a child process."""
+    subprocess.run([sys.executable, "-c", STANDIN, str(folder)], check=True)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("shot", nargs="?", help="a shot or project the editor opens (default: the demo shot)")
+    ap.add_argument("--renders", type=int, default=3, help="presses of Render, each after the last finished (default 3)")
+    ap.add_argument("--quality", default="auto", choices=("auto", "formula", "residual", "diffusion"))
+    ap.add_argument("--cold", action="store_true", help="clear the conditioning cache before each press")
+    ap.add_argument("--untrained", action="store_true", help="the untrained tiny model instead of the shipped weights")
+    ap.add_argument("--tier1-standin", action="store_true", help="add an untrained tier-1 net beside the shipped weights")
+    ap.add_argument("--full", action="store_true", help="let each render finish (default: cancel once its first frame shows)")
+    ap.add_argument("--preview-frame-only", action="store_true", help="preview only the frame on screen (RenderController.preview_all off)")
+    ap.add_argument("--timeout", type=float, default=600.0, help="seconds to wait for any one stage")
+    ap.add_argument("--out", type=Path, help="default bench/results/editor_latency/editor_latency[_tier1_standin].json")
+    args = ap.parse_args(argv)
+    out = args.out or results_path("editor_latency", "editor_latency_tier1_standin" if args.tier1_standin else None)
+    started_before_import = process_age() - (time.perf_counter() - T_IMPORT)  # interpreter start -> this module
+    tmp = tempfile.TemporaryDirectory(prefix="x2video-latency-")
+    if args.tier1_standin:
+        tier1_standin(Path(tmp.name))
+        os.environ["X2VIDEO_WEIGHTS"] = tmp.name
+    t_base = time.perf_counter()  # the measured start-up begins here (plus the interpreter's start)
+    load_before = [round(v, 2) for v in os.getloadavg()]
+
+    from PySide6.QtCore import QCoreApplication, QEvent, QEventLoop, QObject, Qt
+    from PySide6.QtTest import QTest
+
+    from x2video_app.main_window import launch
+    from x2video_app.preview import PreviewReady
+
+    def age() -> float:
+        """Seconds of start-up: interpreter start -> this module, then from `t_base` (after any stand-in)."""
+        return started_before_import + time.perf_counter() - t_base
+
+    def pump_until(cond: Callable[[], bool], what: str) -> None:
+        t_end = time.perf_counter() + args.timeout
+        while not cond():
+            if time.perf_counter() > t_end:
+                raise TimeoutError(f"waited {args.timeout:.0f} s for {what}")
+            QCoreApplication.processEvents(QEventLoop.ProcessEventsFlag.AllEvents, 5)
+            time.sleep(0.002)
+
+    class PaintWatch(QObject):
+        """Records when the viewer paints while `armed` says so."""
+
+        def __init__(self, armed: Callable[[], bool]) -> None:
+            super().__init__()
+            self.armed, self.at = armed, None
+
+        def eventFilter(self, obj, ev) -> bool:  # noqa: N802 - Qt's name
+            if self.at is None and ev.type() == QEvent.Type.Paint and self.armed():
+                self.at = age()
+            return False
+
+    app, win = launch(([args.shot] if args.shot else []) + (["--untrained"] if args.untrained else []))
+    visible = PaintWatch(lambda: win.doc.shot is not None)
+    win.viewer.viewport().installEventFilter(visible)
+    pump_until(lambda: visible.at is not None or win.errors_shown, "the shot on screen")
+    if win.errors_shown:
+        raise RuntimeError(f"the editor could not open the shot: {win.errors_shown}")
+    demo_visible = visible.at
+    pump_until(lambda: win.render_ctl.preload_worker is None and win.render_ctl.renderer is not None, "the model build")
+    model_ready = age()
+    win.viewer.viewport().removeEventFilter(visible)
+
+    win.render_ctl.preview_all = not args.preview_frame_only
+    i = win.render_panel.quality.findData(args.quality)
+    win.render_panel.quality.setCurrentIndex(i)
+    renders = []
+    for k in range(args.renders):
+        if args.cold:
+            win.render_ctl.renderer.cache.clear()
+        marks: dict[str, float] = {}
+
+        def on_event(ev, marks=marks) -> None:  # after the window painted it (connected after the window's slot)
+            if isinstance(ev, PreviewReady) and "preview" not in marks:
+                marks["preview"] = time.perf_counter()
+            elif ev.__class__.__name__ == "FramesReady" and "network" not in marks:
+                marks["network"] = time.perf_counter()
+                if not args.full:
+                    win.render_ctl.cancel()
+
+        win.render_ctl.sigEvent.connect(on_event)
+        load = [round(v, 2) for v in os.getloadavg()]
+        t_click = time.perf_counter()
+        QTest.mouseClick(win.render_panel.render_button, Qt.MouseButton.LeftButton)
+        pump_until(lambda: not win.render_ctl.running and win.render_ctl.preview_worker is None, f"render {k + 1}")
+        win.render_ctl.sigEvent.disconnect(on_event)
+        st, offset = win.doc.render, win.render_ctl.pressed_at - t_click
+        row = {
+            "press": k + 1,
+            "status": st.status,
+            "tier": st.tier,
+            "reason": st.reason,
+            "frames": len(st.frames),
+            "windows": st.num_windows,
+            "press_to_frame_on_screen_s": None if win.first_frame_shown_s is None else round(offset + win.first_frame_shown_s, 3),
+            "press_to_first_network_s": None if win.first_keyframe_shown_s is None else round(offset + win.first_keyframe_shown_s, 3),
+            "press_to_first_preview_event_s": round(marks["preview"] - t_click, 3) if "preview" in marks else None,
+            "press_to_first_network_event_s": round(marks["network"] - t_click, 3) if "network" in marks else None,
+            "render_s": round(st.finished_at - st.started_at, 2) if st.finished_at and st.status == "finished" else None,
+            "conditioning_cache": str(win.render_ctl.renderer.cache_stats()),
+            "load_average_at_press": load,
+        }
+        renders.append(row)
+        print(f"press {k + 1}: frame on screen {row['press_to_frame_on_screen_s']} s, first network frame "
+              f"{row['press_to_first_network_s']} s, render {row['render_s']} s ({row['tier']}: {row['reason']}); load {load}", flush=True)
+
+    from x2video.eval.machine import machine_info
+    from x2video.io.atomic import write_json_atomic
+
+    first = renders[0] if renders else {}
+    summary = {
+        "startup_to_demo_visible_s": round(demo_visible, 3),
+        "model_ready_s": round(model_ready, 3),
+        "press_to_frame_on_screen_s": first.get("press_to_frame_on_screen_s"),
+        "press_to_first_network_s": first.get("press_to_first_network_s"),
+    }
+    result = {
+        "format": "x2video-editor-latency",
+        "command": command("editor_latency", argv),
+        "machine": machine_info(win.render_ctl.choice.device if win.render_ctl.choice else None),
+        "model": win.render_ctl.choice.label if win.render_ctl.choice else None,
+        "tier1_standin": args.tier1_standin,
+        "preview_all": not args.preview_frame_only,
+        "shot": {"frames": win.doc.num_frames, "size": list(win.doc.size[::-1]), "source": "demo" if not args.shot else "argument"},
+        "settings": {k: v for k, v in win.render_panel.values().items()},
+        "interpreter_start_to_bench_import_s": round(started_before_import, 3),
+        "summary (first press; from process start, or from the click)": summary,
+        "targets": TARGETS,
+        "met": {k: (summary[k] is not None and summary[k] <= v) for k, v in TARGETS.items()},
+        "renders": renders,
+        "load_average_before_after": [load_before, [round(v, 2) for v in os.getloadavg()]],
+    }
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out, result)
+    print(f"demo visible {summary['startup_to_demo_visible_s']} s after start; model ready {summary['model_ready_s']} s; "
+          f"wrote {out}", flush=True)
+    win.project.force_dirty = False
+    win.undo.setClean()
+    win.close()
+    app.quit()
+    tmp.cleanup()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
