@@ -10,6 +10,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from x2video.cycles.outside.dataset import make_outside
+
 log = logging.getLogger(__name__)
 
 DEMO = {"seed": 7, "frames": 33, "width": 320, "height": 224}
@@ -150,6 +152,13 @@ def register(subparsers) -> None:
                         " multi-layer EXR shots with a val split; needs `pip install 'x2video-studio[cycles]'`)")
     m.add_argument("--samples", type=int, default=64, help="cycles: path-tracing samples per pixel (Combined is denoised)")
     m.set_defaults(func=make)
+    o = sub.add_parser("outside", help="path-trace the hand-written outside test scenes into DIR/test/<scene> (Cycles, resumable)")
+    o.add_argument("--out", required=True, help="output folder")
+    o.add_argument("--size", default="320x224", help="WIDTHxHEIGHT in pixels")
+    o.add_argument("--frames", type=int, default=12, help="frames per scene")
+    o.add_argument("--samples", type=int, default=32, help="path-tracing samples per pixel (Combined is denoised)")
+    o.add_argument("--scenes", default="kitchen,corridor,night_mirror", help="comma-separated scenes to render")
+    o.set_defaults(func=make_outside)
     d = sub.add_parser("demo", help="write the small demo shot (1 room, 33 frames, 320x224, deterministic)")
     d.add_argument("out", help="output shot folder")
     d.set_defaults(func=demo)
