@@ -16,7 +16,7 @@ PASSES = ROOT / "core" / "x2video" / "cycles" / "passes.py"
 CLASSES = ROOT / "core" / "x2video" / "cycles" / "classes.py"
 SHARED = ("AOVS", "PASS_FLAGS", "LIGHT_PASSES", "FILE_PASSES")
 
-bpy_missing = subprocess.run([sys.executable, "-c", "import importlib.util,sys; sys.exit(importlib.util.find_spec('bpy') is None)"]).returncode
+bpy_missing = subprocess.run([sys.executable, "-c", "import importlib.util,sys; sys.exit(importlib.util.find_spec('bpy') is None)"], check=False).returncode
 
 
 def module_constants(path: Path) -> dict:
@@ -102,16 +102,15 @@ SCENE = textwrap.dedent("""
 @pytest.mark.skipif(bool(bpy_missing), reason="bpy is not installed: `pip install -e '.[cycles]'` (scripts/setup.sh does)")
 def test_addon_exports_a_shot_x2video_reads(tmp_path):
     import numpy as np
-
     from x2video.io import load_shot
 
     out = tmp_path / "shot"
     script = tmp_path / "scene.py"
     script.write_text(SCENE)
-    proc = subprocess.run([sys.executable, str(script), str(ADDON), str(out)], capture_output=True, text=True, timeout=300)
+    proc = subprocess.run([sys.executable, str(script), str(ADDON), str(out)], capture_output=True, text=True, timeout=300, check=False)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert sorted(p.name for p in out.iterdir()) == ["cameras.json", "frame_0000.exr", "frame_0001.exr", "shot.json"]
-    info = subprocess.run([sys.executable, "-m", "x2video", "info", str(out), "--json"], capture_output=True, text=True, timeout=120,
+    info = subprocess.run([sys.executable, "-m", "x2video", "info", str(out), "--json"], capture_output=True, text=True, timeout=120, check=False,
                           env={**os.environ, "QT_QPA_PLATFORM": "offscreen"})
     assert info.returncode == 0, info.stderr[-3000:]
     report = json.loads(info.stdout)

@@ -6,11 +6,10 @@ import sys
 
 import numpy as np
 import pytest
-
 from x2video.channels import INTRINSIC
 from x2video.cycles.classes import CLASSES, classify, material_classes
 
-bpy_missing = subprocess.run([sys.executable, "-c", "import importlib.util,sys; sys.exit(importlib.util.find_spec('bpy') is None)"]).returncode
+bpy_missing = subprocess.run([sys.executable, "-c", "import importlib.util,sys; sys.exit(importlib.util.find_spec('bpy') is None)"], check=False).returncode
 
 
 @pytest.mark.slow
@@ -21,7 +20,7 @@ def test_outside_scene_renders_and_loads(tmp_path):
     out = tmp_path / "outside"
     cmd = [sys.executable, "-m", "x2video", "dataset", "outside", "--scenes", "corridor", "--frames", "2", "--size", "48x32",
            "--samples", "4", "--out", str(out)]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, check=False, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     assert proc.returncode == 0, proc.stderr[-3000:]
     meta = json.loads((out / "dataset.json").read_text())
     assert meta["complete"] and meta["splits"]["test"] == ["test/corridor"]
@@ -41,7 +40,7 @@ def test_outside_scene_renders_and_loads(tmp_path):
     assert all(int(i) in classes for i in ids if i > 0), "every object id seen has a class"
     assert fr["irradiance"].mean() > 0 and fr["rgb"].max() > 0
     # the glossy floor is glossy in the roughness AOV too: 0.05 where the floor is
-    floor = [k for k, v in shot.info.object_captions.items() if "floor" in v][0]
+    floor = next(k for k, v in shot.info.object_captions.items() if "floor" in v)
     on_floor = fr["ids"][..., 0] == int(floor)
     assert on_floor.any() and np.median(fr["roughness"][on_floor]) == pytest.approx(0.05, abs=0.01)  # edge pixels are blends
 

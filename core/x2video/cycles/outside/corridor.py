@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from x2video.cycles.outside.build import Builder, SceneSpec, area_light, box, cylinder, lerp, plane, smooth, sphere, world
+from x2video.cycles.outside.build import Builder, SceneSpec, area_light, box, cylinder, plane, smooth, sphere, world
 
 W, L, H = 2.2, 15.0, 2.8  # x in [-W/2, W/2], y in [-1, L - 1], z in [0, H]
 Y0 = -1.0
