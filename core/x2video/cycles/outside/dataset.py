@@ -30,20 +30,18 @@ class OutsideJob:
     samples: int
 
 
-def _work(job: OutsideJob) -> tuple[str, float, int]:
-    """Worker: one scene (imports bpy in this process)."""
+def _work(job: OutsideJob) -> None:
+    """Worker process: one scene (imports bpy here; Blender's progress lines go to /dev/null)."""
+    from x2video.cycles.dataset import _quiet
     from x2video.cycles.outside.render import write_outside_shot
     from x2video.cycles.shot import CyclesConfig
 
-    done = [0]
-    t0 = time.perf_counter()
+    _quiet()
+    write_outside_shot(job.scene, job.out, job.frames, job.width, job.height, cfg=CyclesConfig(samples=job.samples, threads=1))
 
-    def count(_t: int, _s: float) -> None:
-        done[0] += 1
 
-    write_outside_shot(job.scene, job.out, job.frames, job.width, job.height, cfg=CyclesConfig(samples=job.samples, threads=1),
-                       progress=count)
-    return job.scene, time.perf_counter() - t0, done[0]
+def _frames_done(out: str) -> int:
+    return len(list(Path(out).glob("frame_*.exr")))
 
 
 def parse_scenes(text: str) -> list[str]:
@@ -56,7 +54,7 @@ def parse_scenes(text: str) -> list[str]:
 
 def make_outside(args: argparse.Namespace) -> int:
     from x2video.cli.dataset import is_done, parse_size
-    from x2video.cycles.dataset import _quiet, require_bpy
+    from x2video.cycles.dataset import require_bpy
     from x2video.io.atomic import write_json_atomic
 
     require_bpy()
@@ -78,11 +76,18 @@ def make_outside(args: argparse.Namespace) -> int:
     todo = [j for j in jobs if not is_done(Path(j.out))]
     log.info("%d outside scenes, %d already done", len(jobs), len(jobs) - len(todo))
     per_scene = {}
-    for job in todo:  # one fresh Blender process per scene, one at a time
-        with mp.get_context("spawn").Pool(1, initializer=_quiet) as pool:
-            scene, secs, n = pool.apply(_work, (job,))
-        per_scene[scene] = round(secs / max(n, 1), 2)
-        print(f"{scene}: {n} frame(s) path-traced in {secs:.0f} s ({secs / max(n, 1):.1f} s per frame, setup included)", flush=True)
+    for job in todo:  # one fresh Blender process per scene, one at a time (a process, not a pool: a pool waits forever
+        # on a task whose worker was killed)
+        before, t0 = _frames_done(job.out), time.perf_counter()
+        proc = mp.get_context("spawn").Process(target=_work, args=(job,), name=f"outside-{job.scene}")
+        proc.start()
+        proc.join()
+        secs, n = time.perf_counter() - t0, _frames_done(job.out) - before
+        if proc.exitcode != 0:
+            raise RuntimeError(f"{job.scene}: the Blender process exited with {proc.exitcode} after {n} new frame(s);"
+                               " run the same command again to resume")
+        per_scene[job.scene] = round(secs / max(n, 1), 2)
+        print(f"{job.scene}: {n} frame(s) path-traced in {secs:.0f} s ({secs / max(n, 1):.1f} s per frame, set-up included)", flush=True)
     write_json_atomic(meta, {**settings, "format": FORMAT, "scenes": scenes, "complete": True,
                              "splits": {"test": [f"test/{s}" for s in scenes]}, "seconds_per_frame_this_run": per_scene})
     print(f"{len(jobs)} outside scene(s) in {out / 'test'}")

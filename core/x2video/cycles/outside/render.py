@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib
 import json
 import os
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -41,6 +42,8 @@ def write_outside_shot(name: str, out_dir: str | Path, num_frames: int, width: i
     cfg = cfg or CyclesConfig()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    for stale in out.glob(".tmp_*"):  # a frame a killed run was writing (one process per scene folder)
+        shutil.rmtree(stale, ignore_errors=True)
     b, spec = build_scene(name)
     scene = setup_render(width, height, cfg)
     mats = camera_poses(spec, num_frames)
