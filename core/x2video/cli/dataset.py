@@ -57,6 +57,12 @@ def demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _outside(args: argparse.Namespace) -> int:
+    from x2video.cycles.outside.dataset import make_outside
+
+    return make_outside(args)
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser("dataset", help="generate procedural interior shots (training data, demo scene)")
     sub = p.add_subparsers(dest="dataset_command", metavar="ACTION")
@@ -75,6 +81,13 @@ def register(subparsers) -> None:
     m.add_argument("--samples", type=int, default=32, help="cycles: path-tracing samples per pixel (Combined and the light passes are denoised)")
     m.add_argument("--splits", default=None, help="cycles: render only these splits, e.g. 'test' (comma-separated; default all)")
     m.set_defaults(func=make)
+    o = sub.add_parser("outside", help="path-trace the hand-written outside test scenes into DIR/test/<scene> (Cycles, resumable)")
+    o.add_argument("--out", required=True, help="output folder")
+    o.add_argument("--size", default="320x224", help="WIDTHxHEIGHT in pixels")
+    o.add_argument("--frames", type=int, default=12, help="frames per scene")
+    o.add_argument("--samples", type=int, default=32, help="path-tracing samples per pixel (Combined is denoised)")
+    o.add_argument("--scenes", default="kitchen,corridor,night_mirror", help="comma-separated scenes to render")
+    o.set_defaults(func=_outside)
     d = sub.add_parser("demo", help="write the small demo shot (1 room, 33 frames, 320x224, deterministic)")
     d.add_argument("out", help="output shot folder")
     d.set_defaults(func=demo)

@@ -76,7 +76,10 @@ def wire_material(mat: "bpy.types.Material") -> int:
         out = tree.nodes.new("ShaderNodeOutputAOV")
         out[_TAG] = True
         out.location = (bsdf.location.x + 300, bsdf.location.y - 120 * (written + 1))
-        out.aov_name = name  # Blender 3.x/4.x: `aov_name`; the node is matched by name
+        if hasattr(out, "aov_name"):  # Blender 4.2+
+            out.aov_name = name
+        else:  # up to 4.1 the AOV name is the node's `name` property (API docs 3.4 to 4.1)
+            out.name = name
         target = out.inputs["Color" if kind == "COLOR" else "Value"]
         if socket.is_linked:
             tree.links.new(socket.links[0].from_socket, target)
