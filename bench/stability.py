@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import itertools
+import json
 import math
 import re
 import time
@@ -574,6 +575,7 @@ def grid(quick: bool, n_sources: int, has_cycles: bool, families: tuple[str, ...
         cases += [("hostile", h, {"case": h, "frames": 2}) for h in hostile]
     if "limits" in families:
         cases += [("limits", f"shot{i}", {"source": i, "frames": n}) for i, n in limits]
+    cases.sort(key=lambda c: FAMILIES.index(c[0]))  # stable: FAMILIES' order, size last
     return [{"family": f, "name": n, "method": m, "params": p} for f, n, p in cases for m in methods]
 
 
@@ -626,7 +628,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--name", default=None, help="results name (default stability, or stability_quick with --quick)")
     ap.add_argument("--no-docs", action="store_true", help="do not write docs/STABILITY.md")
+    ap.add_argument("--report", type=Path, default=None, help="only write docs/STABILITY.md from this results JSON (e.g. a run cut short)")
     args = ap.parse_args(argv)
+    if args.report is not None:
+        from bench.stability_report import write_report
+
+        write_report(json.loads(args.report.read_text()), DOCS / "STABILITY.md", DOCS / "stability")
+        return 0
     import torch
 
     from bench.common import command, results_path
