@@ -39,3 +39,18 @@ def test_nonfinite_inputs_give_finite_frames_in_tiers_0_and_1():
     for quality in ("formula", "residual"):
         _, frames = render(with_net(), shot, RenderSettings(quality=quality))
         assert all(np.isfinite(fr).all() for fr in frames.values()), quality
+
+
+def test_diffusion_tier_treats_nonfinite_channels_as_zero():
+    """The sampler's conditioning used to raise on NaN/Inf; it now zeroes them with a warning, as the loaders do."""
+    import pytest
+
+    from x2video.model.pipeline import X2VideoModel
+
+    base = full_shot(1, 16, 16)
+    arrays = {n: np.stack([base.channel(n, 0)]) for n in base.channels}
+    arrays["irradiance"][:, 2:6, 3:9] = np.nan
+    arrays["albedo"][:, 8:10, 3:9] = np.inf
+    with pytest.warns(RuntimeWarning, match="NaN/Inf"):
+        _, frames = render(X2VideoModel.untrained("tiny", seed=0), ArrayShot(arrays), RenderSettings(quality="diffusion", steps=1))
+    assert len(frames) == 1 and np.isfinite(frames[0]).all()
