@@ -54,3 +54,16 @@ def test_diffusion_tier_treats_nonfinite_channels_as_zero():
     with pytest.warns(RuntimeWarning, match="NaN/Inf"):
         _, frames = render(X2VideoModel.untrained("tiny", seed=0), ArrayShot(arrays), RenderSettings(quality="diffusion", steps=1))
     assert len(frames) == 1 and np.isfinite(frames[0]).all()
+
+
+def test_classical_shading_counts_nonfinite_values_as_zero():
+    from x2video.model.shading import classical_shading
+
+    shot = full_shot(1, 8, 8)
+    ch = dict(shot.frame(0))
+    ch["albedo"] = ch["albedo"].copy()
+    ch["irradiance"] = ch["irradiance"].copy()
+    ch["albedo"][0, :4] = np.nan
+    ch["irradiance"][1, :4] = np.inf
+    out = classical_shading(ch)
+    assert np.isfinite(out).all() and (out[1, :4] == 0).all()
