@@ -61,13 +61,15 @@ def line_plot(path: Path, series: dict[str, list[tuple[float, float]]], title: s
     _text(img, xlabel, (L + W // 2 - 40, T + H + 40), 0.45)
     _text(img, ylabel, (5, T - 8), 0.4)
     for i, (name, s) in enumerate(series.items()):
-        col = COLOURS.get(name, EXTRA_COLOURS[i % len(EXTRA_COLOURS)])
+        col = COLOURS.get(name.split()[0], EXTRA_COLOURS[i % len(EXTRA_COLOURS)])
         good = [(x, y) for x, y in s if y is not None and math.isfinite(y) and (not logx or x > 0) and (not logy or y > 0)]
         for a, b in zip(good, good[1:]):
             cv2.line(img, px(*a), px(*b), col, 2, cv2.LINE_AA)
         for p in good:
             cv2.circle(img, px(*p), 3, col, -1, cv2.LINE_AA)
         _text(img, name, (L + W + 10, T + 20 + 20 * i), 0.45, col, 1)
+    if len(series) > 1:
+        _text(img, "(lines may overlap)", (L + W + 10, T + 20 + 20 * len(series)), 0.38, (120, 120, 120))
     path.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(path), img)
 
@@ -179,6 +181,9 @@ def product_note(f: dict) -> str:
     if fam == "masks" and method == "formula":
         return ("the formula leaves A|M|R regions black (nothing to multiply); 'auto' generates them with the sampler and keeps "
                 "tier 1 around them over a feathered seam")
+    if fam == "hostile" and name == "negative_roughness":
+        return ("clamped to [0, 1] (the loaders; `to_vae_range` in memory): roughness -0.5 is roughness 0, a mirror-like scene "
+                "the sampler renders as such; the formula ignores roughness, so only the sampler's score moves")
     if fam == "hostile" and name.startswith("albedo_"):
         return f"rendered as given: albedo {name[-1]} everywhere is a different scene from the truth it is scored on. {files}"
     if fam == "hostile":
