@@ -359,7 +359,8 @@ def write_report(out: dict, md: Path, figs: Path) -> None:
         "Reading it: timings are wall seconds on a CPU shared with other jobs (noisy, within a factor of 2); tier 1 is the "
         "randomly initialised net until the shipped residual weights land, so 'auto' equals the formula wherever it picks "
         "tier 1; peak RSS is the whole process's (the loaded model is most of it), and after a 1920x1080 tier-1 frame the "
-        "process keeps about 2 GB (ONNX Runtime's memory arena), which is why the size family runs last: read the bracketed "
+        "process keeps about 2 GB more (not returned by malloc_trim; likely ONNX Runtime's memory arena), "
+        "which is why the size family runs last: read the bracketed "
         "number (above the cell's start) there.",
         "",
         "## Failures and what the product does instead",

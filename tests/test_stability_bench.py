@@ -55,3 +55,14 @@ def test_quick_grid_covers_every_family_and_skips_big_diffusion():
     big = [x for x in cells if x["method"] == "diffusion" and x["params"].get("size") == [1920, 1080]]
     assert big and all(S.skip_reason(x, c) for x in big)
     assert len(S.grid(False, 6, True, ("channels",), ("formula",))) == 32
+
+
+def test_merge_results_later_cells_replace_earlier():
+    a = {"command": "a", "wall_seconds": 1.0, "cells": [
+        {"family": "hostile", "name": "x", "method": "diffusion", "crashed": True, "error": "E"},
+        {"family": "hostile", "name": "x", "method": "formula", "crashed": False, "psnr": 20.0}]}
+    b = {"command": "b", "wall_seconds": 2.0, "cells": [
+        {"family": "hostile", "name": "x", "method": "diffusion", "crashed": False, "psnr": 19.0}]}
+    m = S.merge_results([a, b])
+    assert len(m["cells"]) == 2 and m["cells"][0]["psnr"] == 19.0 and m["command"] == "a ; b" and m["wall_seconds"] == 3.0
+    assert m["findings"] == [] and S.findings(a["cells"])[0]["failure"] == "crash"
