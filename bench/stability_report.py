@@ -176,6 +176,10 @@ def product_note(f: dict) -> str:
     if fam == "channels" and method == "formula":
         return ("the formula needs albedo and irradiance; without either it is black. 'auto' never runs the formula here: any "
                 "dropped channel sends it to the diffusion sampler (x2video.sampling.tiers.generation_reasons; the log says which)")
+    if fam == "channels" and "alb" in name.split("+") and "irr" in name.split("+"):
+        return ("'auto' runs the sampler for any dropped channel, here with albedo and irradiance both present, where the "
+                "formula (or tier 1) does better: falling back to tier 0/1 when only normal, roughness or metallic are missing "
+                "would avoid the loss (x2video.sampling.tiers.generation_reasons)")
     if fam == "channels":
         return "'auto' runs the sampler for a dropped channel; what it generates is the model's guess, scored against one truth"
     if fam == "masks" and method == "formula":
@@ -211,6 +215,14 @@ def observations(cells: list[dict]) -> list[str]:
                    f"mask: outside one masked object PSNR is {a['psnr_by_class']['outside']:.1f} dB with the regional composite "
                    f"(tier {a.get('tier')}) and {b['psnr_by_class']['outside']:.1f} dB with a local prompt on the same mask. "
                    "Letting local prompts on A|M|R-masked regions take the regional path would keep tier 1 outside them.")
+    part = [(c, get.get(("channels", c["name"], "formula"))) for c in cells if c["family"] == "channels" and c["method"] == "auto"
+            and {"alb", "irr"} <= set(c["name"].split("+")) and c["name"].count("+") < 4 and not c["crashed"] and not c.get("skipped")]
+    part = [(c, f) for c, f in part if f and c.get("psnr") is not None and f.get("psnr") is not None]
+    if part:
+        lo, hi = min(c["psnr"] for c, _ in part), max(c["psnr"] for c, _ in part)
+        out.append(f"- With albedo and irradiance kept but some of normal/roughness/metallic dropped ({len(part)} subsets), 'auto' "
+                   f"runs the sampler: {lo:.1f} to {hi:.1f} dB, where the formula gives {part[0][1]['psnr']:.1f} dB. A fallback to "
+                   "tier 0/1 for those subsets would never be worse here.")
     big = [c for c in cells if c["family"] == "size" and c["method"] == "auto" and c.get("params", {}).get("size") == [1920, 1080]
            and not c.get("skipped") and not c["crashed"]]
     if big:
