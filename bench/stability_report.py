@@ -369,7 +369,8 @@ def write_report(out: dict, md: Path, figs: Path) -> None:
         lines.append(f"| {fam} | " + " | ".join(row) + " |")
     lines += [
         "",
-        "Reading it: timings are wall seconds on a CPU shared with other jobs (noisy, within a factor of 2); tier 1 is the "
+        "Reading it: timings are wall seconds on 2 CPU cores shared with other jobs whose load varied a lot during the runs "
+        "(a 2-frame diffusion cell took from under 1 s to 30 s), so compare seconds only between neighbouring cells; tier 1 is the "
         "randomly initialised net until the shipped residual weights land, so 'auto' equals the formula wherever it picks "
         "tier 1; peak RSS is the whole process's (the loaded model is most of it), and after a 1920x1080 tier-1 frame the "
         "process keeps about 2 GB more (not returned by malloc_trim; likely ONNX Runtime's memory arena), "
