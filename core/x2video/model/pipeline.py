@@ -345,6 +345,8 @@ class X2VideoModel:
         assert x is not None
         if x.shape[:2] != (H, W):
             raise ValueError(f"frame {frame.frame_index}: channel {name!r} is {x.shape[0]}x{x.shape[1]}, mask is {H}x{W}")
-        if not np.all(np.isfinite(x)):
-            raise ValueError(f"frame {frame.frame_index}: channel {name!r} holds NaN/Inf")
+        if not np.all(np.isfinite(x)):  # as the loaders and tiers 0/1 do: NaN/Inf count as 0, with a warning
+            from x2video.io.convention import zero_nonfinite
+
+            x = zero_nonfinite(np.asarray(x, np.float32), f"frame {frame.frame_index}", name)
         return x

@@ -82,26 +82,42 @@ class ResidualNet(nn.Module):
         return self.out(x)
 
 
-def formula(ch: Mapping[str, np.ndarray | None]) -> np.ndarray:
-    """(H, W, 3) albedo x irradiance (zeros when either is missing): tier 0 and the net's base."""
+def _finite(v: np.ndarray) -> np.ndarray:
+    """float32 `v` with NaN and +-Inf set to 0 (what the loaders do with them, `x2video.io.convention.zero_nonfinite`)."""
+    v = np.asarray(v, np.float32)
+    return v if np.isfinite(v).all() else np.where(np.isfinite(v), v, np.float32(0))
+
+
+def _frame_shape(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None) -> tuple[int, int]:
+    present = [np.asarray(v).shape[:2] for v in ch.values() if v is not None]
+    if present:
+        return present[0]
+    if shape is None:
+        raise ValueError("every channel is dropped: give the frame's (H, W) as `shape`")
+    return tuple(shape)[:2]  # type: ignore[return-value]
+
+
+def formula(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None = None) -> np.ndarray:
+    """(H, W, 3) albedo x irradiance (zeros when either is missing; `shape` = (H, W) when every channel is):
+    tier 0 and the net's base. Non-finite values count as 0, albedo is clipped to [0, 1], irradiance to >= 0."""
     al, ir = ch.get("albedo"), ch.get("irradiance")
     if al is None or ir is None:
-        shape = next(np.asarray(v).shape[:2] for v in ch.values() if v is not None)
-        return np.zeros((*shape, 3), np.float32)
-    return (np.clip(np.asarray(al, np.float32), 0, 1) * np.maximum(np.nan_to_num(np.asarray(ir, np.float32)), 0)).astype(np.float32)
+        return np.zeros((*_frame_shape(ch, shape), 3), np.float32)
+    return (np.clip(_finite(al), 0, 1) * np.maximum(_finite(ir), 0)).astype(np.float32)
 
 
-def features(ch: Mapping[str, np.ndarray | None]) -> tuple[np.ndarray, np.ndarray]:
+def features(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(C_in, H, W) network input and (3, H, W) linear formula (albedo x irradiance) of one frame's channels
-    (memory convention, irradiance exposure-normalised). A dropped channel is zeros with its present flag 0."""
-    shape = next(np.asarray(v).shape[:2] for v in ch.values() if v is not None)
-    h, w = shape
+    (memory convention, irradiance exposure-normalised). A dropped channel is zeros with its present flag 0;
+    `shape` = (H, W) is needed only when every channel is dropped. Non-finite values count as 0 (one NaN
+    would otherwise reach the net's global context and blank the whole frame)."""
+    h, w = _frame_shape(ch, shape)
 
     def get(name: str, n: int) -> tuple[np.ndarray, float]:
         v = ch.get(name)
         if v is None:
             return np.zeros((h, w, n), np.float32), 0.0
-        v = np.asarray(v, np.float32)
+        v = _finite(v)
         return (v if v.ndim == 3 else v[..., None])[..., :n], 1.0
 
     al, pa = get("albedo", 3)
@@ -109,7 +125,7 @@ def features(ch: Mapping[str, np.ndarray | None]) -> tuple[np.ndarray, np.ndarra
     ro, pr = get("roughness", 1)
     me, pm = get("metallic", 1)
     ir, pi = get("irradiance", 3)
-    shading = formula(ch)
+    shading = formula(ch, (h, w))
     geometry = (np.linalg.norm(nr, axis=-1, keepdims=True) > 0.5).astype(np.float32) if pn else np.ones((h, w, 1), np.float32)
     present = np.broadcast_to(np.array([pa, pn, pr, pm, pi], np.float32), (h, w, 5))
     x = np.concatenate([al, nr, ro, me, np.log1p(np.maximum(ir, 0)), np.log1p(np.maximum(shading, 0)), present, geometry], -1)

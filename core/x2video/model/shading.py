@@ -58,7 +58,10 @@ def classical_shading(channels: Mapping[str, np.ndarray | None], amr_mask: np.nd
 
     `channels` maps albedo/normal/roughness/metallic/irradiance to arrays or None (dropped).
     All present channels must share one (H, W). See the module docstring for the model."""
-    present = {k: np.asarray(v, np.float32) for k, v in channels.items() if v is not None and k in _USED}
+    # non-finite values count as 0, as the loaders and the tiers make them (one NaN albedo pixel or Inf irradiance
+    # pixel otherwise reaches the shading prior's latent and the residual model's detail)
+    present = {k: np.where(np.isfinite(v), v, np.float32(0)) for k, v in
+               ((k, np.asarray(v, np.float32)) for k, v in channels.items() if v is not None and k in _USED)}
     if not present and amr_mask is None:
         raise ValueError("classical_shading: no channels and no mask, cannot infer the frame size")
     sizes = {k: v.shape[:2] for k, v in present.items()}
@@ -71,7 +74,7 @@ def classical_shading(channels: Mapping[str, np.ndarray | None], amr_mask: np.nd
         return np.zeros((h, w, 3), np.float32)
 
     albedo = np.clip(present["albedo"], 0, 1)  # (H, W, 3)
-    irr = np.maximum(np.nan_to_num(present["irradiance"]), 0)  # (H, W, 3)
+    irr = np.maximum(present["irradiance"], 0)  # (H, W, 3)
     metallic = np.clip(_one(present.get("metallic")), 0, 1) if "metallic" in present else np.zeros((h, w), np.float32)
     out = albedo * (1 - metallic[..., None]) * irr  # diffuse
     if "normal" in present and "roughness" in present:

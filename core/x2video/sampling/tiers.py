@@ -93,7 +93,7 @@ def formula_frame(cond: FrameConditioning) -> np.ndarray:
     overshoots a path tracer's energy-conserving BSDF (`x2video.model.residual`)."""
     from x2video.model.residual import formula
 
-    out = formula(cond.channels)
+    out = formula(cond.channels, np.shape(cond.amr_mask)[:2] if np.size(cond.amr_mask) else None)
     return out * (np.asarray(cond.amr_mask, np.float32) <= 0.5)[..., None] if cond.amr_mask.size else out
 
 
@@ -104,7 +104,7 @@ def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.devic
 
     out: list[np.ndarray] = []
     for i in range(0, len(conds), batch):
-        feats = [features(c.channels) for c in conds[i:i + batch]]
+        feats = [features(c.channels, np.shape(c.amr_mask)[:2] if np.size(c.amr_mask) else None) for c in conds[i:i + batch]]
         x = torch.from_numpy(np.stack([f[0] for f in feats])).to(device)  # (B, C_in, H, W)
         s = torch.from_numpy(np.stack([f[1] for f in feats])).to(device)  # (B, 3, H, W)
         y = apply(net, x, s).permute(0, 2, 3, 1).float().cpu().numpy()  # (B, H, W, 3)
