@@ -54,9 +54,9 @@ def parse_scenes(text: str) -> list[str]:
 
 def make_outside(args: argparse.Namespace) -> int:
     from x2video.cli.dataset import parse_size
-    from x2video.procedural.dataset import is_done
     from x2video.cycles.dataset import require_bpy
     from x2video.io.atomic import write_json_atomic
+    from x2video.procedural.dataset import is_done
 
     require_bpy()
     width, height = parse_size(args.size)
