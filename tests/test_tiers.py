@@ -175,3 +175,17 @@ def test_onnx_engine_matches_pytorch():
     assert got.shape == want.shape == (1, 3, 37, 53)
     assert float((got - want).abs().max()) < 1e-4  # stated parity: float32 on both sides
     assert R.engine(net, "cpu", prefer="torch") is net
+
+
+def test_auto_keeps_the_formula_when_the_net_is_not_trusted():
+    c = tiers.choose_tier("auto", [], False, True, residual_trusted=False)
+    assert c.tier == "formula" and "outside" in c.reason
+    c = tiers.choose_tier("auto", ["albedo/material masked out (A|M|R) inside mask(s) m"], True, True, residual_trusted=False)
+    assert c.tier == "diffusion" and not c.regions
+    shot, model = full_shot(), with_net()
+    model.residual_auto = False
+    events, frames = render(model, shot, RenderSettings())
+    assert next(e for e in events if isinstance(e, RenderStarted)).tier == "formula"
+    ch = shot.frame(1)
+    np.testing.assert_allclose(frames[1], ch["albedo"] * ch["irradiance"], atol=1e-6)
+    assert tiers.choose_tier("residual", [], False, True, residual_trusted=False).tier == "residual"  # forcing still works

@@ -152,10 +152,14 @@ class X2VideoModel:
         model = cls(cfg, unet, vae, text_encoder, lcm, device=device, dtype=dtype, encoder_dtype=encoder_dtype, channel_encoder=enc)
         model._content_key = None
         if (directory / "residual.safetensors").is_file():
+            import json
+
             from x2video.model.residual import engine
             from x2video.model.residual import load as load_residual
 
             model.residual_net = engine(load_residual(directory, model.device), model.device)
+            #: whether quality 'auto' may use it: residual.json's "auto", set when the net beat the formula on the outside check
+            model.residual_auto = bool(json.loads((directory / "residual.json").read_text()).get("auto", False))
         return model
 
     def save_pretrained(self, directory: str | os.PathLike, *, dtype: torch.dtype = torch.float32) -> Path:

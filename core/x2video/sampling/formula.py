@@ -36,6 +36,7 @@ def formula_frames(
     cancel: CancelToken | None = None,
     *,
     base_dir: str | Path | None = None,
+    reason: str = "forced by the user",
 ) -> None:
     """Render `settings.frames` (default all) of `shot` under `edits` (or None) with the formula.
 
@@ -56,7 +57,7 @@ def formula_frames(
             raise ValueError(f"frame range [{start}, {stop}) outside the shot's {shot.num_frames} frames")
         if edits is not None:
             from x2video.edits import apply_edits
-        emit(RenderStarted(num_frames=stop - start, num_windows=stop - start, levels=[1], tier="formula", reason="forced by the user"))
+        emit(RenderStarted(num_frames=stop - start, num_windows=stop - start, levels=[1], tier="formula", reason=reason))
         for i, t in enumerate(range(start, stop)):
             if cancel is not None and cancel.cancelled:
                 emit(RenderCancelled(frames_done=list(done)))

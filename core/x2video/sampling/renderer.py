@@ -283,7 +283,8 @@ class Renderer:
         model = self.model
         net = getattr(model, "residual_net", None)
         reasons, only_regions = tiers.generation_reasons(shot, edits)
-        choice = tiers.choose_tier(settings.quality, reasons, only_regions, net is not None, "" if edits is None else edits.global_prompt)
+        choice = tiers.choose_tier(settings.quality, reasons, only_regions, net is not None, "" if edits is None else edits.global_prompt,
+                                   residual_trusted=bool(getattr(model, "residual_auto", True)))
         self.last_tier = choice
         log.info("quality %s: tier %s (%s)", settings.quality, choice.tier, choice.reason)
         if edits is None:
@@ -295,7 +296,12 @@ class Renderer:
             prompts = edits.prompts()
             reference = resolve_reference(shot, edits, base_dir) if choice.tier == "diffusion" else None
             conditioning = functools.partial(apply_edits, shot, edits)
-        if choice.tier in ("formula", "residual"):
+        if choice.tier == "formula":  # auto chose tier 0
+            from x2video.sampling.formula import formula_frames
+
+            formula_frames(shot, edits, settings, emit, cancel, reason=choice.reason)
+            return
+        if choice.tier == "residual":
             self._render_direct(shot, settings, choice, conditioning, emit, cancel, done, t0)
             return
         # any frame size: reflect-pad to the model's factor, crop every decoded frame back

@@ -67,8 +67,11 @@ def generation_reasons(shot, edits) -> tuple[list[str], bool]:
     return why, only_regions
 
 
-def choose_tier(quality: str, reasons: list[str], only_regions: bool, has_residual: bool, global_prompt: str = "") -> TierChoice:
-    """The tier a render runs at `quality` ("auto" or a forced tier), given `generation_reasons`."""
+def choose_tier(quality: str, reasons: list[str], only_regions: bool, has_residual: bool, global_prompt: str = "",
+                residual_trusted: bool = True) -> TierChoice:
+    """The tier a render runs at `quality` ("auto" or a forced tier), given `generation_reasons`.
+    `residual_trusted`: whether the tier-1 net's own record (residual.json "auto") says it beat the formula on
+    the outside check; where it does not, auto renders what needs nothing generated with the formula."""
     if quality not in QUALITIES:
         raise ValueError(f"unknown quality {quality!r} (use one of {', '.join(QUALITIES)})")
     if quality == "residual" and not has_residual:
@@ -80,8 +83,11 @@ def choose_tier(quality: str, reasons: list[str], only_regions: bool, has_residu
         return TierChoice("diffusion", "this model has no tier-1 network")
     if not reasons:
         note = "; a global prompt alone does not change that (quality 'diffusion' follows it)" if global_prompt else ""
+        if not residual_trusted:
+            return TierChoice("formula", f"every channel present, nothing to generate{note}; this tier-1 net measured below the"
+                                         " formula on the outside scenes, so auto keeps the formula (force 'residual' to use it)")
         return TierChoice("residual", f"every channel present, nothing to generate{note}")
-    if only_regions:
+    if only_regions and residual_trusted:
         return TierChoice("diffusion", f"{reasons[0]}: generated there, tier 1 around it", base="residual", regions=True)
     return TierChoice("diffusion", "; ".join(reasons))
 
