@@ -51,6 +51,14 @@ def frame_range(text: str) -> tuple[int, int]:
     return a, b
 
 
+def int_list(text: str) -> tuple[int, ...]:
+    """argparse type: '16,32,64' -> (16, 32, 64)."""
+    try:
+        return tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"wants comma-separated integers, got {text!r}") from None
+
+
 def stops_or_auto(text: str) -> float | str:
     """argparse type: an exposure in stops, or 'auto' (`x2video.io.units.parse_exposure`)."""
     from x2video.io.units import parse_exposure
@@ -64,7 +72,7 @@ def stops_or_auto(text: str) -> float | str:
 #: how a value of a (non-optional) field type is read from the command line, and its metavar
 PARSERS: dict[Any, tuple[Callable[[str], Any], str | None]] = {
     int: (int, None), float: (float, None), str: (str, None), Path: (Path, "DIR"), tuple[int, int]: (frame_range, "START:STOP"),
-    float | str: (stops_or_auto, "STOPS|auto"),
+    float | str: (stops_or_auto, "STOPS|auto"), tuple[int, ...]: (int_list, "N,N,..."),
 }
 
 
@@ -79,8 +87,10 @@ def _unwrap_optional(tp: Any) -> Any:
 def _default_text(value: Any) -> str:
     if value is None:
         return "unset"
-    if isinstance(value, tuple) and all(isinstance(v, int) for v in value):
+    if isinstance(value, tuple) and len(value) == 2 and all(isinstance(v, int) for v in value):
         return ":".join(map(str, value))
+    if isinstance(value, tuple) and all(isinstance(v, int) for v in value):
+        return ",".join(map(str, value))
     return f"{value:g}" if isinstance(value, float) else str(value)
 
 

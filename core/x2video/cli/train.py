@@ -241,11 +241,10 @@ def cmd_ship(a: argparse.Namespace) -> int:
 
 
 def cmd_residual(args: argparse.Namespace) -> int:
-    import dataclasses
-
+    from x2video.cli.fields import from_args
     from x2video.train.residual_stage import ResidualTrainConfig, train
 
-    cfg = ResidualTrainConfig(**{f.name: getattr(args, f.name) for f in dataclasses.fields(ResidualTrainConfig)})
+    cfg = from_args(ResidualTrainConfig, args)
     out = Path(args.out)
 
     def show(v: dict) -> None:
@@ -255,26 +254,6 @@ def cmd_residual(args: argparse.Namespace) -> int:
     print(f"{summary['steps']} steps in {summary['seconds']:.0f} s on {summary['train_frames']} frames; best val PSNR {summary['best_val_psnr']:.2f} dB;"
           f" weights in {out / 'best'} (ship: copy residual.safetensors and residual.json beside the model's weights)")
     return 0
-
-
-def _dataclass_args(p: argparse.ArgumentParser, cls) -> None:
-    """One flag per field of `cls`, its help the field's docstring (each setting declared once)."""
-    import ast
-    import dataclasses
-    import inspect
-
-    docs: dict[str, str] = {}
-    body = ast.parse(inspect.getsource(cls)).body[0].body  # type: ignore[attr-defined]
-    for a, b in zip(body, body[1:]):
-        if isinstance(a, ast.AnnAssign) and isinstance(a.target, ast.Name) and isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant):
-            docs[a.target.id] = " ".join(str(b.value.value).split()).replace("%", "%%")
-    for f in dataclasses.fields(cls):
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
-        flag = "--" + f.name.replace("_", "-")
-        if isinstance(default, tuple):
-            p.add_argument(flag, dest=f.name, type=_ints, default=default, help=f"{docs.get(f.name, '')} (default {','.join(map(str, default))})")
-        else:
-            p.add_argument(flag, dest=f.name, type=type(default), default=default, help=f"{docs.get(f.name, '')} (default {default})")
 
 
 def register(subparsers) -> None:
@@ -386,9 +365,10 @@ def register(subparsers) -> None:
     s.add_argument("--data", required=True, help="data set with train/ and val/ (or test/) shot folders holding the five channels and rgb")
     s.add_argument("--out", required=True, help="run folder (resumes from its checkpoint.pt)")
     s.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    from x2video.cli.fields import add_fields
     from x2video.train.residual_stage import ResidualTrainConfig
 
-    _dataclass_args(s, ResidualTrainConfig)
+    add_fields(s, ResidualTrainConfig)
     s.set_defaults(func=cmd_residual)
 
     s = sub.add_parser("ship", help="write a trained model (fp16 safetensors + training.json) into resources/",

@@ -7,7 +7,6 @@ are skipped, so an interrupted build resumes where it stopped.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import multiprocessing as mp
 import os
@@ -68,22 +67,15 @@ def make_cycles(args: argparse.Namespace, width: int, height: int) -> int:
     from tqdm import tqdm
 
     from x2video.io.atomic import write_json_atomic
-    from x2video.procedural.dataset import is_done, room_dir, room_seed, room_split
+    from x2video.procedural.dataset import begin_dataset, is_done, room_dir, room_seed, room_split
 
     require_bpy()
     if args.rooms < 1 or args.frames < 1:
         raise ValueError(f"--rooms and --frames must be at least 1 (got {args.rooms}, {args.frames})")
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     settings = {"rooms": args.rooms, "frames": args.frames, "width": width, "height": height, "seed": args.seed,
                 "test_every": args.test_every, "samples": args.samples, "renderer": "cycles"}
-    meta = out / "dataset.json"
-    if meta.is_file():
-        old = json.loads(meta.read_text())
-        clash = {k: (old.get(k), v) for k, v in settings.items() if k != "rooms" and old.get(k) != v}
-        if clash:
-            raise ValueError(f"{out}: holds a data set made with other settings {clash} (old, new); use another --out")
-    write_json_atomic(meta, {**settings, "format": FORMAT, "complete": False})
+    meta = begin_dataset(out, settings, FORMAT)
     jobs = [CyclesJob(i, room_seed(args.seed, i), str(room_dir(out, i, args.test_every, val=True)), args.frames, width, height, args.samples,
                       0.05 if room_split(i, args.test_every, True) == "test" else TRAIN_SPEED)
             for i in range(args.rooms)]

@@ -155,6 +155,28 @@ def frame_path(out: Path, t: int) -> Path:
     return out / f"frame_{t:04d}.exr"
 
 
+def render_frames(scene: "bpy.types.Scene", out: Path, num_frames: int, denoise: bool,
+                  progress: Callable[[int, float], None] | None = None) -> list[float]:
+    """Render frames 0..num_frames-1 of `scene` through `compositor_output` into OUT/frame_XXXX.exr, each written
+    atomically and skipped when present (an interrupted shot resumes). Returns the seconds of the frames rendered."""
+    file_out = compositor_output(scene, denoise_passes=denoise)
+    seconds = []
+    for t in range(num_frames):
+        dst = frame_path(out, t)
+        if dst.is_file():
+            continue
+        t0 = time.perf_counter()
+        scene.frame_set(t)
+        with tempfile.TemporaryDirectory(dir=out, prefix=".tmp_") as tmp:
+            file_out.base_path = str(Path(tmp) / "frame_")
+            bpy.ops.render.render(write_still=False)
+            os.replace(Path(tmp) / f"frame_{t:04d}.exr", dst)
+        seconds.append(time.perf_counter() - t0)
+        if progress is not None:
+            progress(t, seconds[-1])
+    return seconds
+
+
 def write_room_shot(out_dir: str | Path, seed: int, num_frames: int, width: int, height: int, *, cfg: CyclesConfig | None = None,
                     path_cfg: PathConfig | None = None, fps: float = 10.0, progress: Callable[[int, float], None] | None = None) -> Path:
     """Generate room `seed`, draw its camera path and render it with Cycles into the shot folder `out_dir` (resumable)."""
@@ -172,19 +194,7 @@ def write_room_shot(out_dir: str | Path, seed: int, num_frames: int, width: int,
     gain = exposure_gain(scene, sorted({0, num_frames // 2, num_frames - 1}), cfg.target)
     scale_lights(gain)
     write_json_atomic(out / "cameras.json", cameras_json(blender_poses(poses)))
-    file_out = compositor_output(scene, denoise_passes=cfg.denoise)
-    for t in range(num_frames):
-        dst = frame_path(out, t)
-        if dst.is_file():
-            continue
-        t0 = time.perf_counter()
-        scene.frame_set(t)
-        with tempfile.TemporaryDirectory(dir=out, prefix=".tmp_") as tmp:
-            file_out.base_path = str(Path(tmp) / "frame_")
-            bpy.ops.render.render(write_still=False)
-            os.replace(Path(tmp) / f"frame_{t:04d}.exr", dst)
-        if progress is not None:
-            progress(t, time.perf_counter() - t0)
+    render_frames(scene, out, num_frames, cfg.denoise, progress)
     light = scene_desc.lighting
     write_json_atomic(out / "shot.json", {
         "format": FORMAT_NAME, "version": FORMAT_VERSION, "num_frames": num_frames, "width": width, "height": height, "fps": fps,

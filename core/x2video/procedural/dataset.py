@@ -33,6 +33,22 @@ def room_dir(out: Path, index: int, test_every: int, val: bool = False) -> Path:
     return out / room_split(index, test_every, val) / f"room_{index:05d}"
 
 
+def begin_dataset(out: Path, settings: dict, fmt: str, growable: tuple[str, ...] = ("rooms",), **extra) -> Path:
+    """Create `out` and mark OUT/dataset.json incomplete with `settings`; refuse a folder holding a data set made
+    with other settings (those in `growable` may change: a build can be resumed with more rooms)."""
+    out.mkdir(parents=True, exist_ok=True)
+    meta = out / "dataset.json"
+    if meta.is_file():
+        old = json.loads(meta.read_text())
+        clash = {k: (old.get(k), v) for k, v in settings.items() if k not in growable and old.get(k) != v}
+        if clash:
+            raise ValueError(f"{out}: holds a data set made with other settings {clash} (old, new); use another --out")
+    from x2video.io.atomic import write_json_atomic
+
+    write_json_atomic(meta, {**settings, "format": fmt, **extra, "complete": False})
+    return meta
+
+
 def is_done(path: Path) -> bool:
     """A room is finished when its shot.json exists (the writer writes it last)."""
     return (path / "shot.json").is_file()
@@ -76,15 +92,8 @@ def make_dataset(out: str | Path, rooms: int, frames: int, size: tuple[int, int]
     if rooms < 1 or frames < 1:
         raise ValueError(f"--rooms and --frames must be at least 1 (got {rooms}, {frames})")
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     settings = {"rooms": rooms, "frames": frames, "width": width, "height": height, "seed": seed, "test_every": test_every}
-    meta = out / "dataset.json"
-    if meta.is_file():
-        old = json.loads(meta.read_text())
-        clash = {k: (old.get(k), v) for k, v in settings.items() if k != "rooms" and old.get(k) != v}
-        if clash:
-            raise ValueError(f"{out}: holds a data set made with other settings {clash} (old, new); use another --out")
-    write_json_atomic(meta, {**settings, "format": "x2video-procedural-dataset", "complete": False})
+    meta = begin_dataset(out, settings, "x2video-procedural-dataset")
     jobs = [_Job(i, room_seed(seed, i), str(room_dir(out, i, test_every)), frames, width, height) for i in range(rooms)]
     todo = [j for j in jobs if not is_done(Path(j.out))]
     log.info("%d rooms, %d already done, %d to render with %d worker(s)", len(jobs), len(jobs) - len(todo), len(todo), workers)

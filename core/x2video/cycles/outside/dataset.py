@@ -6,7 +6,6 @@ finished frames are skipped. Does not import bpy itself (the worker processes do
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import multiprocessing as mp
 import time
@@ -56,7 +55,7 @@ def make_outside(args: argparse.Namespace) -> int:
     from x2video.cli.dataset import parse_size
     from x2video.cycles.dataset import require_bpy
     from x2video.io.atomic import write_json_atomic
-    from x2video.procedural.dataset import is_done
+    from x2video.procedural.dataset import begin_dataset, is_done
 
     require_bpy()
     width, height = parse_size(args.size)
@@ -64,15 +63,8 @@ def make_outside(args: argparse.Namespace) -> int:
     if args.frames < 1 or args.samples < 1:
         raise ValueError(f"--frames and --samples must be at least 1 (got {args.frames}, {args.samples})")
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     settings = {"frames": args.frames, "width": width, "height": height, "samples": args.samples, "renderer": "cycles"}
-    meta = out / "dataset.json"
-    if meta.is_file():
-        old = json.loads(meta.read_text())
-        clash = {k: (old.get(k), v) for k, v in settings.items() if old.get(k) != v}
-        if clash:
-            raise ValueError(f"{out}: holds outside scenes made with other settings {clash} (old, new); use another --out")
-    write_json_atomic(meta, {**settings, "format": FORMAT, "scenes": scenes, "complete": False})
+    meta = begin_dataset(out, settings, FORMAT, growable=(), scenes=scenes)
     jobs = [OutsideJob(s, str(out / "test" / s), args.frames, width, height, args.samples) for s in scenes]
     todo = [j for j in jobs if not is_done(Path(j.out))]
     log.info("%d outside scenes, %d already done", len(jobs), len(jobs) - len(todo))

@@ -8,10 +8,7 @@ from __future__ import annotations
 
 import importlib
 import json
-import os
 import shutil
-import tempfile
-import time
 from pathlib import Path
 from typing import Callable
 
@@ -19,8 +16,8 @@ import bpy
 
 from x2video.cycles.outside import GENERATOR, SCENES
 from x2video.cycles.outside.build import Builder, add_camera, camera_poses
-from x2video.cycles.passes import compositor_output, wire_all_materials
-from x2video.cycles.shot import CyclesConfig, exposure_gain, frame_path, scale_lights, setup_render
+from x2video.cycles.passes import wire_all_materials
+from x2video.cycles.shot import CyclesConfig, exposure_gain, render_frames, scale_lights, setup_render
 from x2video.io.atomic import write_json_atomic
 from x2video.io.shotdir import FORMAT_NAME, FORMAT_VERSION, cameras_json
 from x2video.shot import CameraPose
@@ -59,21 +56,7 @@ def write_outside_shot(name: str, out_dir: str | Path, num_frames: int, width: i
         write_json_atomic(gain_file, {"gain": gain})
     scale_lights(gain)
     write_json_atomic(out / "cameras.json", cameras_json([CameraPose(m, spec.fov_y_deg) for m in mats]))
-    file_out = compositor_output(scene, denoise_passes=cfg.denoise)
-    seconds = []
-    for t in range(num_frames):
-        dst = frame_path(out, t)
-        if dst.is_file():
-            continue
-        t0 = time.perf_counter()
-        scene.frame_set(t)
-        with tempfile.TemporaryDirectory(dir=out, prefix=".tmp_") as tmp:
-            file_out.base_path = str(Path(tmp) / "frame_")
-            bpy.ops.render.render(write_still=False)
-            os.replace(Path(tmp) / f"frame_{t:04d}.exr", dst)
-        seconds.append(time.perf_counter() - t0)
-        if progress is not None:
-            progress(t, seconds[-1])
+    seconds = render_frames(scene, out, num_frames, cfg.denoise, progress)
     write_json_atomic(out / "shot.json", {
         "format": FORMAT_NAME, "version": FORMAT_VERSION, "num_frames": num_frames, "width": width, "height": height, "fps": fps,
         "caption": spec.caption, "objects": {str(k): v for k, v in sorted(b.captions.items())}, "irradiance_normalized": False,
