@@ -67,14 +67,30 @@ class ResidualNet(nn.Module):
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def encode(self, x: torch.Tensor) -> tuple[list[torch.Tensor], torch.Tensor]:
+        """(skips, finest first; bottom features (N, C, H/factor, W/factor)) of features x."""
         skips = []
         for i, block in enumerate(self.down):
             x = block(x)
             if i < len(self.pool):
                 skips.append(x)
                 x = self.pool[i](x)
-        g = self.context(x.mean((2, 3)))  # (N, C) global context: the light's level and colour
+        return skips, x
+
+    def bottom(self, x: torch.Tensor) -> torch.Tensor:
+        """(N, C, H/factor, W/factor) bottom features: their mean over a frame gives its global context."""
+        return self.encode(x)[1]
+
+    def context_vector(self, mean: torch.Tensor) -> torch.Tensor:
+        """(N, C) global context from the (N, C) mean of a frame's bottom features."""
+        return self.context(mean)
+
+    def forward(self, x: torch.Tensor, g: torch.Tensor | None = None) -> torch.Tensor:
+        """Log-space residual of features x; `g` (N, C): the global context, from x itself when None (a whole
+        frame), given for a tile of a larger frame (`apply_tiled`) so that every tile sees the frame's light."""
+        skips, x = self.encode(x)
+        if g is None:
+            g = self.context_vector(x.mean((2, 3)))  # (N, C) global context: the light's level and colour
         x = x + g[:, :, None, None]
         for i in reversed(range(len(self.up))):
             x = F.interpolate(x, scale_factor=2, mode="bilinear", align_corners=False)
@@ -126,10 +142,12 @@ def features(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None 
     me, pm = get("metallic", 1)
     ir, pi = get("irradiance", 3)
     shading = formula(ch, (h, w))
-    geometry = (np.linalg.norm(nr, axis=-1, keepdims=True) > 0.5).astype(np.float32) if pn else np.ones((h, w, 1), np.float32)
-    present = np.broadcast_to(np.array([pa, pn, pr, pm, pi], np.float32), (h, w, 5))
-    x = np.concatenate([al, nr, ro, me, np.log1p(np.maximum(ir, 0)), np.log1p(np.maximum(shading, 0)), present, geometry], -1)
-    return np.ascontiguousarray(x.transpose(2, 0, 1)), np.ascontiguousarray(shading.transpose(2, 0, 1))
+    x = np.empty((20, h, w), np.float32)  # filled plane by plane: no (H, W, 20) intermediate on large frames
+    for i, a in ((0, al), (3, nr), (6, ro), (7, me), (8, np.log1p(np.maximum(ir, 0))), (11, np.log1p(np.maximum(shading, 0)))):
+        x[i:i + a.shape[-1]] = np.moveaxis(a, -1, 0)
+    x[14:19] = np.array([pa, pn, pr, pm, pi], np.float32)[:, None, None]
+    x[19] = (np.einsum("hwc,hwc->hw", nr, nr) > 0.25) if pn else 1.0  # geometry: |normal| > 0.5
+    return x, np.ascontiguousarray(shading.transpose(2, 0, 1))
 
 
 def apply(net, x: torch.Tensor, shading: torch.Tensor) -> torch.Tensor:
@@ -141,6 +159,117 @@ def apply(net, x: torch.Tensor, shading: torch.Tensor) -> torch.Tensor:
     xp = F.pad(x, (0, pw, 0, ph), mode="reflect" if min(h, w) > max(ph, pw) else "replicate") if ph or pw else x
     delta = net(xp)[..., :h, :w]
     return torch.expm1(torch.log1p(shading.clamp_min(0)) + delta).clamp_min(0)
+
+
+#: tier 1 on larger frames runs in overlapping tiles (`apply_tiled`): core side of a tile in pixels, the context
+#: each side of it (more than the net's reach, so a tile sees what the whole frame would), and the width of the
+#: linear blend between neighbouring tiles. Multiples of the net's factor.
+TILE, HALO, FEATHER = 768, 64, 16
+#: most (padded) pixels the net runs on at once, frames in a batch together: the bound on its working memory
+MAX_PIXELS = (TILE + 2 * HALO) ** 2
+
+
+def needs_tiles(size: tuple[int, int], factor: int, max_pixels: int = MAX_PIXELS) -> bool:
+    """Whether a frame of (H, W) pixels, padded to `factor`, is larger than one pass of the net may be."""
+    h, w = size
+    return (h + (-h) % factor) * (w + (-w) % factor) > max_pixels
+
+
+@dataclass(frozen=True)
+class Tile:
+    """One tile of a (padded) frame: `box` (y0, y1, x0, x1) the pixels the net sees, `core` the pixels the
+    tile owns (the cores partition the frame); both on the net's factor grid."""
+
+    box: tuple[int, int, int, int]
+    core: tuple[int, int, int, int]
+
+
+def _edges(n: int, tile: int, factor: int) -> list[int]:
+    k = -(-n // tile)
+    return sorted({round(i * n / k / factor) * factor for i in range(k)} | {n})
+
+
+def tile_grid(h: int, w: int, tile: int = TILE, halo: int = HALO, factor: int = 8) -> list[Tile]:
+    """Tiles of an (h, w) frame (multiples of `factor`): cores of at most `tile` pixels a side, as even as the
+    factor grid allows, each seen with `halo` pixels of context (clipped at the frame's edges)."""
+    for name, v in (("h", h), ("w", w), ("tile", tile), ("halo", halo)):
+        if v % factor or v < (factor if name != "halo" else 0):
+            raise ValueError(f"tile_grid: {name}={v} is not a positive multiple of the net's factor {factor}")
+    ys, xs = _edges(h, tile, factor), _edges(w, tile, factor)
+    return [Tile((max(y0 - halo, 0), min(y1 + halo, h), max(x0 - halo, 0), min(x1 + halo, w)), (y0, y1, x0, x1))
+            for y0, y1 in zip(ys, ys[1:]) for x0, x1 in zip(xs, xs[1:])]
+
+
+def _ramp(lo: int, hi: int, c0: int, c1: int, n: int, feather: int) -> np.ndarray:
+    """1-D blend weights over pixels [lo, hi) of a tile whose core is [c0, c1) on an axis of n pixels: 1 in the
+    core, linear ramps of `feather` pixels centred on core edges that have a neighbour (neighbours' ramps sum to 1)."""
+    t = np.arange(lo, hi, dtype=np.float32) + 0.5
+    wgt = np.ones(hi - lo, np.float32)
+    if c0 > 0:
+        wgt *= np.clip((t - (c0 - feather / 2)) / feather, 0, 1) if feather else (t >= c0)
+    if c1 < n:
+        wgt *= np.clip(((c1 + feather / 2) - t) / feather, 0, 1) if feather else (t < c1)
+    return wgt
+
+
+def _pad_channel(v: np.ndarray, ph: int, pw: int) -> np.ndarray:
+    """Pad (H, W, ...) at the bottom/right as `apply` pads the features (reflect, edge where the frame is too small)."""
+    if not ph and not pw:
+        return v
+    mode = "reflect" if min(v.shape[:2]) > max(ph, pw) else "edge"
+    return np.pad(v, [(0, ph), (0, pw)] + [(0, 0)] * (v.ndim - 2), mode=mode)
+
+
+def apply_tiled(net, ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None = None, *, tile: int = TILE,
+                halo: int = HALO, feather: int = FEATHER) -> np.ndarray:
+    """(H, W, 3) linear radiance of one frame's channels: what `apply` gives for the whole frame, with the net run
+    on overlapping tiles so that its working memory is bounded by a tile, whatever the frame's size.
+
+    Two passes over the tiles: the first sums the net's bottom features over each tile's core, which gives the
+    frame's global context exactly as a whole-frame pass computes it (`ResidualNet.forward`); the second runs the
+    net on each tile with that context and blends neighbouring tiles over `feather` pixels. Features are made per
+    tile from the channels, and the formula is applied at full resolution. With `halo` beyond the net's reach
+    the result equals the whole-frame pass to float precision (`tests/test_bigframes.py` states the tolerance)."""
+    h, w = _frame_shape(ch, shape)
+    f = net.cfg.factor  # an OnnxResidual carries the same cfg
+    if feather > 2 * halo:
+        raise ValueError(f"apply_tiled: feather {feather} is wider than twice the halo {halo}")
+    ph, pw = (-h) % f, (-w) % f
+    padded = {k: None if v is None else _pad_channel(np.asarray(v), ph, pw) for k, v in ch.items()}
+    H, W = h + ph, w + pw
+    tiles = tile_grid(H, W, tile, halo, f)
+
+    def tile_features(t: Tile) -> torch.Tensor:
+        y0, y1, x0, x1 = t.box
+        x, _ = features({k: None if v is None else v[y0:y1, x0:x1] for k, v in padded.items()}, (y1 - y0, x1 - x0))
+        return torch.from_numpy(x)[None]  # (1, C_in, h_t, w_t)
+
+    with torch.inference_mode():
+        total = None
+        for t in tiles:  # pass 1: the frame's mean bottom feature, from each tile's own cells
+            (by0, _, bx0, _), (cy0, cy1, cx0, cx1) = t.box, t.core
+            b = net.bottom(tile_features(t))[0, :, (cy0 - by0) // f:(cy1 - by0) // f, (cx0 - bx0) // f:(cx1 - bx0) // f]
+            s = b.double().sum((1, 2))
+            total = s if total is None else total + s
+        assert total is not None
+        g = net.context_vector((total / ((H // f) * (W // f))).float()[None])  # (1, C)
+        delta = np.zeros((3, h, w), np.float32)
+        weight = np.zeros((h, w), np.float32)
+        for t in tiles:  # pass 2: the net on each tile with the frame's context, blended into the frame
+            y0, y1, x0, x1 = t.box
+            d = net(tile_features(t), g)[0].float().cpu().numpy()  # (3, h_t, w_t)
+            cy0, cy1, cx0, cx1 = t.core
+            wy, wx = _ramp(y0, y1, cy0, cy1, H, feather), _ramp(x0, x1, cx0, cx1, W, feather)
+            ey, ex = min(y1, h) - y0, min(x1, w) - x0  # the padding is cropped
+            if ey <= 0 or ex <= 0:
+                continue
+            wt = wy[:ey, None] * wx[None, :ex]
+            delta[:, y0:y0 + ey, x0:x0 + ex] += d[:, :ey, :ex] * wt
+            weight[y0:y0 + ey, x0:x0 + ex] += wt
+    delta /= np.maximum(weight, 1e-12)
+    base = formula(ch, (h, w))  # (h, w, 3), full resolution
+    out = np.expm1(np.log1p(np.maximum(base, 0)) + delta.transpose(1, 2, 0))
+    return np.maximum(out, 0).astype(np.float32)
 
 
 def save(net: ResidualNet, folder: str | Path, extra: dict | None = None) -> Path:
@@ -175,29 +304,84 @@ def load(folder: str | Path, device: str | torch.device = "cpu") -> ResidualNet:
 
 class OnnxResidual:
     """The tier-1 net run by ONNX Runtime (several times faster than PyTorch on a CPU for this conv stack),
-    exported from the PyTorch net when loaded; called like the net: features (N, C_in, H, W) -> delta.
-    PyTorch stays the reference: `tests/test_tiers.py` checks the two agree."""
+    exported from the PyTorch net when loaded; called like the net: features (N, C_in, H, W) [and a global
+    context (N, C)] -> delta, with `bottom` and `context_vector` for `apply_tiled` (their graphs exported
+    on first use). PyTorch stays the reference: `tests/test_tiers.py` checks the two agree."""
 
     def __init__(self, net: ResidualNet, threads: int | None = None):
-        import io
-
-        import onnxruntime as ort
+        import onnxruntime  # noqa: F401  (ImportError here: `engine` falls back to PyTorch)
 
         self.cfg = net.cfg
+        self._net = net.float().cpu().eval()
+        self._threads = int(threads or torch.get_num_threads())
+        size = 8 * net.cfg.factor
+        self.session = self._session(self._export(self._net, (torch.zeros(1, net.cfg.in_channels, size, size),), ["features"], "delta"))
+        self._tile_session = self._bottom_session = None  # made on the first tiled frame (`apply_tiled`)
+
+    def _session(self, model: bytes):
+        import onnxruntime as ort
+
+        so = ort.SessionOptions()
+        so.intra_op_num_threads = self._threads
+        so.log_severity_level = 3
+        return ort.InferenceSession(model, so, providers=["CPUExecutionProvider"])
+
+    def _export(self, module: nn.Module, inputs: tuple, names: list[str], output: str) -> bytes:
+        import io
+
         buf = io.BytesIO()
-        x = torch.zeros(1, net.cfg.in_channels, 8 * net.cfg.factor, 8 * net.cfg.factor)
         axes = {0: "n", 2: "h", 3: "w"}
         with torch.no_grad():
-            torch.onnx.export(net.float().cpu().eval(), (x,), buf, input_names=["features"], output_names=["delta"],
-                              dynamic_axes={"features": axes, "delta": axes}, opset_version=17, dynamo=False)
-        so = ort.SessionOptions()
-        so.intra_op_num_threads = int(threads or torch.get_num_threads())
-        so.log_severity_level = 3
-        self.session = ort.InferenceSession(buf.getvalue(), so, providers=["CPUExecutionProvider"])
+            torch.onnx.export(module, inputs, buf, input_names=names, output_names=[output],
+                              dynamic_axes={names[0]: axes, output: axes}, opset_version=17, dynamo=False)
+        return buf.getvalue()
 
-    def __call__(self, x: torch.Tensor) -> torch.Tensor:
-        out = self.session.run(None, {"features": x.detach().float().cpu().numpy()})[0]
+    def __call__(self, x: torch.Tensor, g: torch.Tensor | None = None) -> torch.Tensor:
+        feed = {"features": x.detach().float().cpu().numpy()}
+        if g is None:
+            out = self.session.run(None, feed)[0]
+        else:
+            if self._tile_session is None:
+                size = 8 * self.cfg.factor
+                self._tile_session = self._session(self._export(_WithContext(self._net), (torch.zeros(1, self.cfg.in_channels, size, size),
+                                                                torch.zeros(1, self.cfg.widths[-1])), ["features", "context"], "delta"))
+            feed["context"] = g.detach().float().cpu().numpy()
+            out = self._tile_session.run(None, feed)[0]
         return torch.from_numpy(out).to(x.device)
+
+    def bottom(self, x: torch.Tensor) -> torch.Tensor:
+        if self._bottom_session is None:
+            size = 8 * self.cfg.factor
+            self._bottom_session = self._session(self._export(_Bottom(self._net), (torch.zeros(1, self.cfg.in_channels, size, size),),
+                                                              ["features"], "bottom"))
+        out = self._bottom_session.run(None, {"features": x.detach().float().cpu().numpy()})[0]
+        return torch.from_numpy(out).to(x.device)
+
+    def context_vector(self, mean: torch.Tensor) -> torch.Tensor:
+        with torch.inference_mode():
+            return self._net.context_vector(mean.float().cpu()).to(mean.device)
+
+
+class _WithContext(nn.Module):
+    """ONNX export of `ResidualNet.forward` with the global context given (a tile of a larger frame)."""
+
+    def __init__(self, net: ResidualNet):
+        super().__init__()
+        self.net = net
+
+    def forward(self, x: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+        return self.net(x, g)
+
+
+class _Bottom(nn.Module):
+    """ONNX export of `ResidualNet.bottom`."""
+
+    def __init__(self, net: ResidualNet):
+        super().__init__()
+        self.net = net
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net.bottom(x)
 
 
 def engine(net: ResidualNet, device: torch.device | str = "cpu", prefer: str = "auto"):

@@ -72,6 +72,12 @@ class RenderSettings:
     preset: Literal["fast", "quality"] | None = None
     """Overrides sampler and steps when set: 'fast' = LCM-2 if distilled weights are loaded, else DDIM-4;
     'quality' = DDIM-20 (`x2video.sampling.renderer.select_steps`)."""
+    working_pixels: int = 320 * 224
+    """Diffusion tier, large frames: a frame with more pixels than this runs the diffusion network at a working
+    resolution of at most this many pixels (aspect kept), near the size it was trained at, and the network's
+    residual over the formula comes back to full size guided by the full-resolution channels; the formula's
+    detail stays full resolution (`x2video.sampling.working`). 0: always at full resolution (memory and time
+    grow with the frame)."""
 
 
 class CancelToken:

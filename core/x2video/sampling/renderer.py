@@ -24,7 +24,7 @@ from x2video.channels import INTRINSIC
 from x2video.conditioning import FrameConditioning, Prompts
 from x2video.model.api import RenderModel, WindowInputs
 from x2video.model.shading import shading_available
-from x2video.sampling import tiers
+from x2video.sampling import tiers, working
 from x2video.sampling.cache import CacheStats, ConditioningCache, conditioning_key
 from x2video.sampling.events import (
     Cancelled,
@@ -304,19 +304,27 @@ class Renderer:
         if choice.tier == "residual":
             self._render_direct(shot, settings, choice, conditioning, emit, cancel, done, t0)
             return
-        # any frame size: reflect-pad to the model's factor, crop every decoded frame back
+        # any frame size: large frames run at a working resolution and come back guided by the full-resolution
+        # channels (x2video.sampling.working); others reflect-pad to the model's factor, decoded frames cropped back
         height, width = shot.size
-        ph, pw = pad_amounts((height, width), model.downsample)
-        if ph or pw:
+        full_conditioning = conditioning
+        work = working.working_size((height, width), model.downsample, settings.working_pixels)
+        ph, pw = (0, 0) if work is not None else pad_amounts((height, width), model.downsample)
+        if work is not None:
+            log.info("shot size %dx%d: the diffusion network runs at %dx%d (working_pixels %d), its residual over the formula"
+                     " upsampled guided by the full-resolution channels", width, height, work[1], work[0], settings.working_pixels)
+            conditioning = lambda t: working.downsample_conditioning(full_conditioning(t), work)  # noqa: E731
+            if reference is not None:
+                reference = (reference[0], working.resize_area(reference[1], work))
+        elif ph or pw:
             log.info("shot size %dx%d: reflect-padded to %dx%d (the model's factor %d), frames cropped back",
                      width, height, width + pw, height + ph, model.downsample)
-            unpadded = conditioning
-            conditioning = lambda t: pad_conditioning(unpadded(t), ph, pw)  # noqa: E731
+            conditioning = lambda t: pad_conditioning(full_conditioning(t), ph, pw)  # noqa: E731
             if reference is not None:
                 reference = (reference[0], pad_image(reference[1], ph, pw))
         settings = self._validate(shot, settings)
         if choice.regions:
-            emit = self._composite(emit, unpadded if (ph or pw) else conditioning, net)
+            emit = self._composite(emit, full_conditioning, net)
         windows = self.plan(shot, settings, None if reference is None else reference[0])
         keep_until = last_use(windows)
 
@@ -349,7 +357,10 @@ class Renderer:
                 for f in window.refs:
                     if keep_until.get(f) == index:
                         latents.pop(f, None)
-                frames = {f: np.ascontiguousarray(images[i][:height, :width], dtype=np.float32) for i, f in enumerate(window.generate)}
+                if work is not None:
+                    frames = {f: working.to_full(images[i], full_conditioning(f)) for i, f in enumerate(window.generate)}
+                else:
+                    frames = {f: np.ascontiguousarray(images[i][:height, :width], dtype=np.float32) for i, f in enumerate(window.generate)}
                 again = tuple(f for f in window.generate if f in done)  # the seam pass makes frames a second time
                 done.update(window.generate)
                 emit(FramesReady(window=index, frames=frames, level=window.level, mode=window.mode, seconds=time.perf_counter() - tw,

@@ -105,16 +105,35 @@ def formula_frame(cond: FrameConditioning) -> np.ndarray:
 
 @torch.inference_mode()
 def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.device | str = "cpu", batch: int = 4) -> list[np.ndarray]:
-    """Tier 1: (H, W, 3) linear frames from the tier-1 net, `batch` frames per pass."""
-    from x2video.model.residual import apply, features
+    """Tier 1: (H, W, 3) linear frames from the tier-1 net, up to `batch` frames per pass and never more than
+    `residual.MAX_PIXELS` pixels in one: a frame larger than that runs in overlapping tiles (`residual.apply_tiled`,
+    equal to the whole-frame pass to float precision), so the net's working memory does not grow with the frame."""
+    from x2video.model.residual import MAX_PIXELS, apply, apply_tiled, features, needs_tiles
+
+    def shape(c: FrameConditioning) -> tuple[int, int] | None:
+        return tuple(np.shape(c.amr_mask)[:2]) if np.size(c.amr_mask) else None  # type: ignore[return-value]
+
+    def size(c: FrameConditioning) -> tuple[int, int]:
+        return shape(c) or next(np.shape(v)[:2] for v in c.channels.values() if v is not None)
 
     out: list[np.ndarray] = []
-    for i in range(0, len(conds), batch):
-        feats = [features(c.channels, np.shape(c.amr_mask)[:2] if np.size(c.amr_mask) else None) for c in conds[i:i + batch]]
+    i = 0
+    while i < len(conds):
+        hw = size(conds[i])
+        if needs_tiles(hw, net.cfg.factor):
+            out.append(apply_tiled(net, conds[i].channels, shape(conds[i])))
+            i += 1
+            continue
+        n = max(1, min(batch, MAX_PIXELS // (hw[0] * hw[1])))
+        group = [conds[i]]
+        while len(group) < n and i + len(group) < len(conds) and size(conds[i + len(group)]) == hw:
+            group.append(conds[i + len(group)])
+        feats = [features(c.channels, shape(c)) for c in group]
         x = torch.from_numpy(np.stack([f[0] for f in feats])).to(device)  # (B, C_in, H, W)
         s = torch.from_numpy(np.stack([f[1] for f in feats])).to(device)  # (B, 3, H, W)
         y = apply(net, x, s).permute(0, 2, 3, 1).float().cpu().numpy()  # (B, H, W, 3)
         out.extend(np.ascontiguousarray(f) for f in y)
+        i += len(group)
     return out
 
 

@@ -1,0 +1,131 @@
+"""Large frames through the diffusion tier: the network at a working resolution, the formula's detail at full size.
+
+The diffusion model is trained on small frames (the shipped one at 160x112) and its attention grows with
+the square of the latent's pixels, so a 1920x1080 frame cannot run through it as a whole. Frames with
+more pixels than `RenderSettings.working_pixels` run at a working resolution of at most that many pixels
+(aspect kept, multiples of the model's factor; `working_size`), their channels, masks and reference
+area-averaged down (`downsample_conditioning`). What comes back up is the network's *residual over the
+formula*, not its frame:
+
+    r_w    = log1p(D_w) - log1p(area(F))          at working size (D_w: the decoded frame)
+    r      = guided_upsample(r_w, guide(F, ...))   at full size, edges from the full-resolution channels
+    output = expm1(log1p(F) + r)                   F: albedo x irradiance at full resolution
+
+so the formula's detail (texture, shadow edges) is always full resolution and the network adds only
+what the formula misses, at the scale it can see it. The upsampling is the guided filter (He et al.
+2013, "Guided Image Filtering", Sec. 4 joint upsampling; OpenCV's `cv2.ximgproc.guidedFilter`) of the
+bilinearly upsampled residual, guided by log1p(F) where the formula exists, else the albedo, else the
+normal. Where the formula is zero (a dropped channel, an A|M|R region) the expression reduces to the
+network's own frame upsampled.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from x2video.conditioning import FrameConditioning
+
+
+def working_size(size: tuple[int, int], factor: int, max_pixels: int) -> tuple[int, int] | None:
+    """(h, w) to run the network at for frames of `size` (H, W), or None to run at full size (reflect-padded):
+    None when `max_pixels` is 0 or the padded frame has no more pixels than it; else the largest size of at
+    most `max_pixels` pixels with the frame's aspect ratio and both sides multiples of `factor`."""
+    h, w = size
+    if max_pixels <= 0 or (h + (-h) % factor) * (w + (-w) % factor) <= max_pixels:
+        return None
+    s = math.sqrt(max_pixels / (h * w))
+    wh = max(factor, int(h * s) // factor * factor)
+    ww = max(factor, int(w * s) // factor * factor)
+    return wh, ww
+
+
+def resize_area(a: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(H, W, ...) float32 area-averaged to (h, w, ...) (OpenCV INTER_AREA; any number of trailing channels)."""
+    import cv2
+
+    a = np.asarray(a, np.float32)
+    h, w = size
+    if a.shape[:2] == (h, w):
+        return a
+    flat = a.reshape(a.shape[0], a.shape[1], -1)
+    out = np.stack([cv2.resize(flat[..., i], (w, h), interpolation=cv2.INTER_AREA) for i in range(flat.shape[-1])], -1)
+    return out.reshape(h, w, *a.shape[2:])
+
+
+def _normals(n: np.ndarray) -> np.ndarray:
+    """Area-averaged normals back to unit length where the pixel is mostly geometry (|n| > 0.5), 0 elsewhere
+    (the channel's convention for no geometry, e.g. a window)."""
+    length = np.linalg.norm(n, axis=-1, keepdims=True)
+    return np.where(length > 0.5, n / np.maximum(length, 1e-6), 0).astype(np.float32)
+
+
+def downsample_conditioning(cond: FrameConditioning, size: tuple[int, int]) -> FrameConditioning:
+    """`cond` at working size (h, w): channels and masks area-averaged (radiometric channels keep their mean),
+    normals renormalised (`_normals`)."""
+    channels = {}
+    for k, v in cond.channels.items():
+        if v is None:
+            channels[k] = None
+            continue
+        small = resize_area(v, size)
+        channels[k] = _normals(small) if k == "normal" else small
+    masks = np.asarray(cond.local_masks, np.float32)
+    return dataclasses.replace(
+        cond,
+        channels=channels,
+        amr_mask=resize_area(cond.amr_mask, size),
+        local_masks=np.stack([resize_area(m, size) for m in masks]) if masks.shape[0] else np.zeros((0, *size), np.float32),
+    )
+
+
+def guide_image(cond: FrameConditioning, base: np.ndarray) -> np.ndarray | None:
+    """(H, W, 3) full-resolution guide for the upsampling: log1p of the formula `base` where it is not all zero,
+    else the albedo, else the normal (mapped to [0, 1]); None when there is nothing to guide by."""
+    if np.any(base > 0):
+        return np.log1p(np.maximum(base, 0)).astype(np.float32)
+    al, nr = cond.channels.get("albedo"), cond.channels.get("normal")
+    if al is not None:
+        return np.clip(np.asarray(al, np.float32)[..., :3], 0, 1)
+    if nr is not None:
+        return (0.5 * np.asarray(nr, np.float32)[..., :3] + 0.5).astype(np.float32)
+    return None
+
+
+#: guided filter regularisation: the local variance of the guide (log1p units) below which an edge is smoothed over
+GUIDED_EPS = 1e-3
+
+
+def guided_upsample(low: np.ndarray, guide: np.ndarray, eps: float = GUIDED_EPS) -> np.ndarray:
+    """(H, W, C) from (h, w, C) `low`: bilinear upsampling, then the guided filter of that by the full-resolution
+    `guide` (H, W, 3) with a radius of two working pixels, so that `low`'s edges land on the guide's edges."""
+    import cv2
+
+    H, W = guide.shape[:2]
+    up = cv2.resize(np.asarray(low, np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
+    up = up.reshape(H, W, -1)
+    scale = max(H / low.shape[0], W / low.shape[1])
+    radius = max(1, int(round(2 * scale)))
+    out = cv2.ximgproc.guidedFilter(np.ascontiguousarray(guide, np.float32), up, radius, eps, -1)
+    return out.reshape(H, W, -1)
+
+
+def to_full(frame: np.ndarray, cond_full: FrameConditioning) -> np.ndarray:
+    """(H, W, 3) full-resolution linear frame from a diffusion frame (h, w, 3) made at working size for the frame
+    whose full-resolution conditioning is `cond_full` (see the module docstring)."""
+    import cv2
+
+    from x2video.sampling.tiers import formula_frame
+
+    base = formula_frame(cond_full)  # (H, W, 3) albedo x irradiance, zero inside A|M|R regions
+    H, W = base.shape[:2]
+    h, w = frame.shape[:2]
+    base_small = resize_area(base, (h, w))
+    r = np.log1p(np.maximum(frame, 0)) - np.log1p(np.maximum(base_small, 0))  # (h, w, 3) what the network adds
+    guide = guide_image(cond_full, base)
+    if guide is None:
+        up = cv2.resize(r, (W, H), interpolation=cv2.INTER_LINEAR)
+    else:
+        up = guided_upsample(r, guide)
+    return np.maximum(np.expm1(np.log1p(np.maximum(base, 0)) + up), 0).astype(np.float32)
