@@ -169,10 +169,11 @@ TILE, HALO, FEATHER = 768, 64, 16
 MAX_PIXELS = (TILE + 2 * HALO) ** 2
 
 
-def needs_tiles(size: tuple[int, int], factor: int, max_pixels: int = MAX_PIXELS) -> bool:
-    """Whether a frame of (H, W) pixels, padded to `factor`, is larger than one pass of the net may be."""
+def needs_tiles(size: tuple[int, int], factor: int, max_pixels: int | None = None) -> bool:
+    """Whether a frame of (H, W) pixels, padded to `factor`, is larger than one pass of the net may be
+    (`max_pixels`, default `MAX_PIXELS`)."""
     h, w = size
-    return (h + (-h) % factor) * (w + (-w) % factor) > max_pixels
+    return (h + (-h) % factor) * (w + (-w) % factor) > (MAX_PIXELS if max_pixels is None else max_pixels)
 
 
 @dataclass(frozen=True)
@@ -220,8 +221,8 @@ def _pad_channel(v: np.ndarray, ph: int, pw: int) -> np.ndarray:
     return np.pad(v, [(0, ph), (0, pw)] + [(0, 0)] * (v.ndim - 2), mode=mode)
 
 
-def apply_tiled(net, ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None = None, *, tile: int = TILE,
-                halo: int = HALO, feather: int = FEATHER) -> np.ndarray:
+def apply_tiled(net, ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None = None, *, tile: int | None = None,
+                halo: int | None = None, feather: int | None = None) -> np.ndarray:
     """(H, W, 3) linear radiance of one frame's channels: what `apply` gives for the whole frame, with the net run
     on overlapping tiles so that its working memory is bounded by a tile, whatever the frame's size.
 
@@ -230,6 +231,8 @@ def apply_tiled(net, ch: Mapping[str, np.ndarray | None], shape: tuple[int, int]
     net on each tile with that context and blends neighbouring tiles over `feather` pixels. Features are made per
     tile from the channels, and the formula is applied at full resolution. With `halo` beyond the net's reach
     the result equals the whole-frame pass to float precision (`tests/test_bigframes.py` states the tolerance)."""
+    tile, halo = TILE if tile is None else tile, HALO if halo is None else halo
+    feather = min(FEATHER, 2 * halo) if feather is None else feather
     h, w = _frame_shape(ch, shape)
     f = net.cfg.factor  # an OnnxResidual carries the same cfg
     if feather > 2 * halo:
