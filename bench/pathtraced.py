@@ -71,7 +71,7 @@ def masked_psnr(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> tuple[flo
     return float(d.sum() / 3.0), int(mask.sum())
 
 
-def render_tier(renderer: Renderer, shot, tier: str, condition: str) -> tuple[list[np.ndarray], float]:
+def render_tier(renderer: Renderer, shot, tier: str, condition: str, **overrides) -> tuple[list[np.ndarray], float]:
     from x2video.edits import Edits
 
     edits = None
@@ -84,7 +84,7 @@ def render_tier(renderer: Renderer, shot, tier: str, condition: str) -> tuple[li
         if isinstance(e, FramesReady):
             frames.update(e.frames)
 
-    settings = RenderSettings(quality=tier if tier != "diffusion" else "diffusion", preset="fast" if tier == "diffusion" else None)
+    settings = RenderSettings(quality=tier if tier != "diffusion" else "diffusion", preset="fast" if tier == "diffusion" else None, **overrides)
     t0 = time.perf_counter()
     renderer.render(shot, edits, settings, on_event)
     return [frames[t] for t in range(shot.num_frames)], time.perf_counter() - t0
@@ -109,30 +109,9 @@ def markdown(summary: dict) -> list[str]:
     return lines
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", required=True, help="data set folder (DATA/<split>/<shot>/) or a folder of shots with --split ''")
-    ap.add_argument("--split", default="test")
-    ap.add_argument("--tiers", default="formula,residual,diffusion", help="comma-separated: formula, residual, diffusion")
-    ap.add_argument("--conditions", default="all", help="comma-separated: all, drop_irradiance")
-    ap.add_argument("--weights", default=None, help="model folder (default: the shipped weights)")
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--max-shots", type=int, default=0)
-    ap.add_argument("--name", default=None, help="results file bench/results/pathtraced/NAME.json (default: <data name>_<split>)")
-    args = ap.parse_args(argv)
-    torch.set_num_threads(args.threads)
-
-    from x2video.weights import load_model
-
-    model = load_model(args.weights)
-    weights = Path(args.weights) if args.weights else Path("shipped")
-    renderer = Renderer(model)
-    root = Path(args.data) / args.split if args.split else Path(args.data)
-    shots = sorted(p for p in root.iterdir() if (p / "shot.json").is_file())
-    if args.max_shots:
-        shots = shots[: args.max_shots]
-    tiers = [t for t in args.tiers.split(",") if t]
-    conditions = [c for c in args.conditions.split(",") if c]
+def evaluate(renderer: Renderer, shots: list[Path], runs: list[tuple[str, str, str, dict]]) -> tuple[dict, list[dict]]:
+    """(summary per key, per-shot rows) of `runs` (key, tier, condition, RenderSettings overrides) on the shot folders
+    `shots`, each scored in its own units against its ground truth, "albedo_x_irradiance|all" beside them."""
     rows: dict[str, dict] = {}
     per_shot = []
     for sp in shots:
@@ -147,12 +126,9 @@ def main(argv: list[str] | None = None) -> int:
             classes.append(material_classes(files[t], fr) if len(files) == shot.num_frames else np.zeros(gts[-1].shape[:2], np.int8))
         tc_gt_ok = shot.num_frames >= 2
         results = {"albedo_x_irradiance|all": (forms, 0.0)}
-        for cond in conditions:
-            for tier in tiers:
-                if tier != "diffusion" and cond != "all":
-                    continue
-                frames, secs = render_tier(renderer, shot, tier, cond)
-                results[f"{tier}|{cond}"] = ([tonemap(f / s) for f in frames], secs)
+        for key, tier, cond, overrides in runs:
+            frames, secs = render_tier(renderer, shot, tier, cond, **overrides)
+            results[key] = ([tonemap(f / s) for f in frames], secs)
         shot_row = {"shot": f"{sp.parent.name}/{sp.name}", "frames": shot.num_frames, "size": list(shot.size[::-1])}
         for key, (disp, secs) in results.items():
             r = rows.setdefault(key, {"psnr": [], "ssim": [], "tc": [], "sec_per_frame": [], "sse": np.zeros(len(CLASSES)), "npx": np.zeros(len(CLASSES))})
@@ -181,6 +157,35 @@ def main(argv: list[str] | None = None) -> int:
             "psnr_by_material": {c: (round(10 * math.log10(n / max(e, 1e-12)), 2) if n else None) for c, e, n in zip(CLASSES, r["sse"], r["npx"])},
             "pixel_share": {c: round(float(n / max(r["npx"].sum(), 1)), 4) for c, n in zip(CLASSES, r["npx"])},
         }
+    return summary, per_shot
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", required=True, help="data set folder (DATA/<split>/<shot>/) or a folder of shots with --split ''")
+    ap.add_argument("--split", default="test")
+    ap.add_argument("--tiers", default="formula,residual,diffusion", help="comma-separated: formula, residual, diffusion")
+    ap.add_argument("--conditions", default="all", help="comma-separated: all, drop_irradiance")
+    ap.add_argument("--weights", default=None, help="model folder (default: the shipped weights)")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--max-shots", type=int, default=0)
+    ap.add_argument("--name", default=None, help="results file bench/results/pathtraced/NAME.json (default: <data name>_<split>)")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(args.threads)
+
+    from x2video.weights import load_model
+
+    model = load_model(args.weights)
+    weights = Path(args.weights) if args.weights else Path("shipped")
+    renderer = Renderer(model)
+    root = Path(args.data) / args.split if args.split else Path(args.data)
+    shots = sorted(p for p in root.iterdir() if (p / "shot.json").is_file())
+    if args.max_shots:
+        shots = shots[: args.max_shots]
+    tiers = [t for t in args.tiers.split(",") if t]
+    conditions = [c for c in args.conditions.split(",") if c]
+    runs = [(f"{tier}|{cond}", tier, cond, {}) for cond in conditions for tier in tiers if tier == "diffusion" or cond == "all"]
+    summary, per_shot = evaluate(renderer, shots, runs)
     out = {"format": "x2video-pathtraced", "command": command("pathtraced", argv), "data": portable_path(args.data), "split": args.split,
            "shots": len(shots), "weights": portable_path(weights) if args.weights else "shipped", "threads": args.threads,
            "residual_net": model.residual_net is not None, "machine": machine_info(model.device),
