@@ -161,7 +161,42 @@ def accuracy(data: Path, split: str, tiers: list[str], threads: int) -> dict:
     if "diffusion" in tiers:
         runs.append((f"diffusion@{TRAINING_PIXELS}|all", "diffusion", "all", {"working_pixels": TRAINING_PIXELS}))
     summary, per_shot = evaluate(renderer, shots, runs)
-    return {"shots": [f"{p.parent.name}/{p.name}" for p in shots], "summary": summary, "per_shot": per_shot}
+    return {"shots": [f"{p.parent.name}/{p.name}" for p in shots], "summary": summary, "per_shot": per_shot,
+            "ceiling": ceiling(shots, renderer.model.downsample)}
+
+
+def ceiling(shots: list[Path], factor: int) -> dict:
+    """What the working-resolution path can reach with a perfect network: the ground truth area-averaged to the
+    working size stands in for the network's frame, brought back to full size by `x2video.sampling.working.to_full`
+    (bilinear or guided) or upsampled alone (bilinear, no formula detail); mean display PSNR over the shots' frames
+    per working-pixel budget."""
+    import cv2
+
+    from x2video.channels import tonemap
+    from x2video.io import load_shot
+    from x2video.metrics.image import psnr
+    from x2video.sampling import working
+    from x2video.sampling.renderer import plain_conditioning
+
+    rows: dict[str, dict[str, list[float]]] = {}
+    for sp in shots:
+        shot = load_shot(sp)
+        s = float(shot.info.irradiance_scale)
+        for t in range(shot.num_frames):
+            gt = shot.channel("rgb", t) * s  # the renderer's units (exposure-normalised)
+            cond = plain_conditioning(shot, t)
+            disp = tonemap(gt / s)
+            for pixels in (TRAINING_PIXELS, 320 * 224):
+                ws = working.working_size(shot.size, factor, pixels)
+                if ws is None:
+                    continue
+                small = working.resize_area(gt, ws)
+                row = rows.setdefault(f"{ws[1]}x{ws[0]}", {})
+                row.setdefault("frame upsampled (bilinear)", []).append(
+                    psnr(tonemap(cv2.resize(small, shot.size[::-1], interpolation=cv2.INTER_LINEAR) / s), disp))
+                for mode in working.UPSAMPLE:
+                    row.setdefault(f"to_full {mode}", []).append(psnr(tonemap(working.to_full(small, cond, mode) / s), disp))
+    return {size: {k: round(float(np.mean(v)), 2) for k, v in row.items()} for size, row in rows.items()}
 
 
 LABELS = {"albedo_x_irradiance|all": "formula: albedo × irradiance", "formula|all": "tier 0 (formula)", "residual|all": "tier 1 (residual net, tiled)",
@@ -191,6 +226,11 @@ def markdown(result: dict) -> str:
                   "| render | PSNR↑ | SSIM↑ | s/frame |", "|---|---|---|---|"]
         for key, v in acc["summary"].items():
             lines.append(f"| {LABELS.get(key, key)} | {v['psnr']:.2f} | {v['ssim']:.4f} | {v['sec_per_frame']:.2f} |")
+        if acc.get("ceiling"):
+            lines += ["", "Ceiling of the working-resolution path (the ground truth at working size as a perfect network's frame), PSNR:", "",
+                      "| working size | " + " | ".join(next(iter(acc["ceiling"].values()))) + " |", "|---|" + "---|" * len(next(iter(acc["ceiling"].values())))]
+            for size, row in acc["ceiling"].items():
+                lines.append(f"| {size} | " + " | ".join(f"{v:.2f}" for v in row.values()) + " |")
     return "\n".join(lines) + "\n"
 
 

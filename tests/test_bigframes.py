@@ -221,11 +221,16 @@ def test_to_full_keeps_the_formulas_detail_and_the_networks_residual():
     # a network that doubles the light gives twice... in log1p space: the residual rides on the full-resolution formula
     brighter = working.to_full(np.expm1(np.log1p(working.resize_area(base, (30, 50))) + 0.5), full)
     np.testing.assert_allclose(np.log1p(brighter) - np.log1p(base), 0.5, atol=2e-3)
-    # without irradiance there is no formula: the network's frame itself comes up, guided by the albedo
+    guided = working.to_full(np.expm1(np.log1p(working.resize_area(base, (30, 50))) + 0.5), full, upsample="guided")
+    np.testing.assert_allclose(np.log1p(guided) - np.log1p(base), 0.5, atol=2e-3)
+    # without irradiance there is no formula: the network's frame itself comes up (guided: by the albedo)
     ch2 = dict(ch, irradiance=None)
-    up = working.to_full(np.full((30, 50, 3), 0.25, np.float32), _cond(ch2, h, w))
-    assert up.shape == (h, w, 3)
-    np.testing.assert_allclose(up, 0.25, atol=1e-3)
+    for mode in working.UPSAMPLE:
+        up = working.to_full(np.full((30, 50, 3), 0.25, np.float32), _cond(ch2, h, w), upsample=mode)
+        assert up.shape == (h, w, 3)
+        np.testing.assert_allclose(up, 0.25, atol=1e-3)
+    with pytest.raises(ValueError, match="upsampling"):
+        working.to_full(base, full, upsample="nearest")
 
 
 def test_large_diffusion_frames_run_at_the_working_resolution():

@@ -124,7 +124,8 @@ def test_53x37_renders_with_the_tiny_model(tmp_path):
 
 
 def test_1366x768_formula_and_model_sizes(tmp_path):
-    """1366 is not a multiple of 8: the formula path needs no padding, the Renderer pads to 1368 and crops back."""
+    """1366 is not a multiple of 8: the formula path needs no padding; the Renderer pads to 1368 and crops back, or by
+    default runs the network at a working resolution and brings the frames back to 1366 x 768."""
     import sys
     from pathlib import Path
 
@@ -143,12 +144,15 @@ def test_1366x768_formula_and_model_sizes(tmp_path):
     want = fr["albedo"] * fr["irradiance"]  # tier 0: the plain product
     np.testing.assert_allclose(img.stack(["R", "G", "B"])[::7, ::9], want[::7, ::9], rtol=2e-3, atol=2e-3)
 
-    events: list = []
-    model = FakeModel()
-    Renderer(model).render(make_shot(2, height=768, width=1366), None, RenderSettings(steps=1, window=2), on_event=events.append)
-    frames = {f: a for e in events if isinstance(e, FramesReady) for f, a in e.frames.items()}
-    assert sorted(frames) == [0, 1] and all(a.shape == (768, 1366, 3) for a in frames.values())
-    assert model.windows[0].cond.shape[-2:] == (96, 171)  # 768 x 1368 in the model
+    for working_pixels, latent in ((0, (96, 171)), (RenderSettings.working_pixels, (25, 44))):
+        events: list = []
+        model = FakeModel()
+        Renderer(model).render(make_shot(2, height=768, width=1366), None, RenderSettings(steps=1, window=2, working_pixels=working_pixels),
+                               on_event=events.append)
+        frames = {f: a for e in events if isinstance(e, FramesReady) for f, a in e.frames.items()}
+        assert sorted(frames) == [0, 1] and all(a.shape == (768, 1366, 3) for a in frames.values())
+        # working_pixels 0: 768 x 1368 in the model (padded); by default a working resolution of 200 x 352 (x2video.sampling.working)
+        assert model.windows[0].cond.shape[-2:] == latent
 
 
 def test_info_exits_1_on_a_corrupt_png(tmp_path, capsys):

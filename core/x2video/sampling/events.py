@@ -75,8 +75,8 @@ class RenderSettings:
     working_pixels: int = 320 * 224
     """Diffusion tier, large frames: a frame with more pixels than this runs the diffusion network at a working
     resolution of at most this many pixels (aspect kept), near the size it was trained at, and the network's
-    residual over the formula comes back to full size guided by the full-resolution channels; the formula's
-    detail stays full resolution (`x2video.sampling.working`). 0: always at full resolution (memory and time
+    residual over the formula (log space) comes back to full size on top of the full-resolution formula, whose
+    detail so stays full resolution (`x2video.sampling.working`). 0: always at full resolution (memory and time
     grow with the frame)."""
 
 
