@@ -18,8 +18,9 @@ bilinearly. A guided filter on top (He et al. 2013, joint upsampling; OpenCV's
 `cv2.ximgproc.guidedFilter` guided by log1p(F)) measured worse: with a perfect network (the
 path-traced ground truth area-averaged to the working size) on a 1024x1024 Cycles frame at 264x264,
 bilinear log residual 34.9 dB; guided (eps 1e-2) radius 1 34.4, radius 4 (one working pixel, what
-`upsample="guided"` uses) 31.8, radius 8 29.5; the network's frame upsampled alone 33.9; the formula 17.8 (`python -m bench.bigframes --data ...` measures this
-"ceiling" on every shot: `ceiling`). `to_full(..., upsample="guided")` keeps the alternative.
+`upsample="guided"` uses) 31.8, radius 8 29.5; the network's frame upsampled alone 33.9; the formula
+17.8. `python -m bench.bigframes --data ...` measures this ceiling on every shot (`bench.bigframes.ceiling`);
+`to_full(..., upsample="guided")` keeps the alternative.
 Where the formula is zero (a dropped channel, an A|M|R region) the expression reduces to the network's
 own frame upsampled.
 """
