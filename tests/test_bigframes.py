@@ -253,3 +253,5 @@ def test_large_diffusion_frames_run_at_the_working_resolution():
     sizes.clear()
     Renderer(model).render(shot, None, RenderSettings(quality="diffusion", steps=2, working_pixels=0), on)
     assert set(sizes) == {(64, 104)}  # full size, reflect-padded to the factor 8
+    with pytest.raises(ValueError, match="working_pixels"):
+        Renderer(model).render(shot, None, RenderSettings(quality="diffusion", steps=2, working_pixels=-1), on)

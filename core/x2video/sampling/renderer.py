@@ -267,6 +267,8 @@ class Renderer:
             raise ValueError(f"ref_dc must lie in [0, 1] (0 = off), got {settings.ref_dc}")
         if settings.resample < 1:
             raise ValueError(f"resample must be at least 1 (1 = off), got {settings.resample}")
+        if settings.working_pixels < 0:
+            raise ValueError(f"working_pixels must be 0 (full resolution) or more, got {settings.working_pixels}")
         return settings
 
     def _render(
