@@ -205,9 +205,10 @@ LABELS = {"albedo_x_irradiance|all": "formula: albedo × irradiance", "formula|a
 
 
 def markdown(result: dict) -> str:
-    lines = ["# Large frames (`python -m bench.bigframes`)", "", f"Machine: {result['machine_note']}", "",
-             "| size | tier | s/frame (wall) | CPU s/frame | first frame s | peak RSS GB | RSS after load GB | detail | load avg before/after |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["# Large frames (`python -m bench.bigframes`)", "", f"`{result['command']}`", "", f"Machine: {result['machine_note']}"]
+    if result["cases"]:
+        lines += ["", "| size | tier | s/frame (wall) | CPU s/frame | first frame s | peak RSS GB | RSS after load GB | detail | load avg before/after |",
+                  "|---|---|---|---|---|---|---|---|---|"]
     for c in result["cases"]:
         size = f"{c['size'][0]}×{c['size'][1]}"
         if "error" in c:
