@@ -306,15 +306,16 @@ class Renderer:
         if choice.tier == "residual":
             self._render_direct(shot, settings, choice, conditioning, emit, cancel, done, t0)
             return
-        # any frame size: large frames run at a working resolution and come back guided by the full-resolution
-        # channels (x2video.sampling.working); others reflect-pad to the model's factor, decoded frames cropped back
+        # any frame size: large frames run at a working resolution, the network's residual over the formula brought
+        # back on the full-resolution formula (x2video.sampling.working); others reflect-pad to the model's factor,
+        # decoded frames cropped back
         height, width = shot.size
         full_conditioning = conditioning
         work = working.working_size((height, width), model.downsample, settings.working_pixels)
         ph, pw = (0, 0) if work is not None else pad_amounts((height, width), model.downsample)
         if work is not None:
             log.info("shot size %dx%d: the diffusion network runs at %dx%d (working_pixels %d), its residual over the formula"
-                     " upsampled guided by the full-resolution channels", width, height, work[1], work[0], settings.working_pixels)
+                     " brought back on the full-resolution formula", width, height, work[1], work[0], settings.working_pixels)
             conditioning = lambda t: working.downsample_conditioning(full_conditioning(t), work)  # noqa: E731
             if reference is not None:
                 reference = (reference[0], working.resize_area(reference[1], work))
