@@ -28,7 +28,7 @@ from x2video.shot import CameraPose
 
 log = logging.getLogger(__name__)
 
-GENERATOR = "x2video.cycles v1"
+GENERATOR = "x2video.cycles v2"
 
 
 @dataclass
@@ -202,6 +202,7 @@ def write_room_shot(out_dir: str | Path, seed: int, num_frames: int, width: int,
         "irradiance_normalized": False,
         "extra": {"room_seed": int(seed), "light_mood": light.mood, "room_type": scene_desc.room_type, "style": scene_desc.style,
                   "generator": GENERATOR, "renderer": f"Cycles (Blender {bpy.app.version_string})", "samples": cfg.samples,
-                  "denoise": cfg.denoise, "light_gain": gain, "path_traced": built["extras"]},
+                  "denoise": cfg.denoise, "light_gain": gain, "path_traced": built["extras"],
+                  "material_class": {str(k): v for k, v in built["material_class"].items()}},
     })
     return out
