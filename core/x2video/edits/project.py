@@ -18,7 +18,7 @@ import numpy as np
 
 from x2video.edits.model import Edits
 from x2video.io.atomic import write_bytes_atomic, write_json_atomic
-from x2video.io.shotdir import read_json
+from x2video.io.metadata import read_json
 
 PROJECT_FORMAT = "x2video-project"
 PROJECT_VERSION = 1

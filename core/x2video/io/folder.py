@@ -18,8 +18,8 @@ from x2video.channels import SPECS
 from x2video.io.cache import LRU
 from x2video.io.convention import exposure_scale, log_luminance_sum, sanitize, to_memory, zero_nonfinite
 from x2video.io.image import ImageData, read_image, read_spec
+from x2video.io.metadata import find_poses, parse_shot_json
 from x2video.io.sequence import find_frames
-from x2video.io.shotdir import find_poses, parse_shot_json
 from x2video.shot import Shot, ShotInfo
 
 log = logging.getLogger(__name__)
