@@ -21,7 +21,7 @@ import numpy as np
 from x2video.cycles.passes import compositor_output, configure_view_layer, wire_all_materials
 from x2video.cycles.room import build_room, extras_for
 from x2video.io.atomic import write_json_atomic
-from x2video.io.shotdir import FORMAT_NAME, FORMAT_VERSION, cameras_json
+from x2video.io.metadata import FORMAT_NAME, FORMAT_VERSION, cameras_json
 from x2video.procedural.camera import PathConfig, camera_path
 from x2video.procedural.scene import generate_scene
 from x2video.shot import CameraPose
