@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from x2video.io.shotdir import ShotWriter
+from x2video.io import ShotWriter
 from x2video.shot import ArrayShot
 
 

@@ -14,7 +14,6 @@ from app_helpers import make_shot_dir  # noqa: E402
 from PySide6.QtCore import QPointF, Qt  # noqa: E402
 from PySide6.QtWidgets import QMessageBox  # noqa: E402
 
-from x2video_app import edit_ops  # noqa: E402
 from x2video_app.main_window import MainWindow  # noqa: E402
 
 
@@ -68,7 +67,7 @@ def test_open_shows_channels_and_switches_views(win, qtbot):
 def test_paint_prompt_edit_undo_redo(win, qtbot):
     doc = win.doc
     qtbot.mouseClick(win.mask_panel.add_button, Qt.MouseButton.LeftButton)
-    assert edit_ops.num_masks(doc.edits) == 1 and doc.selected_mask == 0
+    assert list(doc.edits.masks) == ["mask 1"] and doc.selected_mask == 0
     win.mask_panel.tool_buttons["brush"].click()
     win.mask_panel.size.setValue(4)
     drag(qtbot, win, (10, 40), (40, 40))
@@ -106,7 +105,7 @@ def test_paint_prompt_edit_undo_redo(win, qtbot):
     assert n >= 5
     while win.undo.canUndo():
         win.act_undo.trigger()
-    assert edit_ops.num_masks(doc.edits) == 0 and doc.edits.ops == [] and not win.isWindowModified()
+    assert doc.edits.masks == {} and doc.edits.ops == [] and not win.isWindowModified()
     assert np.array_equal(viewer_pixels(win), before)
     while win.undo.canRedo():
         win.act_redo.trigger()
@@ -119,7 +118,7 @@ def test_fill_by_id_propagate_mask_out_and_drop(win, qtbot):
     doc = win.doc
     win.mask_panel.tool_buttons["fill"].click()
     qtbot.mouseClick(win.viewer.viewport(), Qt.MouseButton.LeftButton, pos=win.viewer.mapFromScene(QPointF(60, 45)))
-    assert edit_ops.mask_ids(doc.edits, 0) == [2]  # clicked the blue box: the mask holds its id on every frame
+    assert doc.edits.masks["mask 1"].ids == [2]  # clicked the blue box: the mask holds its id on every frame
     assert doc.mask_layers(8)[0][0][45, 66] == 1.0
     win.mask_panel.mask_out.setChecked(True)
     c = doc.conditioning(3)
@@ -132,10 +131,10 @@ def test_fill_by_id_propagate_mask_out_and_drop(win, qtbot):
     doc.set_mask_frame(1, 0, m)
     win.mask_panel.propagate_button.click()
     qtbot.waitUntil(lambda: win.edits.propagate_worker is None, timeout=30_000)  # runs in a worker
-    painted = edit_ops.mask_frames(doc.edits, 1)
+    painted = doc.edits.masks["mask 2"].painted_frames()
     assert painted == list(range(9))
     win.act_undo.trigger()
-    assert edit_ops.mask_frames(doc.edits, 1) == [0]
+    assert doc.edits.masks["mask 2"].painted_frames() == [0]
     # drop irradiance through the Scene panel's checkbox
     win.scene_panel.keep["irradiance"].setChecked(False)
     assert doc.edits.dropped == {"irradiance"} and doc.conditioning(0).channels["irradiance"] is None
@@ -166,7 +165,7 @@ def test_project_save_reload_equal_and_title(win, qtbot, tmp_path):
     assert other.project.open_path(path), other.errors_shown
     assert other.doc.edits == doc.edits
     assert other.doc.shot_path == str(win.doc.shot_path) or other.doc.shot.num_frames == win.doc.shot.num_frames
-    assert edit_ops.reference_image(other.doc.shot, other.doc.edits, other.doc.base_dir) is not None
+    assert other.doc.reference_image() is not None
 
 
 def test_autosave_and_recovery(win, qtbot, tmp_path):
@@ -227,10 +226,10 @@ def test_slider_drag_is_one_undo_step(win):
     for v, final in ((10.0, False), (20.0, False), (35.0, True)):
         win.edit_panel.sigParam.emit("hue", v, final)
     assert win.undo.count() == count + 1
-    assert edit_ops.get_params(win.doc.edits, None)["hue"] == 35.0
+    assert win.doc.edits.tuning(None)["hue"] == 35.0
     win.edit_panel.sigParam.emit("hue", 50.0, True)  # a new drag after release is a new step
     assert win.undo.count() == count + 2
     win.act_undo.trigger()
     win.act_undo.trigger()
-    assert edit_ops.get_params(win.doc.edits, None)["hue"] == 0.0 and win.doc.edits.ops == []
+    assert win.doc.edits.tuning(None)["hue"] == 0.0 and win.doc.edits.ops == []
     assert win.edit_panel.hue.value() == 0.0  # the panel follows the document

@@ -12,7 +12,6 @@ from app_helpers import make_shot_dir  # noqa: E402
 from PySide6.QtWidgets import QMessageBox  # noqa: E402
 
 from x2video.sampling.events import FramesReady, RenderStarted  # noqa: E402
-from x2video_app import edit_ops  # noqa: E402
 from x2video_app.main_window import MainWindow  # noqa: E402
 
 
@@ -52,7 +51,7 @@ def test_rendered_frame_as_reference_sits_at_that_frame(win):
     pos, img = resolve_reference(win.doc.shot, win.doc.edits, None)
     assert pos == 6, "the reference must sit at the frame the person picked, not frame 0"
     np.testing.assert_allclose(img, frames[6], atol=2e-3, rtol=2e-3)
-    assert "frame 6" in edit_ops.reference_text(win.doc.edits)
+    assert "frame 6" in win.doc.edits.reference.describe()
     # it survives the project file
     from x2video.edits import Edits
 
@@ -75,13 +74,13 @@ def test_mask_propagation_runs_in_a_worker(win, qtbot):
     steps = win.undo.count()
     worker = win.edits.propagate(0)
     assert worker is not None and win.edits.propagate_worker is worker
-    assert edit_ops.mask_frames(win.doc.edits, 0) == [0]  # the call returned before the work was done
+    assert win.doc.edits.masks["mask 1"].painted_frames() == [0]  # the call returned before the work was done
     qtbot.waitUntil(lambda: win.edits.propagate_worker is None, timeout=30_000)
-    assert edit_ops.mask_frames(win.doc.edits, 0) == list(range(9))
+    assert win.doc.edits.masks["mask 1"].painted_frames() == list(range(9))
     assert win.edits.propagate_progress == (8, 8)  # progress reached the GUI thread
     assert win.undo.count() == steps + 1
     win.act_undo.trigger()
-    assert edit_ops.mask_frames(win.doc.edits, 0) == [0]
+    assert win.doc.edits.masks["mask 1"].painted_frames() == [0]
 
 
 def test_mask_propagation_can_be_cancelled_and_the_window_stays_live(win, qtbot, monkeypatch):
@@ -121,7 +120,7 @@ def test_mask_propagation_can_be_cancelled_and_the_window_stays_live(win, qtbot,
     qtbot.waitUntil(lambda: win.edits.propagate_worker is None, timeout=10_000)
     timer.stop()
     assert win.edits.propagate_progress[0] < 200
-    assert edit_ops.mask_frames(win.doc.edits, 0) == [0] and win.undo.count() == steps  # nothing changed
+    assert win.doc.edits.masks["mask 1"].painted_frames() == [0] and win.undo.count() == steps  # nothing changed
     assert "cancelled" in win.statusBar().currentMessage()
 
 

@@ -47,3 +47,10 @@ def test_cycles_room_renders_and_loads(tmp_path):
     assert split_mean == pytest.approx(noisy_combined_mean, rel=0.25)
     info = json.loads((room / "shot.json").read_text())
     assert info["extra"]["renderer"].startswith("Cycles") and info["extra"]["samples"] == 4
+    # the room writes its material classes (every object id in the ids pass that is not background is classed)
+    from x2video.cycles.classes import CLASSES, material_classes
+
+    classes = material_classes(info)
+    assert classes and set(classes.values()) <= set(CLASSES)
+    ids = {int(i) for i in np.unique(fr["ids"]) if int(i) != 0}
+    assert ids <= set(classes), sorted(ids - set(classes))

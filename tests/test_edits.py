@@ -163,3 +163,56 @@ def test_reference(shot, tmp_path):
         Reference()
     with pytest.raises(ValueError, match="missing.png: file does not exist"):
         resolve_reference(shot, Edits(reference=Reference(path=str(tmp_path / "missing.png"))))
+
+
+def test_edits_api_by_mask_name(shot):
+    """What an editor does to Edits, through its own methods: masks by name, tuning per target."""
+    e = Edits()
+    assert e.add_mask("sofa") == "sofa" and e.add_mask("sofa") == "sofa (2)"
+    e.set_local_prompt("sofa", "blue velvet")
+    e.set_local_prompt("sofa (2)", "   ")  # blank: no prompt
+    assert e.local_prompts == {"sofa": "blue velvet"} and e.local_prompt("sofa (2)") == ""
+    e.set_masked_out("sofa", True)
+    e.set_masked_out("sofa", True)  # still one op
+    assert e.masked_out("sofa") and not e.masked_out("sofa (2)") and len(e.ops) == 1
+    with pytest.raises(KeyError, match="no mask 'chair'"):
+        e.set_local_prompt("chair", "x")
+
+    # tuning: one value per target, ops only for non-neutral values, colours given sRGB and stored linear
+    e.set_tuning(None, "exposure", 1.5)
+    e.set_tuning("sofa", "albedo_colour", (0.5, 0.5, 0.5))
+    e.set_tuning("sofa", "roughness_mode", "set")
+    e.set_tuning("sofa", "roughness", 0.2)
+    assert e.tuning(None)["exposure"] == 1.5 and e.tuning(None)["albedo_colour"] is None
+    sofa = e.tuning("sofa")
+    assert sofa["albedo_colour"] == pytest.approx((0.5, 0.5, 0.5), abs=1e-5) and sofa["roughness"] == 0.2
+    albedo = next(op for op in e.ops if isinstance(op, AlbedoSet))
+    assert albedo.mask == "sofa" and albedo.color[0] == pytest.approx(0.214, abs=1e-3)  # sRGB 0.5, linear
+    e.set_tuning("sofa", "roughness_mode", "none")  # back to neutral: its op goes, the value resets
+    assert not any(isinstance(op, ScalarOp) for op in e.ops) and e.tuning("sofa")["roughness"] == 0.5
+    with pytest.raises(KeyError, match="unknown tuning value 'hue_shift'"):
+        e.set_tuning(None, "hue_shift", 1.0)
+    kinds = [op.kind for op in e.ops]
+    e.set_tuning("sofa", "hue", 30.0)  # the target's ops stay where its first one stood
+    assert [op.kind for op in e.ops][: kinds.index("albedo_set") + 1] == kinds[: kinds.index("albedo_set") + 1]
+    e.reset_tuning("sofa")
+    assert [op.kind for op in e.ops] == ["mask_out", "exposure"]
+    e.set_dropped("normal", True)
+    e.set_dropped("irradiance", False)
+    assert e.dropped == {"normal"}
+
+    # a mask's frames and ids
+    m = e.masks["sofa"]
+    assert not m.painted(1, (H, W)).any()
+    box = np.zeros((H, W), np.float32)
+    box[2:4, 2:4] = 1
+    m.set_painted(1, box)
+    assert m.painted_frames() == [1] and np.array_equal(m.painted(1, (H, W)), box)
+    m.set_painted(1, np.zeros((H, W)))  # an erased-away frame is no painted frame
+    assert m.painted_frames() == []
+    m.paint_frames({0: box, 2: box})
+    m.add_id(7)
+    m.add_id(7)
+    assert m.painted_frames() == [0, 2] and m.ids == [7] and m.at(shot, 1)[0, 0] == 1.0  # id 7 covers [:4, :5]
+    assert Edits.for_shot(shot).global_prompt == shot.info.caption
+    assert Reference(path="x/look.png", at=3).describe() == "Image look.png (placed at frame 3)"

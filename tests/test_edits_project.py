@@ -99,3 +99,18 @@ def test_not_json(tmp_path):
         load_project(tmp_path / "p.json")
     with pytest.raises(FileNotFoundError):
         load_project(tmp_path / "none.json")
+
+
+def test_is_project_file_and_remove(tmp_path):
+    from x2video.edits import PROJECT_SUFFIX, is_project_file, remove_project
+    from x2video.edits.project import masks_dir
+
+    path = tmp_path / f"p{PROJECT_SUFFIX}"
+    save_project(path, _project(tmp_path))
+    assert is_project_file(path) and masks_dir(path).is_dir()
+    (tmp_path / "shot.json").write_text('{"format": "x2video-project"}')
+    (tmp_path / "other.json").write_text('{"format": "x2video-shot"}')
+    assert not is_project_file(tmp_path / "shot.json") and not is_project_file(tmp_path / "other.json")
+    remove_project(path)
+    assert not path.exists() and not masks_dir(path).exists()
+    remove_project(path)  # gone already: no error

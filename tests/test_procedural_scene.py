@@ -68,7 +68,7 @@ def test_meshes_wind_counter_clockwise_outwards(kind):
 
 def test_dataset_make_is_split_by_room_and_resumable(tmp_path):
     from x2video.cli import main
-    from x2video.io.shotdir import load_shot
+    from x2video.io import load_shot
 
     out = tmp_path / "ds"
     args = ["dataset", "make", "--rooms", "3", "--frames", "2", "--size", "48x32", "--seed", "5", "--out", str(out), "--test-every", "3"]
@@ -90,7 +90,7 @@ def test_dataset_make_is_split_by_room_and_resumable(tmp_path):
 
 def test_dataset_demo_writes_a_deterministic_shot(tmp_path, monkeypatch):
     from x2video.cli import dataset, main
-    from x2video.io.shotdir import load_shot
+    from x2video.io import load_shot
 
     monkeypatch.setitem(dataset.DEMO, "frames", 3)
     monkeypatch.setitem(dataset.DEMO, "width", 48)

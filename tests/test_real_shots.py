@@ -91,7 +91,7 @@ def test_exposure_must_be_auto_or_stops(tmp_path, capsys):
 
 
 def _shot_folder(root, frames, h, w, seed=0):
-    from x2video.io.shotdir import ShotWriter
+    from x2video.io import ShotWriter
     from x2video.shot import ArrayShot
 
     rng = np.random.default_rng(seed)

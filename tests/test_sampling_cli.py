@@ -6,7 +6,7 @@ import pytest
 from sampling_fake import make_shot
 
 from x2video.cli import main
-from x2video.io.shotdir import write_shot_folder
+from x2video.io import write_shot_folder
 
 
 @pytest.fixture(autouse=True)

@@ -162,6 +162,28 @@ def test_train_residual_learns_and_resumes(tmp_path):
     assert s2["steps"] == 40 and len(s2["history"]) == 1  # resumed at 30, validated once at the end
 
 
+def test_exposure_augmentation_scales_light_and_target_together(tmp_path):
+    from x2video.train.residual_stage import NOISY_PLANES, Frames
+
+    rng = np.random.default_rng(0)
+    ch = {"albedo": rng.uniform(0.1, 0.9, (16, 16, 3)), "irradiance": rng.uniform(0.2, 2.0, (16, 16, 3)),
+          "normal": np.dstack([np.zeros((16, 16, 2)), np.ones((16, 16))]), "roughness": rng.uniform(0, 1, (16, 16, 1)),
+          "metallic": np.zeros((16, 16, 1))}
+    x, shading = R.features({k: v.astype(np.float32) for k, v in ch.items()})
+    y = 1.5 * shading  # target: a fixed multiple of the formula
+    f = tmp_path / "s.npz"
+    np.savez(f, x=x[None].astype(np.float16), y=y[None].astype(np.float16), scale=np.float32(1))
+    xs, ys = Frames([f], exposure_aug=4.0).crops(np.random.default_rng(1), 16, 16)
+    form = torch.expm1(xs[:, R.FORMULA_PLANES])
+    gains = form.flatten(1).mean(1) / float(shading.mean())  # a flip keeps the mean
+    assert torch.allclose(ys, 1.5 * form, rtol=0.03, atol=1e-3)  # target and formula planes moved together
+    assert gains.min() < 0.6 and gains.max() > 1.6 and gains.max() <= 4.1 and gains.min() >= 0.24
+    # the irradiance planes moved with the formula planes: albedo x irradiance is still the formula
+    assert torch.allclose(xs[:, :3] * torch.expm1(xs[:, NOISY_PLANES][:, :3]), form, rtol=0.03, atol=2e-3)
+    with pytest.raises(ValueError, match="exposure_aug"):
+        Frames([f], exposure_aug=0.5)
+
+
 def test_onnx_engine_matches_pytorch():
     net = R.ResidualNet(R.ResidualConfig(widths=(8, 16, 16))).eval()
     torch.nn.init.normal_(net.out.weight, std=0.1)

@@ -9,15 +9,14 @@ from __future__ import annotations
 import copy
 import logging
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 
 from x2video.channels import INTRINSIC
 from x2video.conditioning import FrameConditioning
+from x2video.edits import Edits, apply_edits, resolve_reference
 from x2video.shot import Shot
-from x2video_app import edit_ops
 from x2video_app.display import MASK_COLOURS, VIEW_MODES, channel_to_u8, checker, overlay_masks, side_by_side
 from x2video_app.render_state import RenderState
 from x2video_app.signals import Signal
@@ -32,7 +31,7 @@ class Document:
         self.shot: Shot | None = None
         self.shot_path: str | None = None
         self.project_path: Path | None = None
-        self.edits: Any = None  # x2video.edits.Edits
+        self.edits: Edits | None = None
         self.frame = 0
         self.view = "albedo"
         self.selected_mask = -1
@@ -53,12 +52,12 @@ class Document:
         self.selection_changed = Signal("selection_changed")
 
     # -- shot / project --------------------------------------------------------
-    def set_shot(self, shot: Shot, path: str | None, edits: Any = None, project_path: Path | None = None) -> None:
+    def set_shot(self, shot: Shot, path: str | None, edits: Edits | None = None, project_path: Path | None = None) -> None:
         self.shot, self.shot_path = shot, path
-        self.edits = edits if edits is not None else edit_ops.new_edits(shot)
+        self.edits = edits if edits is not None else Edits.for_shot(shot)
         self.project_path = project_path
         self.frame = 0
-        self.selected_mask = 0 if edit_ops.num_masks(self.edits) else -1
+        self.selected_mask = 0 if self.num_masks else -1
         self.edit_global = self.selected_mask < 0
         self.hidden.clear()
         self.colours.clear()
@@ -73,6 +72,14 @@ class Document:
     @property
     def num_frames(self) -> int:
         return 0 if self.shot is None else self.shot.num_frames
+
+    @property
+    def num_masks(self) -> int:
+        return 0 if self.edits is None else len(self.edits.masks)
+
+    def mask_name(self, i: int) -> str:
+        """The name (what the Edits address a mask by) of the mask in row `i` of the mask list."""
+        return list(self.edits.masks)[i]
 
     @property
     def size(self) -> tuple[int, int]:
@@ -101,22 +108,22 @@ class Document:
         self._bump()
         self.edits_changed.emit(kind)
 
-    def snapshot(self) -> Any:
+    def snapshot(self) -> Edits:
         """A deep copy of the Edits (undo of structural changes: add/remove mask)."""
         return copy.deepcopy(self.edits)
 
-    def restore(self, edits: Any, selected: int | None = None) -> None:
+    def restore(self, edits: Edits, selected: int | None = None) -> None:
         self.edits = copy.deepcopy(edits)
         if self._stroke is not None:  # an undo in the middle of a stroke ends the stroke
             self._stroke = None
         if selected is not None:
             self.selected_mask = selected
-        self.selected_mask = min(self.selected_mask, edit_ops.num_masks(self.edits) - 1)
+        self.selected_mask = min(self.selected_mask, self.num_masks - 1)
         self.changed("all")
         self.selection_changed.emit()
 
     def select_mask(self, i: int) -> None:
-        i = i if 0 <= i < edit_ops.num_masks(self.edits) else -1
+        i = i if 0 <= i < self.num_masks else -1
         if i != self.selected_mask:
             self.selected_mask = i
             if i < 0:
@@ -132,13 +139,13 @@ class Document:
         return None if self.edit_global or self.selected_mask < 0 else self.selected_mask
 
     def mask_colour(self, i: int) -> tuple[int, int, int]:
-        return self.colours.get(edit_ops.mask_name(self.edits, i)) or MASK_COLOURS[i % len(MASK_COLOURS)]
+        return self.colours.get(self.mask_name(i)) or MASK_COLOURS[i % len(MASK_COLOURS)]
 
     def set_mask_colour(self, i: int, colour: tuple[int, int, int]) -> None:
-        self.colours[edit_ops.mask_name(self.edits, i)] = tuple(colour)  # type: ignore[assignment]
+        self.colours[self.mask_name(i)] = tuple(colour)  # type: ignore[assignment]
 
     def set_mask_visible(self, i: int, on: bool) -> None:
-        name = edit_ops.mask_name(self.edits, i)
+        name = self.mask_name(i)
         (self.hidden.discard if on else self.hidden.add)(name)
         self.edits_changed.emit("display")
 
@@ -149,21 +156,31 @@ class Document:
     def masks_summary(self) -> list[dict]:
         return [
             {
-                "name": edit_ops.mask_name(self.edits, i),
+                "name": name,
                 "colour": self.mask_colour(i),
-                "visible": edit_ops.mask_name(self.edits, i) not in self.hidden,
-                "prompt": edit_ops.mask_prompt(self.edits, i),
-                "mask_out": edit_ops.mask_out(self.edits, i),
+                "visible": name not in self.hidden,
+                "prompt": self.edits.local_prompt(name),
+                "mask_out": self.edits.masked_out(name),
             }
-            for i in range(edit_ops.num_masks(self.edits))
+            for i, name in enumerate(self.edits.masks)
         ]
+
+    def reference_image(self) -> np.ndarray | None:
+        """Linear RGB (H, W, 3) of the reference at the shot's size, or None (no shot, none set, or unreadable)."""
+        if self.shot is None or self.edits is None or self.edits.reference is None:
+            return None
+        try:
+            r = resolve_reference(self.shot, self.edits, self.base_dir)
+        except (OSError, ValueError):
+            return None
+        return None if r is None else r[1]
 
     # -- painting --------------------------------------------------------------
     def begin_stroke(self, x: float, y: float, radius: float, erase: bool) -> bool:
         """Start a brush/eraser stroke on the selected mask at frame `self.frame`; False when no mask is selected."""
         if self.selected_mask < 0 or self.shot is None:
             return False
-        m = edit_ops.get_mask(self.edits, self.selected_mask, self.frame, self.size)
+        m = self.edits.masks[self.mask_name(self.selected_mask)].painted(self.frame, self.size)
         self._stroke = (self.selected_mask, self.frame, m.copy(), m.copy())
         self._last_pt = None
         self.stroke_to(x, y, radius, erase)
@@ -182,7 +199,7 @@ class Document:
             cv2.line(work, self._last_pt, p, val, 2 * r, lineType=cv2.LINE_8)
             cv2.circle(work, p, r, val, -1, lineType=cv2.LINE_8)
         self._last_pt = p
-        edit_ops.set_mask(self.edits, i, t, work)
+        self.edits.masks[self.mask_name(i)].set_painted(t, work)
         self.changed("mask")
 
     def end_stroke(self) -> tuple[int, int, np.ndarray, np.ndarray] | None:
@@ -205,7 +222,7 @@ class Document:
         return oid if oid > 0 else None
 
     def set_mask_frame(self, i: int, t: int, m: np.ndarray) -> None:
-        edit_ops.set_mask(self.edits, i, t, m)
+        self.edits.masks[self.mask_name(i)].set_painted(t, m)
         self.changed("mask")
 
     # -- edited channels and what the viewer shows -----------------------------
@@ -213,7 +230,7 @@ class Document:
         hit = self._cond_cache.get(t)
         if hit is not None and hit[0] == self.version:
             return hit[1]
-        cond = edit_ops.apply(self.shot, self.edits, t)
+        cond = apply_edits(self.shot, self.edits, t)
         if len(self._cond_cache) > 8:
             self._cond_cache.clear()
         self._cond_cache[t] = (self.version, cond)
@@ -221,10 +238,9 @@ class Document:
 
     def mask_layers(self, t: int) -> list[tuple[np.ndarray, tuple[int, int, int]]]:
         out = []
-        for i in range(edit_ops.num_masks(self.edits)):
-            if edit_ops.mask_name(self.edits, i) in self.hidden:
-                continue
-            out.append((edit_ops.mask_at(self.shot, self.edits, i, t), self.mask_colour(i)))
+        for i, (name, mask) in enumerate(self.edits.masks.items()):
+            if name not in self.hidden:
+                out.append((mask.at(self.shot, t), self.mask_colour(i)))
         return out
 
     def rendered_u8(self, t: int) -> np.ndarray:
@@ -245,7 +261,7 @@ class Document:
             base = channel_to_u8("albedo", cond.channels.get("albedo"), self.size)
             return overlay_masks(base, self.mask_layers(t))
         elif v == "reference":
-            ref = edit_ops.reference_image(self.shot, self.edits, self.base_dir)
+            ref = self.reference_image()
             base = checker(self.size) if ref is None else channel_to_u8("rgb", ref, self.size)
         elif v == "rendered":
             base = self.rendered_u8(t)

@@ -1,24 +1,27 @@
-"""Turns what the person does in the panels and the viewer into undoable commands on the Document."""
+"""Turns what the person does in the panels and the viewer into undoable commands on the Document.
+
+The panels speak in rows of the mask list (index `i`); the Edits address a mask by its name, which
+`Document.mask_name(i)` gives. The window wires the panels' and the viewer's signals to these methods.
+"""
 from __future__ import annotations
 
 import os
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from PySide6.QtCore import QObject, Signal
-from PySide6.QtWidgets import QFileDialog, QProgressDialog
+from PySide6.QtGui import QUndoStack
+from PySide6.QtWidgets import QFileDialog, QProgressDialog, QWidget
 from superqt.utils import create_worker
 
+from x2video.edits import Edits, Reference
 from x2video.edits.propagate import propagate_mask
-from x2video.io.image import write_exr
-from x2video_app import edit_ops
+from x2video.io.image import read_image, write_exr
 from x2video_app.commands import MaskCommand, PaintCommand, SetValueCommand, SnapshotCommand
-from x2video_app.display import MASK_COLOURS
-
-if TYPE_CHECKING:
-    from x2video_app.main_window import MainWindow
+from x2video_app.document import Document
+from x2video_app.host import Host
 
 
 class _Progress(QObject):
@@ -28,46 +31,23 @@ class _Progress(QObject):
 
 
 class EditActions(QObject):
-    def __init__(self, win: "MainWindow") -> None:
-        super().__init__(win)
-        self.win = win
-        self.doc = win.doc
-        self.undo = win.undo
-        self._erase = False
+    """sigTool(name) when the painting tool changes (the viewer and the mask panel follow it)."""
+
+    sigTool = Signal(str)
+
+    def __init__(self, doc: Document, undo: QUndoStack, host: Host, parent: QWidget | None = None) -> None:
+        """`parent`: the widget the progress and file dialogs sit on."""
+        super().__init__(parent)
+        self.doc = doc
+        self.undo = undo
+        self.host = host
+        self._dialog_parent = parent
         self.propagate_worker: Any = None  # the running mask propagation (superqt worker), if any
         self.propagate_progress: tuple[int, int] | None = None  # (frames done, total) the GUI last showed
-        self._connect()
 
     @property
-    def e(self) -> Any:
+    def e(self) -> Edits:
         return self.doc.edits
-
-    def _connect(self) -> None:
-        w, mp, ep, sp = self.win, self.win.mask_panel, self.win.edit_panel, self.win.scene_panel
-        v = w.viewer
-        v.sigStrokePoint.connect(self.stroke_point)
-        v.sigStrokeEnd.connect(self.stroke_end)
-        v.sigPick.connect(self.pick)
-        mp.sigTool.connect(self.set_tool)
-        mp.sigBrushSize.connect(v.set_brush_radius)
-        mp.sigAdd.connect(self.add_mask)
-        mp.sigRemove.connect(self.remove_mask)
-        mp.sigSelect.connect(self.doc.select_mask)
-        mp.sigVisible.connect(self.set_visible)
-        mp.sigColour.connect(lambda i, c: self._set(("colour", i), "Mask colour", lambda val: self.doc.set_mask_colour(i, val), self.doc.mask_colour(i), c, "masks"))
-        mp.sigRename.connect(lambda i, n: None if n == edit_ops.mask_name(self.e, i) else self._set(("name", i), "Rename mask", lambda val: edit_ops.set_mask_name(self.e, i, val), edit_ops.mask_name(self.e, i), n, "masks"))
-        mp.sigPrompt.connect(self.set_local_prompt)
-        mp.sigMaskOut.connect(lambda i, on: self._set(("maskout", i), "Mask out A|M|R", lambda val: edit_ops.set_mask_out(self.e, i, val), edit_ops.mask_out(self.e, i), on, "masks"))
-        mp.sigPropagate.connect(self.propagate)
-        mp.sigClearFrame.connect(self.clear_frame)
-        ep.sigParam.connect(self.set_param)
-        ep.sigTarget.connect(self.doc.set_edit_global)
-        ep.sigReset.connect(self.reset_params)
-        sp.sigGlobalPrompt.connect(self.set_global_prompt)
-        sp.sigDrop.connect(lambda n, on: self._set(("drop", n), f"{'Drop' if on else 'Keep'} {n}", lambda val: edit_ops.set_dropped(self.e, n, val), n in edit_ops.dropped(self.e), on, "channels"))
-        sp.sigLoadReference.connect(self.load_reference_dialog)
-        sp.sigUseRendered.connect(self.use_rendered_reference)
-        sp.sigClearReference.connect(self.clear_reference)
 
     def _set(self, key: tuple, text: str, setter, old, new, kind: str, final: bool = True) -> None:
         if old == new and final:
@@ -76,49 +56,45 @@ class EditActions(QObject):
 
     # -- painting --------------------------------------------------------------
     def set_tool(self, tool: str) -> None:
-        self.win.viewer.set_tool(tool)
-        self.win.mask_panel.set_tool(tool)
+        self.sigTool.emit(tool)
         if tool in ("brush", "eraser", "fill") and self.doc.view not in ("masks", "albedo", "normal", "roughness", "metallic", "irradiance", "ids"):
             self.doc.set_view("masks")
 
-    def stroke_point(self, x: float, y: float, starting: bool) -> None:
-        r = self.win.viewer._brush_radius
-        erase = self.win.viewer.tool == "eraser"
+    def stroke_point(self, x: float, y: float, starting: bool, radius: float, erase: bool) -> None:
         if starting:
             if self.doc.selected_mask < 0:
                 self.add_mask()
             if self.doc.view not in ("masks",):
                 self.doc.set_view("masks")
-            self.doc.begin_stroke(x, y, r, erase)
+            self.doc.begin_stroke(x, y, radius, erase)
         else:
-            self.doc.stroke_to(x, y, r, erase)
+            self.doc.stroke_to(x, y, radius, erase)
 
-    def stroke_end(self) -> None:
+    def stroke_end(self, erase: bool) -> None:
         res = self.doc.end_stroke()
         if res is not None:
             i, t, before, after = res
-            self.undo.push(PaintCommand(self.doc, i, t, before, after, "Erase" if self.win.viewer.tool == "eraser" else "Paint stroke"))
+            self.undo.push(PaintCommand(self.doc, i, t, before, after, "Erase" if erase else "Paint stroke"))
 
     def pick(self, x: float, y: float) -> None:
         """Fill: add the object under the click (its id, on every frame) to the selected mask."""
         if self.doc.shot is not None and not self.doc.shot.has("ids"):
-            self.win.statusBar().showMessage("This shot has no object ids: fill needs the ids channel.", 5000)
+            self.host.status("This shot has no object ids: fill needs the ids channel.", 5000)
             return
         oid = self.doc.object_at(x, y)
         if oid is None:
             return
         if self.doc.selected_mask < 0:
             self.add_mask()
-        i = self.doc.selected_mask
-        if oid in edit_ops.mask_ids(self.e, i):
+        name = self.doc.mask_name(self.doc.selected_mask)
+        if oid in self.e.masks[name].ids:
             return
-        name = edit_ops.mask_name(self.e, i)
         cap = self.doc.shot.info.object_captions.get(oid, "")
-        self.undo.push(MaskCommand(self.doc, name, f"Fill object {oid}" + (f" ({cap})" if cap else ""), lambda: edit_ops.add_mask_id(self.e, i, oid)))
+        self.undo.push(MaskCommand(self.doc, name, f"Fill object {oid}" + (f" ({cap})" if cap else ""), lambda: self.e.masks[name].add_id(oid)))
 
     def clear_frame(self, i: int) -> None:
         t = self.doc.frame
-        before = edit_ops.get_mask(self.e, i, t, self.doc.size)
+        before = self.e.masks[self.doc.mask_name(i)].painted(t, self.doc.size)
         if before.any():
             self.undo.push(PaintCommand(self.doc, i, t, before, np.zeros_like(before), "Clear mask"))
 
@@ -127,16 +103,16 @@ class EditActions(QObject):
         dialog that can cancel; the window stays responsive. One undo step when it finishes, nothing
         when cancelled. Returns the worker (tests wait on it), or None when there is nothing to do."""
         t = self.doc.frame
-        name = edit_ops.mask_name(self.e, i)
+        name = self.doc.mask_name(i)
         if self.propagate_worker is not None:
-            self.win.statusBar().showMessage("A mask is already being propagated.", 5000)
+            self.host.status("A mask is already being propagated.", 5000)
             return None
-        src = edit_ops.get_mask(self.e, i, t, self.doc.size)
+        src = self.e.masks[name].painted(t, self.doc.size)
         if not src.any():
-            self.win.statusBar().showMessage(f"Mask '{name}' is empty on frame {t}: paint it first.", 5000)
+            self.host.status(f"Mask '{name}' is empty on frame {t}: paint it first.", 5000)
             return None
         shot = self.doc.shot
-        dlg = QProgressDialog(f"Propagating '{name}' from frame {t} (optical flow)…", "Cancel", 0, max(1, self.doc.num_frames - 1), self.win)
+        dlg = QProgressDialog(f"Propagating '{name}' from frame {t} (optical flow)…", "Cancel", 0, max(1, self.doc.num_frames - 1), self._dialog_parent)
         dlg.setWindowTitle("Propagate mask")
         dlg.setMinimumDuration(400)
         progress = _Progress(dlg)  # lives on the GUI thread: the worker's emits are queued to it
@@ -148,7 +124,7 @@ class EditActions(QObject):
             dlg.setValue(done)
 
         progress.sig.connect(show_progress)
-        self.win.statusBar().showMessage(f"Propagating '{name}' along the shot (optical flow)…")
+        self.host.status(f"Propagating '{name}' along the shot (optical flow)…")
 
         def work() -> dict[int, np.ndarray]:
             return propagate_mask(shot, src, t, on_progress=progress.sig.emit, should_stop=lambda: worker.abort_requested)
@@ -157,13 +133,13 @@ class EditActions(QObject):
 
         def returned(result: dict[int, np.ndarray]) -> None:  # superqt does not emit it after quit()
             if self.doc.shot is not shot or name not in self.e.masks:
-                self.win.statusBar().showMessage(f"Propagation of '{name}' dropped: the shot or the mask changed meanwhile.", 5000)
+                self.host.status(f"Propagation of '{name}' dropped: the shot or the mask changed meanwhile.", 5000)
             else:
-                self.undo.push(MaskCommand(self.doc, name, f"Propagate {name} from frame {t}", lambda: edit_ops.paint_frames(self.e, name, result)))
-                self.win.statusBar().showMessage(f"Mask propagated from frame {t} to {len(result)} frames.", 5000)
+                self.undo.push(MaskCommand(self.doc, name, f"Propagate {name} from frame {t}", lambda: self.e.masks[name].paint_frames(result)))
+                self.host.status(f"Mask propagated from frame {t} to {len(result)} frames.", 5000)
 
         def failed(exc: BaseException) -> None:
-            self.win.show_error("Mask propagation failed", f"{type(exc).__name__}: {exc}\n\nThe mask is unchanged.")
+            self.host.show_error("Mask propagation failed", f"{type(exc).__name__}: {exc}\n\nThe mask is unchanged.")
 
         def finished() -> None:
             dlg.reset()
@@ -171,7 +147,7 @@ class EditActions(QObject):
             dlg.deleteLater()
             self.propagate_worker = None
             if worker.abort_requested:
-                self.win.statusBar().showMessage(f"Propagation of '{name}' cancelled; the mask is unchanged.", 5000)
+                self.host.status(f"Propagation of '{name}' cancelled; the mask is unchanged.", 5000)
 
         worker.returned.connect(returned)
         worker.errored.connect(failed)
@@ -192,50 +168,74 @@ class EditActions(QObject):
 
     # -- masks -----------------------------------------------------------------
     def add_mask(self) -> None:
-        n = edit_ops.num_masks(self.e)
+        n = self.doc.num_masks
         name = f"mask {n + 1}"
-        colour = MASK_COLOURS[n % len(MASK_COLOURS)]
-        self.undo.push(SnapshotCommand(self.doc, f"Add {name}", lambda: edit_ops.add_mask(self.e, name, colour), select_after=n))
+        self.undo.push(SnapshotCommand(self.doc, f"Add {name}", lambda: self.e.add_mask(name), select_after=n))
         self.doc.set_edit_global(False)
 
     def remove_mask(self, i: int) -> None:
-        name = edit_ops.mask_name(self.e, i)
-        self.undo.push(SnapshotCommand(self.doc, f"Remove {name}", lambda: edit_ops.remove_mask(self.e, i), select_after=max(-1, i - 1)))
+        name = self.doc.mask_name(i)
+        self.undo.push(SnapshotCommand(self.doc, f"Remove {name}", lambda: self.e.remove_mask(name), select_after=max(-1, i - 1)))
 
     def set_visible(self, i: int, on: bool) -> None:
         self.doc.set_mask_visible(i, on)
 
+    def set_mask_colour(self, i: int, colour: tuple[int, int, int]) -> None:
+        self._set(("colour", i), "Mask colour", lambda val: self.doc.set_mask_colour(i, val), self.doc.mask_colour(i), colour, "masks")
+
+    def rename_mask(self, i: int, new: str) -> None:
+        old = self.doc.mask_name(i)
+        if new != old:
+            self._set(("name", i), "Rename mask", lambda val: self._rename(i, val), old, new, "masks")
+
+    def _rename(self, i: int, new: str) -> None:
+        new = new.strip()  # a blank name keeps the old one (the list shows it again)
+        if new and new != self.doc.mask_name(i):
+            self.e.rename_mask(self.doc.mask_name(i), new)
+
+    def set_mask_out(self, i: int, on: bool) -> None:
+        name = self.doc.mask_name(i)
+        self._set(("maskout", name), "Mask out A|M|R", lambda val: self.e.set_masked_out(name, val), self.e.masked_out(name), on, "masks")
+
     def set_local_prompt(self, i: int, text: str) -> None:
-        self._set(("prompt", i), "Local prompt", lambda val: edit_ops.set_mask_prompt(self.e, i, val), edit_ops.mask_prompt(self.e, i), text, "prompts")
+        name = self.doc.mask_name(i)
+        self._set(("prompt", name), "Local prompt", lambda val: self.e.set_local_prompt(name, val), self.e.local_prompt(name), text, "prompts")
 
     def set_global_prompt(self, text: str) -> None:
-        self._set(("gprompt",), "Global prompt", lambda val: edit_ops.set_global_prompt(self.e, val), edit_ops.global_prompt(self.e), text, "prompts")
+        self._set(("gprompt",), "Global prompt", lambda val: setattr(self.e, "global_prompt", val), self.e.global_prompt, text, "prompts")
+
+    def set_dropped(self, channel: str, on: bool) -> None:
+        self._set(("drop", channel), f"{'Drop' if on else 'Keep'} {channel}", lambda val: self.e.set_dropped(channel, val), channel in self.e.dropped, on, "channels")
 
     # -- parametric edits ------------------------------------------------------
-    def set_param(self, key: str, value: Any, final: bool) -> None:
+    def _tuning_target(self) -> str | None:
+        """The mask (by name) the parametric edits apply to; None: the whole frame."""
         target = self.doc.edit_target()
-        old = edit_ops.get_params(self.e, target).get(key)
-        where = "frame" if target is None else edit_ops.mask_name(self.e, target)
-        self._set(("param", target, key), f"{key.replace('_', ' ')} ({where})", lambda val, t=target, k=key: edit_ops.set_param(self.e, t, k, val), old, value, "params", final)
+        return None if target is None else self.doc.mask_name(target)
+
+    def set_param(self, key: str, value: Any, final: bool) -> None:
+        mask = self._tuning_target()
+        old = self.e.tuning(mask).get(key)
+        self._set(("param", mask, key), f"{key.replace('_', ' ')} ({mask or 'frame'})", lambda val: self.e.set_tuning(mask, key, val), old, value, "params", final)
 
     def reset_params(self) -> None:
-        target = self.doc.edit_target()
-        self.undo.push(SnapshotCommand(self.doc, "Reset edits", lambda: edit_ops.reset_params(self.e, target), select_after=self.doc.selected_mask))
+        mask = self._tuning_target()
+        self.undo.push(SnapshotCommand(self.doc, "Reset edits", lambda: self.e.reset_tuning(mask), select_after=self.doc.selected_mask))
 
     # -- reference -------------------------------------------------------------
     def load_reference_dialog(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self.win, "Reference image", "", "Images (*.png *.jpg *.jpeg *.exr *.tif *.tiff)")
+        path, _ = QFileDialog.getOpenFileName(self._dialog_parent, "Reference image", "", "Images (*.png *.jpg *.jpeg *.exr *.tif *.tiff)")
         if path:
             self.load_reference(path)
 
     def load_reference(self, path: str) -> bool:
         try:
-            edit_ops.read_image(path)
+            read_image(path).all()  # the whole file reads, or an error names it
         except Exception as e:  # a bad file: say which and keep the project
-            self.win.show_error("Cannot read reference image", f"{path}:\n{e}")
+            self.host.show_error("Cannot read reference image", f"{path}:\n{e}")
             return False
         old = self.e.reference
-        self._set(("reference",), "Load reference image", lambda val: setattr(self.e, "reference", val), old, edit_ops.Reference(path=str(Path(path).resolve())), "reference")
+        self._set(("reference",), "Load reference image", lambda val: setattr(self.e, "reference", val), old, Reference(path=str(Path(path).resolve())), "reference")
         return True
 
     def use_rendered_reference(self) -> bool:
@@ -243,7 +243,7 @@ class EditActions(QObject):
         t = self.doc.frame
         img = self.doc.render.frames.get(t)
         if img is None:
-            self.win.statusBar().showMessage(f"Frame {t} is not rendered yet: render it first or load an image.", 5000)
+            self.host.status(f"Frame {t} is not rendered yet: render it first or load an image.", 5000)
             return False
         folder = reference_folder(self.doc.project_path)
         path = folder / f"rendered_frame_{t:06d}_{int(time.time())}.exr"
@@ -251,9 +251,9 @@ class EditActions(QObject):
             a = img.astype(np.float32)
             write_exr(path, {"R": a[..., 0], "G": a[..., 1], "B": a[..., 2]}, "half")
         except Exception as e:
-            self.win.show_error("Cannot write the reference frame", f"{path}:\n{e}")
+            self.host.show_error("Cannot write the reference frame", f"{path}:\n{e}")
             return False
-        self._set(("reference",), f"Use rendered frame {t} as reference", lambda val: setattr(self.e, "reference", val), self.e.reference, edit_ops.Reference(path=str(path), at=t), "reference")
+        self._set(("reference",), f"Use rendered frame {t} as reference", lambda val: setattr(self.e, "reference", val), self.e.reference, Reference(path=str(path), at=t), "reference")
         return True
 
     def clear_reference(self) -> None:

@@ -1,5 +1,5 @@
 """Parametric edit panel (paper: parametric tuning): albedo colour/tint/HSV, roughness, metallic, irradiance
-exposure/tint, for the selected mask or the whole frame. Values are a plain dict (see DEFAULT_PARAMS)."""
+exposure/tint, for the selected mask or the whole frame. Values are a plain dict (`x2video.edits.NEUTRAL_TUNING`)."""
 from __future__ import annotations
 
 from typing import Any
@@ -20,20 +20,7 @@ from PySide6.QtWidgets import (
 )
 from superqt import QLabeledDoubleSlider
 
-#: The panel's parameter set and neutral values (neutral = no edit). Colours are sRGB in [0, 1].
-DEFAULT_PARAMS: dict[str, Any] = {
-    "albedo_colour": None,  # set colour, or None
-    "albedo_tint": (1.0, 1.0, 1.0),  # multiply
-    "hue": 0.0,  # degrees
-    "saturation": 1.0,  # scale
-    "value": 1.0,  # scale
-    "roughness_mode": "none",  # none | set | offset | scale
-    "roughness": 0.5,
-    "metallic_mode": "none",
-    "metallic": 0.0,
-    "exposure": 0.0,  # stops
-    "irradiance_tint": (1.0, 1.0, 1.0),
-}
+from x2video.edits import NEUTRAL_TUNING
 
 _MODE_RANGES = {"set": (0.0, 1.0, 0.5), "offset": (-1.0, 1.0, 0.0), "scale": (0.0, 2.0, 1.0), "none": (0.0, 1.0, 0.5)}
 
@@ -53,7 +40,7 @@ class EditPanel(QWidget):
 
     def __init__(self, parent=None) -> None:
         super().__init__(parent)
-        self._params = dict(DEFAULT_PARAMS)
+        self._params = dict(NEUTRAL_TUNING)
         self._updating = False
         self.target_label = QLabel()
         self.target_label.setWordWrap(True)
@@ -110,7 +97,7 @@ class EditPanel(QWidget):
         lay.addWidget(light)
         lay.addWidget(self.reset_button)
         lay.addStretch(1)
-        self.set_params(DEFAULT_PARAMS, "the whole frame", True, True)
+        self.set_params(NEUTRAL_TUNING, "the whole frame", True, True)
 
     # -- builders --------------------------------------------------------------
     def _slider(self, lo: float, hi: float, key: str) -> QLabeledDoubleSlider:
@@ -167,7 +154,7 @@ class EditPanel(QWidget):
     # -- refresh from the document --------------------------------------------
     def set_params(self, params: dict[str, Any], target_name: str, is_global: bool, can_toggle: bool) -> None:
         self._updating = True
-        p = {**DEFAULT_PARAMS, **params}
+        p = {**NEUTRAL_TUNING, **params}
         self._params = p
         self.target_label.setText(f"Editing: <b>{target_name}</b>")
         self.global_box.setChecked(is_global)

@@ -17,7 +17,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from x2video.channels import INTRINSIC
-from x2video.io.shotdir import ShotWriter
+from x2video.io import ShotWriter
 from x2video.io.units import OutputUnits
 from x2video.io.writers import MP4Writer
 from x2video.shot import Shot

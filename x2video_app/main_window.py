@@ -22,9 +22,9 @@ from PySide6.QtWidgets import (
     QVBoxLayout,
     QWidget,
 )
+from shiboken6 import isValid
 
 from x2video.sampling.events import FramesReady, RenderStarted, WindowStarted
-from x2video_app import edit_ops
 from x2video_app.charts import Charts
 from x2video_app.display import VIEW_MODES
 from x2video_app.document import Document
@@ -127,8 +127,8 @@ class MainWindow(QMainWindow):
 
         # controllers
         self.render_ctl = RenderController(self.doc, self)
-        self.edits = EditActions(self)
-        self.project = ProjectController(self, autosave_ms=autosave_ms)
+        self.edits = EditActions(self.doc, self.undo, host=self, parent=self)
+        self.project = ProjectController(self.doc, self.undo, self.render_ctl, host=self, parent=self, autosave_ms=autosave_ms)
         self._build_menus()
         self._connect()
         self.choose_default_model()
@@ -147,8 +147,8 @@ class MainWindow(QMainWindow):
         self.act_save = f.addAction("Save project", self.project.save, QKeySequence.StandardKey.Save)
         self.act_save_as = f.addAction("Save project as…", self.project.save_as, QKeySequence.StandardKey.SaveAs)
         f.addSeparator()
-        self.act_export_mp4 = f.addAction("Export MP4…", lambda: self.project.export_dialog("mp4"))
-        self.act_export_exr = f.addAction("Export EXR sequence…", lambda: self.project.export_dialog("exr"))
+        self.act_export_mp4 = f.addAction("Export MP4…", lambda: self.project.export_dialog("mp4", self.render_panel.values()["exposure"]))
+        self.act_export_exr = f.addAction("Export EXR sequence…", lambda: self.project.export_dialog("exr", self.render_panel.values()["exposure"]))
         f.addSeparator()
         f.addAction("Quit", self.close, QKeySequence.StandardKey.Quit)
         e = mb.addMenu("&Edit")
@@ -200,8 +200,39 @@ class MainWindow(QMainWindow):
         self.render_ctl.sigRunning.connect(self._running)
         self.render_ctl.sigError.connect(self._render_error)
         self.render_ctl.sigPreload.connect(self._preloading)
+        self.project.sigTitle.connect(self._show_title)
+        self._connect_edits()
         self._eta_timer = QTimer(self)
         self._eta_timer.timeout.connect(lambda: self.render_panel.show_state(self.doc.render))
+
+    def _connect_edits(self) -> None:
+        """The viewer's and the panels' gestures go to the edit actions; the chosen tool comes back to both."""
+        a, v, mp, ep, sp = self.edits, self.viewer, self.mask_panel, self.edit_panel, self.scene_panel
+        v.sigStrokePoint.connect(lambda x, y, starting: a.stroke_point(x, y, starting, v.brush_radius, v.tool == "eraser"))
+        v.sigStrokeEnd.connect(lambda: a.stroke_end(v.tool == "eraser"))
+        v.sigPick.connect(a.pick)
+        a.sigTool.connect(v.set_tool)
+        a.sigTool.connect(mp.set_tool)
+        mp.sigTool.connect(a.set_tool)
+        mp.sigBrushSize.connect(v.set_brush_radius)
+        mp.sigAdd.connect(a.add_mask)
+        mp.sigRemove.connect(a.remove_mask)
+        mp.sigSelect.connect(self.doc.select_mask)
+        mp.sigVisible.connect(a.set_visible)
+        mp.sigColour.connect(a.set_mask_colour)
+        mp.sigRename.connect(a.rename_mask)
+        mp.sigPrompt.connect(a.set_local_prompt)
+        mp.sigMaskOut.connect(a.set_mask_out)
+        mp.sigPropagate.connect(a.propagate)
+        mp.sigClearFrame.connect(a.clear_frame)
+        ep.sigParam.connect(a.set_param)
+        ep.sigTarget.connect(self.doc.set_edit_global)
+        ep.sigReset.connect(a.reset_params)
+        sp.sigGlobalPrompt.connect(a.set_global_prompt)
+        sp.sigDrop.connect(a.set_dropped)
+        sp.sigLoadReference.connect(a.load_reference_dialog)
+        sp.sigUseRendered.connect(a.use_rendered_reference)
+        sp.sigClearReference.connect(a.clear_reference)
 
     # -- model -----------------------------------------------------------------
     def device(self) -> str:
@@ -339,7 +370,15 @@ class MainWindow(QMainWindow):
         else:
             self.show_error("Render failed", message + "\n\nYour project is intact; frames that finished are kept.")
 
-    # -- dialogs -----------------------------------------------------------------
+    # -- the controllers' host (x2video_app.host.Host) and the title ------------------
+    def status(self, text: str, timeout_ms: int = 0) -> None:
+        self.statusBar().showMessage(text, timeout_ms)
+
+    def _show_title(self, text: str, modified: bool) -> None:
+        if isValid(self):  # the undo stack also reports while the window is being destroyed
+            self.setWindowTitle(text)
+            self.setWindowModified(modified)
+
     def _ask(self, title: str, text: str, buttons, default):
         return QMessageBox.question(self, title, text, buttons, default)
 
@@ -408,18 +447,20 @@ class MainWindow(QMainWindow):
         self.mask_panel.set_masks(self.doc.masks_summary(), self.doc.selected_mask)
         self._update_coverage()
         target = self.doc.edit_target()
-        name = "the whole frame" if target is None else f"mask '{edit_ops.mask_name(self.doc.edits, target)}'"
-        self.edit_panel.set_params(edit_ops.get_params(self.doc.edits, target), name, target is None, self.doc.selected_mask >= 0)
-        ref = edit_ops.reference_image(self.doc.shot, self.doc.edits) if self.doc.shot is not None else None
-        self.scene_panel.set_values(edit_ops.global_prompt(self.doc.edits), edit_ops.dropped(self.doc.edits), ref, edit_ops.reference_text(self.doc.edits))
+        mask = None if target is None else self.doc.mask_name(target)
+        name = "the whole frame" if mask is None else f"mask '{mask}'"
+        e = self.doc.edits
+        self.edit_panel.set_params(e.tuning(mask), name, mask is None, self.doc.selected_mask >= 0)
+        ref_text = "No reference: the model follows the channels and prompts only." if e.reference is None else e.reference.describe()
+        self.scene_panel.set_values(e.global_prompt, set(e.dropped), self.doc.reference_image(), ref_text)
 
     def _update_coverage(self) -> None:
         i = self.doc.selected_mask
         if i < 0 or self.doc.shot is None:
             self.mask_panel.set_coverage("Add a mask, then paint it in the viewer.")
             return
-        frames = edit_ops.mask_frames(self.doc.edits, i)
-        ids = edit_ops.mask_ids(self.doc.edits, i)
+        mask = self.doc.edits.masks[self.doc.mask_name(i)]
+        frames, ids = mask.painted_frames(), list(mask.ids)
         text = f"Painted on {len(frames)} of {self.doc.num_frames} frames"
         if ids:
             caps = self.doc.shot.info.object_captions

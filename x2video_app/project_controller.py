@@ -1,24 +1,28 @@
 """Opening shots, projects and the demo; saving; autosave to a side file with recovery; the unsaved-changes guard;
-and export (MP4 / EXR sequence) with a progress dialog."""
+and export (MP4 / EXR sequence) with a progress dialog. Works on the Document, the undo stack (clean = saved)
+and the render controller it is given; asks and reports through a `Host`."""
 from __future__ import annotations
 
 import logging
 import os
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-from PySide6.QtCore import QObject, Qt, QTimer
-from PySide6.QtWidgets import QApplication, QCheckBox, QFileDialog, QMessageBox, QProgressDialog
+from PySide6.QtCore import QObject, Qt, QTimer, Signal
+from PySide6.QtGui import QUndoStack
+from PySide6.QtWidgets import QApplication, QCheckBox, QFileDialog, QMessageBox, QProgressDialog, QWidget
 from shiboken6 import isValid
 from superqt.utils import create_worker
 
+from x2video.edits import PROJECT_SUFFIX, Project, is_project_file, load_project, remove_project, save_project
+from x2video.io import load_shot
 from x2video.io.units import OutputUnits
-from x2video_app import edit_ops, exporter
+from x2video.sampling.events import RenderSettings
+from x2video_app import exporter
 from x2video_app.demo import ensure_demo
-
-if TYPE_CHECKING:
-    from x2video_app.main_window import MainWindow
+from x2video_app.document import Document
+from x2video_app.host import Host
+from x2video_app.render_controller import RenderController
 
 log = logging.getLogger(__name__)
 
@@ -29,14 +33,23 @@ def autosave_path(project: Path | None, shot_path: str | None) -> Path:
         return project.with_name(project.stem + ".autosave" + project.suffix)
     cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "x2video" / "autosave"
     stem = Path(shot_path).name if shot_path else "untitled"
-    return cache / f"{stem}.autosave{edit_ops.PROJECT_SUFFIX}"
+    return cache / f"{stem}.autosave{PROJECT_SUFFIX}"
 
 
 class ProjectController(QObject):
-    def __init__(self, win: "MainWindow", autosave_ms: int = 180_000) -> None:
-        super().__init__(win)
-        self.win = win
-        self.doc = win.doc
+    """sigTitle(text, modified): what the window's title should say, and whether there are unsaved changes."""
+
+    sigTitle = Signal(str, bool)
+
+    def __init__(self, doc: Document, undo: QUndoStack, render_ctl: RenderController, host: Host,
+                 parent: QWidget | None = None, autosave_ms: int = 180_000) -> None:
+        """`parent`: the widget the file and progress dialogs sit on."""
+        super().__init__(parent)
+        self.doc = doc
+        self.undo = undo
+        self.render_ctl = render_ctl
+        self.host = host
+        self._dialog_parent = parent
         self.timer = QTimer(self)
         self.timer.timeout.connect(self.autosave)
         if autosave_ms > 0:
@@ -44,27 +57,26 @@ class ProjectController(QObject):
         self.export_worker = None
         #: recovered autosave: unsaved under the project's name although the undo stack is clean
         self.force_dirty = False
-        win.undo.cleanChanged.connect(self._clean_changed)
+        undo.cleanChanged.connect(self._clean_changed)
 
     # -- title / dirty ---------------------------------------------------------
     def _clean_changed(self, _clean: bool) -> None:
-        if isValid(self.win):  # the undo stack also emits while the window is being destroyed
+        if isValid(self.undo):  # the undo stack also reports while it is being destroyed
             self.update_title()
 
     @property
     def dirty(self) -> bool:
-        return self.force_dirty or not self.win.undo.isClean()
+        return self.force_dirty or not self.undo.isClean()
 
     def update_title(self) -> None:
         name = self.doc.project_path.name if self.doc.project_path else (Path(self.doc.shot_path).name if self.doc.shot_path else "untitled")
-        self.win.setWindowTitle(f"{name}[*] — X2Video Studio")
-        self.win.setWindowModified(self.dirty)
+        self.sigTitle.emit(f"{name}[*] — X2Video Studio", self.dirty)
 
     def confirm_discard(self, what: str) -> bool:
         """True when there are no unsaved changes, or the person chose to save or discard them."""
         if not self.dirty:
             return True
-        b = self.win.ask(
+        b = self.host.ask(
             "Unsaved changes",
             f"The project has unsaved changes. Save them before you {what}?",
             QMessageBox.StandardButton.Save | QMessageBox.StandardButton.Discard | QMessageBox.StandardButton.Cancel,
@@ -73,18 +85,18 @@ class ProjectController(QObject):
         if b == QMessageBox.StandardButton.Save:
             return self.save()
         if b == QMessageBox.StandardButton.Discard:
-            edit_ops.remove_project(autosave_path(self.doc.project_path, self.doc.shot_path))  # nothing to recover later
+            remove_project(autosave_path(self.doc.project_path, self.doc.shot_path))  # nothing to recover later
             return True
         return False
 
     # -- opening ---------------------------------------------------------------
     def open_shot_dialog(self) -> None:
-        path = QFileDialog.getExistingDirectory(self.win, "Open shot folder")
+        path = QFileDialog.getExistingDirectory(self._dialog_parent, "Open shot folder")
         if path:
             self.open_path(path)
 
     def open_project_dialog(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self.win, "Open project", "", f"X2Video project (*{edit_ops.PROJECT_SUFFIX} *.json)")
+        path, _ = QFileDialog.getOpenFileName(self._dialog_parent, "Open project", "", f"X2Video project (*{PROJECT_SUFFIX} *.json)")
         if path:
             self.open_path(path)
 
@@ -93,68 +105,60 @@ class ProjectController(QObject):
         p = Path(path)
         if not self.confirm_discard("open another file"):
             return False
-        if self.win.render_ctl.running:  # its frames belong to the shot being closed
-            self.win.render_ctl.cancel()
-            self.win.render_ctl.wait(120_000)
+        if self.render_ctl.running:  # its frames belong to the shot being closed
+            self.render_ctl.cancel()
+            self.render_ctl.wait(120_000)
         try:
-            if edit_ops.is_project_file(p):
+            if is_project_file(p):
                 return self._open_project(p)
-            shot = edit_ops.load_shot(p)
+            shot = load_shot(p)
         except Exception as e:
-            self.win.show_error("Cannot open", f"{p}:\n{e}")
+            self.host.show_error("Cannot open", f"{p}:\n{e}")
             return False
         self.doc.set_shot(shot, str(p))
         self.force_dirty = False
         side = autosave_path(None, str(p))
         if side.is_file():
-            b = self.win.ask(
-                "Recover autosaved work?",
-                f"Unsaved work on {p.name} was autosaved {time.ctime(side.stat().st_mtime)} (probably before a crash). Recover it?",
-                QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No,
-                QMessageBox.StandardButton.Yes,
-            )
-            if b == QMessageBox.StandardButton.Yes:
+            if self._recover(f"Unsaved work on {p.name} was autosaved {time.ctime(side.stat().st_mtime)} (probably before a crash)."):
                 try:
-                    _, edits = edit_ops.load_project(side)
-                    self.doc.set_shot(shot, str(p), edits)
+                    self.doc.set_shot(shot, str(p), load_project(side).edits)
                     self.force_dirty = True
                 except Exception as e:
-                    self.win.show_error("Cannot recover the autosave", f"{side}:\n{e}")
+                    self.host.show_error("Cannot recover the autosave", f"{side}:\n{e}")
             else:
-                edit_ops.remove_project(side)
+                remove_project(side)
         self.update_title()
-        self.win.statusBar().showMessage(f"Opened {p} ({shot.num_frames} frames, {shot.size[1]}×{shot.size[0]}, channels: {', '.join(shot.channels)})", 8000)
+        self.host.status(f"Opened {p} ({shot.num_frames} frames, {shot.size[1]}×{shot.size[0]}, channels: {', '.join(shot.channels)})", 8000)
         return True
 
     def _open_project(self, p: Path, recovering_from: Path | None = None) -> bool:
         side = autosave_path(p, None)
         if recovering_from is None and side.exists() and side.stat().st_mtime > p.stat().st_mtime:
-            b = self.win.ask(
-                "Recover autosaved work?",
-                f"An autosave newer than {p.name} exists ({time.ctime(side.stat().st_mtime)}), probably from a crash. Recover it?",
-                QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No,
-                QMessageBox.StandardButton.Yes,
-            )
-            if b == QMessageBox.StandardButton.Yes:
+            if self._recover(f"An autosave newer than {p.name} exists ({time.ctime(side.stat().st_mtime)}), probably from a crash."):
                 return self._open_project(side, recovering_from=p)
-        shot_path, edits = edit_ops.load_project(p)
-        shot = edit_ops.load_shot(shot_path)
-        self.doc.set_shot(shot, str(shot_path), edits, project_path=recovering_from or p)
+        project = load_project(p)
+        shot = load_shot(project.shot)
+        self.doc.set_shot(shot, project.shot, project.edits, project_path=recovering_from or p)
         self.force_dirty = recovering_from is not None
         self.update_title()
-        self.win.statusBar().showMessage(f"Opened project {p}", 8000)
+        self.host.status(f"Opened project {p}", 8000)
         return True
+
+    def _recover(self, found: str) -> bool:
+        """Ask whether to recover the autosave that `found` describes."""
+        yes, no = QMessageBox.StandardButton.Yes, QMessageBox.StandardButton.No
+        return self.host.ask("Recover autosaved work?", f"{found} Recover it?", yes | no, yes) == yes
 
     def open_demo(self) -> bool:
         """Open the demo shot, generating it first (with a busy dialog) if it is not cached."""
-        dlg = QProgressDialog("Preparing the demo shot (a procedural room; generated once)…", None, 0, 0, self.win)
+        dlg = QProgressDialog("Preparing the demo shot (a procedural room; generated once)…", None, 0, 0, self._dialog_parent)
         dlg.setWindowTitle("X2Video Studio")
         dlg.setWindowModality(Qt.WindowModality.WindowModal)
         dlg.setMinimumDuration(500)
         try:
             d = ensure_demo(poll=QApplication.processEvents)
         except Exception as e:
-            self.win.show_error("Cannot make the demo shot", f"{e}\n\nOpen a shot folder with File → Open shot.")
+            self.host.show_error("Cannot make the demo shot", f"{e}\n\nOpen a shot folder with File → Open shot.")
             return False
         finally:
             dlg.reset()
@@ -172,24 +176,29 @@ class ProjectController(QObject):
     def save_as(self) -> bool:
         if self.doc.shot is None:
             return False
-        path, _ = QFileDialog.getSaveFileName(self.win, "Save project", f"project{edit_ops.PROJECT_SUFFIX}", f"X2Video project (*{edit_ops.PROJECT_SUFFIX})")
+        path, _ = QFileDialog.getSaveFileName(self._dialog_parent, "Save project", f"project{PROJECT_SUFFIX}", f"X2Video project (*{PROJECT_SUFFIX})")
         return bool(path) and self.save_to(Path(path))
 
     def save_to(self, path: Path) -> bool:
         try:
-            edit_ops.save_project(path, self.doc.shot_path, self.doc.edits)
+            self._write_project(path)
         except Exception as e:
-            self.win.show_error("Cannot save project", f"{path}:\n{e}")
+            self.host.show_error("Cannot save project", f"{path}:\n{e}")
             return False
         old_side = autosave_path(self.doc.project_path, self.doc.shot_path)
         self.doc.project_path = Path(path)
-        self.win.undo.setClean()
+        self.undo.setClean()
         self.force_dirty = False
         for side in {old_side, autosave_path(self.doc.project_path, None)}:
-            edit_ops.remove_project(side)
+            remove_project(side)
         self.update_title()
-        self.win.statusBar().showMessage(f"Saved {path}", 5000)
+        self.host.status(f"Saved {path}", 5000)
         return True
+
+    def _write_project(self, path: Path) -> None:
+        if not self.doc.shot_path:
+            raise ValueError("the project has no shot file to refer to")
+        save_project(path, Project(shot=str(Path(self.doc.shot_path).resolve()), edits=self.doc.edits))
 
     def autosave(self) -> Path | None:
         """Write the side file when there are unsaved changes (timer; also callable directly)."""
@@ -197,46 +206,49 @@ class ProjectController(QObject):
             return None
         side = autosave_path(self.doc.project_path, self.doc.shot_path)
         try:
-            edit_ops.save_project(side, self.doc.shot_path, self.doc.edits)
+            self._write_project(side)
         except Exception as e:  # autosave must never interrupt the person
             log.warning("autosave to %s failed: %s", side, e)
             return None
-        self.win.statusBar().showMessage(f"Autosaved to {side}", 3000)
+        self.host.status(f"Autosaved to {side}", 3000)
         return side
 
     def shutdown(self) -> None:
         """Clean exit: nothing left to recover."""
         self.timer.stop()
         if not self.dirty:
-            edit_ops.remove_project(autosave_path(self.doc.project_path, self.doc.shot_path))
+            remove_project(autosave_path(self.doc.project_path, self.doc.shot_path))
 
     # -- export ----------------------------------------------------------------
-    def export_dialog(self, kind: str) -> None:
+    def export_dialog(self, kind: str, exposure: float | str = RenderSettings.exposure) -> None:
+        """Ask where to export (and, for EXR, whether with the edited channels), then `export`."""
         n, done = self.doc.num_frames, len(self.doc.render.frames)
         if self.doc.shot is None or done < n:
-            self.win.show_error("Nothing to export yet", f"{done} of {n} frames are rendered. Render the whole shot first.")
+            self.host.show_error("Nothing to export yet", f"{done} of {n} frames are rendered. Render the whole shot first.")
             return
         if kind == "mp4":
-            path, _ = QFileDialog.getSaveFileName(self.win, "Export MP4", "render.mp4", "MP4 video (*.mp4)")
+            path, _ = QFileDialog.getSaveFileName(self._dialog_parent, "Export MP4", "render.mp4", "MP4 video (*.mp4)")
             with_channels = False
         else:
-            path = QFileDialog.getExistingDirectory(self.win, "Export EXR sequence into folder")
-            box = QMessageBox(QMessageBox.Icon.Question, "EXR export", "Also write the edited intrinsic channels?", QMessageBox.StandardButton.Ok, self.win)
+            path = QFileDialog.getExistingDirectory(self._dialog_parent, "Export EXR sequence into folder")
+            box = QMessageBox(QMessageBox.Icon.Question, "EXR export", "Also write the edited intrinsic channels?",
+                              QMessageBox.StandardButton.Ok, self._dialog_parent)
             cb = QCheckBox("include edited albedo/normal/roughness/metallic/irradiance")
             box.setCheckBox(cb)
             box.exec()
             with_channels = cb.isChecked()
         if path:
-            self.export(kind, Path(path), with_channels)
+            self.export(kind, Path(path), with_channels, exposure)
 
-    def export(self, kind: str, path: Path, with_channels: bool = False):
-        """Export in a worker with a progress dialog; returns the worker (tests wait on `finished`)."""
+    def export(self, kind: str, path: Path, with_channels: bool = False, exposure: float | str = RenderSettings.exposure):
+        """Export in a worker with a progress dialog; returns the worker (tests wait on `finished`). `exposure`: the
+        MP4's, as the Render settings give it ("auto": the shot's own)."""
         frames = dict(self.doc.render.frames)
         shot, edits, fps = self.doc.shot, self.doc.edits, self.doc.shot.info.fps
-        dlg = QProgressDialog(f"Exporting {path.name}…", "Cancel", 0, len(frames), self.win)
+        dlg = QProgressDialog(f"Exporting {path.name}…", "Cancel", 0, len(frames), self._dialog_parent)
         dlg.setWindowTitle("Export")
         dlg.setMinimumDuration(300)
-        units = OutputUnits.for_shot(shot, self.win.render_panel.values()["exposure"])
+        units = OutputUnits.for_shot(shot, exposure)
         log.info("export %s: %s", path, units.describe())
         if kind == "mp4":
             worker = create_worker(exporter.export_mp4, frames, path, fps, units)
@@ -246,14 +258,14 @@ class ProjectController(QObject):
         dlg.canceled.connect(worker.quit)
 
         def failed(e: BaseException) -> None:
-            self.win.show_error("Export failed", f"{path}:\n{type(e).__name__}: {e}")
+            self.host.show_error("Export failed", f"{path}:\n{type(e).__name__}: {e}")
 
         def finished() -> None:
             dlg.reset()
             dlg.close()
             self.export_worker = None
             if not worker.abort_requested:
-                self.win.statusBar().showMessage(f"Exported {path}", 8000)
+                self.host.status(f"Exported {path}", 8000)
 
         worker.errored.connect(failed)
         worker.finished.connect(finished)

@@ -103,6 +103,10 @@ class Viewer(QGraphicsView):
     def tool(self) -> str:
         return self._tool
 
+    @property
+    def brush_radius(self) -> float:
+        return self._brush_radius
+
     def set_brush_radius(self, r: float) -> None:
         self._brush_radius = float(r)
 

@@ -21,7 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def write(shot, out: Path, fmt: str, *, channel: str | None = None, fps: float | None = None, bits: int = 16, overwrite: bool = False, progress=None) -> Path:
     """Write `shot` to `out` in format `fmt` (shared by `convert` and `edit`)."""
-    from x2video.io.shotdir import write_shot_folder
+    from x2video.io import write_shot_folder
     from x2video.io.writers import write_mp4, write_multilayer, write_png_sequence
 
     if fmt == "mp4":

@@ -4,7 +4,7 @@ A Cycles shot's ``ids`` channel (``IndexOB``) holds each object's ``pass_index``
 which material class each id stands for, from the shot's shot.json alone (no bpy):
 
 - the outside scenes (`x2video.cycles.outside`) write the map themselves: ``extra.material_class``;
-- the procedural Cycles rooms (generator ``x2video.cycles v1``) are rebuilt from ``extra.room_seed``
+- procedural Cycles rooms from generator ``x2video.cycles v2`` on write the map too; v1 rooms are rebuilt from ``extra.room_seed``
   (the scene description is pure numpy) with ``extra.path_traced`` (metal objects, glossy floor,
   mirror) applied as `x2video.cycles.room` applies it.
 

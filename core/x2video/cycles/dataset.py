@@ -14,6 +14,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from x2video.procedural.dataset import RoomJob
+
 log = logging.getLogger(__name__)
 
 FORMAT = "x2video-cycles-dataset"
@@ -34,13 +36,7 @@ def require_bpy() -> None:
 
 
 @dataclass
-class CyclesJob:
-    index: int
-    seed: int
-    out: str
-    frames: int
-    width: int
-    height: int
+class CyclesJob(RoomJob):
     samples: int
     #: camera metres per frame: test rooms move as the paper's paths do (0.05), training rooms faster, for more views
     speed: float = 0.05

@@ -36,6 +36,12 @@ class Extras:
     mirror: bool = False
     glass: bool = False
     samples: int = 64
+    #: (object id, base grey, roughness): dark glossy dielectrics (lacquer, black glass, polished stone)
+    lacquer: list[tuple[int, float, float]] = field(default_factory=list)
+    #: objects turned into clear glass (vases, table tops, lamps): glass that is not a window
+    glass_objects: list[int] = field(default_factory=list)
+    #: multiplier on every emissive material's strength (shades and fixtures from dim to glaring)
+    emit_gain: float = 1.0
 
 
 def extras_for(scene: Scene, seed: int) -> Extras:
@@ -52,6 +58,18 @@ def extras_for(scene: Scene, seed: int) -> Extras:
         ex.metal_objects = [(int(i), int(rng.integers(len(METALS)))) for i in rng.choice(cands, k, replace=False)]
     ex.mirror = bool(rng.random() < 0.35)
     ex.glass = bool(rng.random() < 0.5)
+    # a second stream, so that adding these left the draws above (and the rooms built before them) unchanged
+    rng2 = np.random.default_rng([seed, 0xC7C1E6])
+    metal = {i for i, _ in ex.metal_objects}
+    free = [o.id for o in scene.objects if o.category in METAL_OK and o.id not in metal]
+    if free and rng2.random() < 0.45:
+        k = int(rng2.integers(1, min(3, len(free)) + 1))
+        ex.lacquer = [(int(i), float(rng2.uniform(0.01, 0.2)), float(rng2.uniform(0.02, 0.2)))
+                      for i in rng2.choice(free, k, replace=False)]
+    free = [i for i in free if i not in {j for j, _, _ in ex.lacquer}]
+    if free and rng2.random() < 0.35:
+        ex.glass_objects = [int(i) for i in rng2.choice(free, int(rng2.integers(1, min(2, len(free)) + 1)), replace=False)]
+    ex.emit_gain = float(np.exp(rng2.uniform(np.log(0.5), np.log(4.0))))
     return ex
 
 
@@ -106,9 +124,14 @@ def _pattern(mat, bsdf, m: Material) -> None:
 
 
 def make_material(m: Material, name: str, *, roughness: float | None = None, metal: int | None = None,
-                  glass: bool = False) -> "bpy.types.Material":
-    """One Principled BSDF material for our `Material` (or a metal finish / glass standing in for it)."""
+                  glass: bool = False, lacquer: float | None = None, emit_gain: float = 1.0) -> "bpy.types.Material":
+    """One Principled BSDF material for our `Material` (or a metal finish, glass or a dark lacquer of grey
+    `lacquer` standing in for it); `emit_gain` scales its emission."""
     mat, bsdf = _principled(name)
+    if lacquer is not None:
+        bsdf.inputs["Base Color"].default_value = (*(float(lacquer) * np.asarray(m.albedo) / max(float(np.max(m.albedo)), 1e-3)), 1.0)
+        bsdf.inputs["Roughness"].default_value = float(m.roughness if roughness is None else roughness)
+        return mat
     if metal is not None:
         _, colour, (r0, r1) = METALS[metal]
         bsdf.inputs["Base Color"].default_value = (*colour, 1.0)
@@ -127,7 +150,7 @@ def make_material(m: Material, name: str, *, roughness: float | None = None, met
         _pattern(mat, bsdf, m)
     if float(np.max(m.emission)) > 0:
         _set(bsdf, ("Emission Color", "Emission"), (*map(float, m.emission / max(float(np.max(m.emission)), 1e-6)), 1.0))
-        _set(bsdf, ("Emission Strength",), float(np.max(m.emission)))
+        _set(bsdf, ("Emission Strength",), float(np.max(m.emission)) * float(emit_gain))
     return mat
 
 
@@ -277,11 +300,37 @@ def mirror_object(scene: Scene, seed: int, next_id: int, frame_mat: int) -> Scen
     return None
 
 
+def _class_of(scene: Scene, obj: SceneObject, extras: Extras) -> str:
+    """The material class (`x2video.cycles.classes`) of `obj` as `build_room` builds it."""
+    from x2video.cycles.classes import classify
+
+    if obj.category == "mirror":
+        return "metal"
+    parts = [p for p in obj.parts if not scene.materials[p.material].sky]
+    if any(float(np.max(scene.materials[p.material].emission)) > 0 for p in parts):
+        return "emitter"
+    if obj.id in dict(extras.metal_objects):
+        return "metal"
+    if obj.id in extras.glass_objects:
+        return "glass"
+    lacquer = {i: r for i, _, r in extras.lacquer}
+    if obj.id in lacquer:
+        return classify(roughness=lacquer[obj.id])
+    if obj.category == "floor" and extras.glossy_floor is not None:
+        return classify(roughness=float(extras.glossy_floor))
+    main = scene.materials[parts[0].material]
+    return classify(roughness=float(main.roughness), metallic=float(main.metallic))
+
+
 def build_room(scene: Scene, extras: Extras) -> dict:
-    """Clear the Blender file and build `scene` with `extras`. Returns {'captions': {id: caption}, 'extras': summary}."""
+    """Clear the Blender file and build `scene` with `extras`.
+    Returns {'captions': {id: caption}, 'extras': summary, 'material_class': {id: class}}."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     metal_of = dict(extras.metal_objects)
+    lacquer_of = {i: (grey, r) for i, grey, r in extras.lacquer}
+    glass_ids = set(extras.glass_objects)
     captions = {}
+    classes: dict[int, str] = {}
     cache: dict[tuple, object] = {}
 
     def mat_for(mi: int, obj: SceneObject):
@@ -291,8 +340,14 @@ def build_room(scene: Scene, extras: Extras) -> dict:
         is_main = mi == obj.parts[0].material
         key: tuple = (mi,)
         kw: dict = {}
-        if obj.id in metal_of and is_main:
+        if float(np.max(m.emission)) > 0:
+            key, kw = (mi, "emit"), {"emit_gain": extras.emit_gain}
+        elif obj.id in metal_of and is_main:
             key, kw = (mi, "metal", metal_of[obj.id]), {"metal": metal_of[obj.id]}
+        elif obj.id in lacquer_of and is_main:
+            key, kw = (mi, "lacquer", obj.id), {"lacquer": lacquer_of[obj.id][0], "roughness": lacquer_of[obj.id][1]}
+        elif obj.id in glass_ids and is_main:
+            key, kw = (mi, "glass"), {"glass": True}
         elif obj.category == "floor" and extras.glossy_floor is not None:
             key, kw = (mi, "gloss"), {"roughness": extras.glossy_floor}
         if key not in cache:
@@ -327,7 +382,10 @@ def build_room(scene: Scene, extras: Extras) -> dict:
         caption = obj.caption
         if obj.id in metal_of:
             caption = f"a {METALS[metal_of[obj.id]][0]} {obj.category}"
+        elif obj.id in glass_ids:
+            caption = f"a glass {obj.category}"
         captions[obj.id] = caption
+        classes[obj.id] = _class_of(scene, obj, extras)
     if glass_mat is not None:  # a pane in every window, in the wall's middle
         for op in scene.openings:
             if op.kind != "window":
@@ -340,4 +398,7 @@ def build_room(scene: Scene, extras: Extras) -> dict:
     set_world(scene)
     return {"captions": captions, "extras": {"glossy_floor": extras.glossy_floor,
                                              "metal": [[i, METALS[k][0]] for i, k in extras.metal_objects],
-                                             "mirror": bool(extras.mirror and mirror_mat is not None), "glass": extras.glass}}
+                                             "mirror": bool(extras.mirror and mirror_mat is not None), "glass": extras.glass,
+                                             "lacquer": [[i, g, r] for i, g, r in extras.lacquer],
+                                             "glass_objects": list(extras.glass_objects), "emit_gain": extras.emit_gain},
+            "material_class": {int(k): v for k, v in sorted(classes.items())}}

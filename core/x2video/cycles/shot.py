@@ -21,14 +21,14 @@ import numpy as np
 from x2video.cycles.passes import compositor_output, configure_view_layer, wire_all_materials
 from x2video.cycles.room import build_room, extras_for
 from x2video.io.atomic import write_json_atomic
-from x2video.io.shotdir import FORMAT_NAME, FORMAT_VERSION, cameras_json
+from x2video.io.metadata import FORMAT_NAME, FORMAT_VERSION, cameras_json
 from x2video.procedural.camera import PathConfig, camera_path
 from x2video.procedural.scene import generate_scene
 from x2video.shot import CameraPose
 
 log = logging.getLogger(__name__)
 
-GENERATOR = "x2video.cycles v1"
+GENERATOR = "x2video.cycles v2"
 
 
 @dataclass
@@ -202,6 +202,7 @@ def write_room_shot(out_dir: str | Path, seed: int, num_frames: int, width: int,
         "irradiance_normalized": False,
         "extra": {"room_seed": int(seed), "light_mood": light.mood, "room_type": scene_desc.room_type, "style": scene_desc.style,
                   "generator": GENERATOR, "renderer": f"Cycles (Blender {bpy.app.version_string})", "samples": cfg.samples,
-                  "denoise": cfg.denoise, "light_gain": gain, "path_traced": built["extras"]},
+                  "denoise": cfg.denoise, "light_gain": gain, "path_traced": built["extras"],
+                  "material_class": {str(k): v for k, v in built["material_class"].items()}},
     })
     return out

@@ -3,11 +3,12 @@ from x2video.edits.apply import apply_edits, fit_image, resolve_reference
 from x2video.edits.masks import Mask
 from x2video.edits.model import Edits, Reference
 from x2video.edits.ops import OPS, AlbedoHSV, AlbedoSet, AlbedoTint, Exposure, LightTint, MaskOut, Op, ScalarOp, op_from_dict
-from x2video.edits.project import Project, load_project, save_project
+from x2video.edits.project import PROJECT_SUFFIX, Project, is_project_file, load_project, remove_project, save_project
 from x2video.edits.propagate import propagate_mask
+from x2video.edits.tuning import NEUTRAL_TUNING
 
 __all__ = [
-    "OPS", "AlbedoHSV", "AlbedoSet", "AlbedoTint", "Edits", "Exposure", "LightTint", "Mask", "MaskOut", "Op",
-    "Project", "Reference", "ScalarOp", "apply_edits", "fit_image", "load_project", "op_from_dict",
-    "propagate_mask", "resolve_reference", "save_project",
+    "NEUTRAL_TUNING", "OPS", "PROJECT_SUFFIX", "AlbedoHSV", "AlbedoSet", "AlbedoTint", "Edits", "Exposure", "LightTint", "Mask",
+    "MaskOut", "Op", "Project", "Reference", "ScalarOp", "apply_edits", "fit_image", "is_project_file", "load_project",
+    "op_from_dict", "propagate_mask", "remove_project", "resolve_reference", "save_project",
 ]

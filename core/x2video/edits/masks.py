@@ -1,7 +1,8 @@
 """`Mask`: a per-frame region for local edits and local prompts (painted, propagated, or from object ids).
 
 Mutation is deliberately small so an undo stack can wrap it: `paint(t, array)` replaces one
-frame's painted array, `erase(t)` removes it, `ids` is a plain list to assign. Arrays are never
+frame's painted array, `erase(t)` removes it (`set_painted` picks between them, `paint_frames` paints
+many), `ids` is a plain list to assign (`add_id` appends one). Arrays are never
 modified in place by this module; `paint` stores a float32 copy.
 """
 from __future__ import annotations
@@ -45,6 +46,28 @@ class Mask:
     def erase(self, t: int) -> None:
         """Remove frame `t`'s painted array (no-op when it has none)."""
         self.frames.pop(int(t), None)
+
+    def paint_frames(self, frames: dict[int, np.ndarray]) -> None:
+        """`paint` each frame of `frames` (what a propagation computed)."""
+        for t, a in frames.items():
+            self.paint(t, a)
+
+    def set_painted(self, t: int, array: np.ndarray) -> None:
+        """`paint` frame `t`, or `erase` it when `array` covers nothing (what a brush or an eraser leaves)."""
+        if np.any(array):
+            self.paint(t, array)
+        else:
+            self.erase(t)
+
+    def painted(self, t: int, size: tuple[int, int]) -> np.ndarray:
+        """A copy of frame `t`'s painted array, zeros of `size` (H, W) when it has none: what a brush starts from."""
+        a = self.frames.get(int(t))
+        return np.zeros(size, np.float32) if a is None else a.copy()
+
+    def add_id(self, oid: int) -> None:
+        """Put object `oid` inside the mask on every frame (no-op when it is already)."""
+        if oid not in self.ids:
+            self.ids = [*self.ids, int(oid)]
 
     def painted_frames(self) -> list[int]:
         return sorted(self.frames)

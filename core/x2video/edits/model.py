@@ -1,26 +1,31 @@
 """`Edits`: everything a person did to a shot, as plain serialisable data (masks, ops, drops, prompts, reference).
 
-Mutation, in the style an undo stack needs:
-- masks: ``edits.masks[name] = Mask()``, ``edits.masks[name].paint(t, array)``, ``del edits.masks[name]``
-  (ops and local prompts that name a removed mask are errors at apply time; `rename_mask` and
-  `remove_mask` keep them consistent);
+Masks are addressed by name (the key of `edits.masks`), ops by the mask they name. Mutation, in the style an
+undo stack needs:
+- masks: `add_mask`, `rename_mask`, `remove_mask` (these keep the ops and local prompts that name a mask
+  consistent); a mask's frames and object ids through its `Mask` (``edits.masks[name].paint(t, array)``);
 - ops: ``edits.ops.append(op)`` / ``edits.ops[i] = op`` / ``del edits.ops[i]``, applied in list order;
-- ``edits.dropped`` (set of intrinsic channel names), ``edits.global_prompt``,
-  ``edits.local_prompts[mask_name] = "text"`` (local prompts are bound to masks),
-  ``edits.reference = Reference(...)`` or None.
+  `set_tuning` / `reset_tuning` replace a target's tuning ops, `set_masked_out` its `MaskOut`;
+- `set_dropped` (``edits.dropped`` is a set of intrinsic channel names), ``edits.global_prompt``,
+  `set_local_prompt` (local prompts are bound to masks), ``edits.reference = Reference(...)`` or None.
 Snapshots for undo: ``copy.deepcopy(edits)``; equality compares arrays by value.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from x2video.channels import INTRINSIC
 from x2video.conditioning import Prompts
 from x2video.edits.masks import Mask
-from x2video.edits.ops import Op, op_from_dict
+from x2video.edits.ops import MaskOut, Op, op_from_dict
+from x2video.edits.tuning import NEUTRAL_TUNING, TUNING_OPS, ops_for, tuning_of, with_value
+
+if TYPE_CHECKING:
+    from x2video.shot import Shot
 
 _EDIT_FIELDS = {"masks", "ops", "dropped", "global_prompt", "local_prompts", "reference"}
 
@@ -48,6 +53,12 @@ class Reference:
     def position(self) -> int:
         """The shot frame the reference sits at."""
         return self.frame if self.frame is not None else (self.at or 0)
+
+    def describe(self) -> str:
+        """One line for a person: which image or shot frame, and where it sits."""
+        if self.path is not None:
+            return f"Image {Path(self.path).name} (placed at frame {self.position})"
+        return f"Shot frame {self.frame} (rgb channel)"
 
     def to_dict(self) -> dict[str, Any]:
         if self.path is None:
@@ -79,6 +90,21 @@ class Edits:
     local_prompts: dict[str, str] = field(default_factory=dict)
     reference: Reference | None = None
 
+    @classmethod
+    def for_shot(cls, shot: "Shot | None") -> "Edits":
+        """No edits yet; the global prompt starts as the shot's caption."""
+        return cls(global_prompt=shot.info.caption if shot is not None and shot.info.caption else "")
+
+    # -- masks --------------------------------------------------------------------------------
+    def add_mask(self, name: str) -> str:
+        """Add an empty mask named `name`, or `name (2)`, `name (3)` ... when taken; returns the name given."""
+        base, k = name, 2
+        while name in self.masks:
+            name = f"{base} ({k})"
+            k += 1
+        self.masks[name] = Mask()
+        return name
+
     def local_prompt_masks(self) -> list[str]:
         """Names of the masks that carry a (non-empty) local prompt, in `prompts().local` order."""
         return [name for name, text in self.local_prompts.items() if text.strip()]
@@ -104,6 +130,61 @@ class Edits:
         self.masks.pop(name)
         self.local_prompts.pop(name, None)
         self.ops = [op for op in self.ops if op.mask != name]
+
+    def local_prompt(self, mask: str) -> str:
+        """The local prompt bound to `mask` ("" when none)."""
+        return self.local_prompts.get(mask, "")
+
+    def set_local_prompt(self, mask: str, text: str) -> None:
+        """Bind `text` to `mask` as its local prompt; blank text removes it."""
+        self._mask(mask)
+        if text.strip():
+            self.local_prompts[mask] = text
+        else:
+            self.local_prompts.pop(mask, None)
+
+    def masked_out(self, mask: str) -> bool:
+        """Whether a `MaskOut` op (the paper's "mask A|M|R") is bound to `mask`."""
+        return any(isinstance(op, MaskOut) and op.mask == mask for op in self.ops)
+
+    def set_masked_out(self, mask: str, on: bool) -> None:
+        """Bind a `MaskOut` op to `mask` (appended), or remove it."""
+        self._mask(mask)
+        self.ops = [op for op in self.ops if not (isinstance(op, MaskOut) and op.mask == mask)]
+        if on:
+            self.ops.append(MaskOut(mask=mask))
+
+    def set_dropped(self, channel: str, on: bool) -> None:
+        """Drop an intrinsic channel from the model's input, or keep it."""
+        if channel not in INTRINSIC:
+            raise ValueError(f"unknown channel {channel!r} (one of {', '.join(INTRINSIC)})")
+        (self.dropped.add if on else self.dropped.discard)(channel)
+
+    def _mask(self, name: str | None) -> None:
+        if name is not None and name not in self.masks:
+            raise KeyError(f"no mask {name!r}")
+
+    # -- parametric tuning (see x2video.edits.tuning) -------------------------------------------
+    def tuning(self, mask: str | None) -> dict[str, Any]:
+        """The tuning values of `mask` (None: the whole frame), read from its ops (colours sRGB)."""
+        self._mask(mask)
+        return tuning_of(self.ops, mask)
+
+    def set_tuning(self, mask: str | None, key: str, value: Any) -> None:
+        """Set one tuning value of `mask` (None: the whole frame); its ops are rewritten in place."""
+        self._replace_tuning(mask, with_value(self.tuning(mask), key, value))
+
+    def reset_tuning(self, mask: str | None) -> None:
+        """Remove the tuning ops of `mask` (None: the whole frame)."""
+        self._mask(mask)
+        self._replace_tuning(mask, dict(NEUTRAL_TUNING))
+
+    def _replace_tuning(self, mask: str | None, values: dict[str, Any]) -> None:
+        """The target's tuning ops become `ops_for(values)`, where its first one stood (else at the end)."""
+        mine = {k for k, op in enumerate(self.ops) if op.mask == mask and isinstance(op, TUNING_OPS)}
+        rest = [op for k, op in enumerate(self.ops) if k not in mine]
+        at = min(min(mine, default=len(self.ops)), len(rest))
+        self.ops = rest[:at] + ops_for(values, mask) + rest[at:]
 
     def validate(self) -> None:
         """Raise ValueError when something names a missing mask or channel."""

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import hashlib
 import io
+import json
 import os
+import shutil
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,10 +20,12 @@ import numpy as np
 
 from x2video.edits.model import Edits
 from x2video.io.atomic import write_bytes_atomic, write_json_atomic
-from x2video.io.shotdir import read_json
+from x2video.io.metadata import read_json
 
 PROJECT_FORMAT = "x2video-project"
 PROJECT_VERSION = 1
+#: the file name ending a project is saved under (loading reads any .json that holds one)
+PROJECT_SUFFIX = ".x2v.json"
 _FIELDS = {"format", "version", "shot", "edits", "mask_files"}
 
 
@@ -116,6 +120,25 @@ def load_project(path: str | Path) -> Project:
     if not shot.is_absolute():
         shot = (path.parent / shot).resolve()
     return Project(shot=str(shot), edits=edits)
+
+
+def is_project_file(path: str | Path) -> bool:
+    """Whether `path` is a JSON file that says it is a project (not a shot's shot.json, not anything else)."""
+    path = Path(path)
+    if not (path.is_file() and path.suffix == ".json" and path.name != "shot.json"):
+        return False
+    try:
+        with open(path, encoding="utf-8") as f:
+            head = json.load(f)
+    except (OSError, ValueError):
+        return False
+    return isinstance(head, dict) and head.get("format") == PROJECT_FORMAT
+
+
+def remove_project(path: str | Path) -> None:
+    """Delete a project file and its mask folder (no error when they are gone already)."""
+    Path(path).unlink(missing_ok=True)
+    shutil.rmtree(masks_dir(path), ignore_errors=True)
 
 
 def _read_masks(file: Path, where: str) -> dict[int, np.ndarray]:

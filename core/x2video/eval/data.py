@@ -96,7 +96,7 @@ def load_eval_shots(
 ) -> list[EvalShot]:
     """The first `rooms` shots of `data_dir/split` (sorted by name), each cut to `frames` frames and
     resized to `size` = (W, H). Every shot must carry rgb (ground truth)."""
-    from x2video.io.shotdir import load_shot
+    from x2video.io import load_shot
     from x2video.metrics import read_motion
     from x2video.train.data import shot_dirs
 

@@ -142,3 +142,8 @@ def exposure_scale(log_sum: float, count: int) -> float:
         return 1.0
     lum_mean = float(np.exp(log_sum / count))
     return 0.18 / max(lum_mean, 1e-6)
+
+
+def scale_irradiance(name: str, a: np.ndarray, scale: float) -> np.ndarray:
+    """Channel `name`'s frame `a` with a shot's irradiance normalisation `scale` applied (only irradiance changes)."""
+    return a * np.float32(scale) if name == "irradiance" and scale != 1.0 else a

@@ -16,10 +16,10 @@ import numpy as np
 
 from x2video.channels import SPECS
 from x2video.io.cache import LRU
-from x2video.io.convention import exposure_scale, log_luminance_sum, sanitize, to_memory, zero_nonfinite
+from x2video.io.convention import exposure_scale, log_luminance_sum, sanitize, scale_irradiance, to_memory, zero_nonfinite
 from x2video.io.image import ImageData, read_image, read_spec
+from x2video.io.metadata import find_poses, parse_shot_json
 from x2video.io.sequence import find_frames
-from x2video.io.shotdir import find_poses, parse_shot_json
 from x2video.shot import Shot, ShotInfo
 
 log = logging.getLogger(__name__)
@@ -200,11 +200,7 @@ class FolderShot(Shot):
             a = _packed_component(img, self._packed[name], name, f"{path} (frame {t})")
         else:
             a = to_memory(name, img, where=f"{path} (frame {t})")
-        if name == "irradiance":
-            s = self.info.irradiance_scale if scale is None else scale
-            if s != 1.0:
-                a = a * np.float32(s)
-        return a
+        return scale_irradiance(name, a, self.info.irradiance_scale if scale is None else scale)
 
     def _read(self, name: str, t: int) -> np.ndarray:
         return self._cache.get_or((name, t), lambda: self._decode(name, t))

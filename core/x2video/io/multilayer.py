@@ -25,10 +25,10 @@ import numpy as np
 
 from x2video.channels import SPECS
 from x2video.io.cache import LRU
-from x2video.io.convention import exposure_scale, log_luminance_sum, normalize, sanitize, zero_nonfinite
+from x2video.io.convention import exposure_scale, log_luminance_sum, normalize, sanitize, scale_irradiance, zero_nonfinite
 from x2video.io.image import ImageData, read_image, read_spec
+from x2video.io.metadata import find_poses, parse_shot_json
 from x2video.io.sequence import find_frames
-from x2video.io.shotdir import find_poses, parse_shot_json
 from x2video.shot import Shot, ShotInfo
 
 log = logging.getLogger(__name__)
@@ -208,9 +208,7 @@ class MultilayerShot(Shot):
         if ch == "normal" and self._world_normals and self.info.poses is not None:
             r = np.asarray(self.info.poses[t].cam_to_world, np.float32)[:3, :3]
             a = normalize(a) @ r  # (H, W, 3): n_cam = R^T n_world, row-vector form
-        if ch == "irradiance" and scale != 1.0:
-            a = a * np.float32(scale)
-        return sanitize(ch, a, where, check_finite=False)
+        return sanitize(ch, scale_irradiance(ch, a, scale), where, check_finite=False)
 
     def _read(self, name: str, t: int) -> np.ndarray:
         return self._cache.get_or(t, lambda: self._frame(t))[name]

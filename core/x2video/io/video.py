@@ -27,9 +27,9 @@ import numpy as np
 
 from x2video.channels import SPECS
 from x2video.io.cache import LRU
-from x2video.io.convention import exposure_scale, log_luminance_sum, sanitize, to_memory
+from x2video.io.convention import exposure_scale, log_luminance_sum, sanitize, scale_irradiance, to_memory
 from x2video.io.image import ImageData
-from x2video.io.shotdir import find_poses, parse_shot_json
+from x2video.io.metadata import find_poses, parse_shot_json
 from x2video.shot import Shot, ShotInfo
 
 log = logging.getLogger(__name__)
@@ -245,11 +245,7 @@ class VideoShot(Shot):
         img = ImageData(path=str(path), width=rgb.shape[1], height=rgb.shape[0], channel_names=("R", "G", "B"),
                         planes=planes, format="uint8", max_int=255)
         a = to_memory(name, img, where=where)
-        if name == "irradiance":
-            s = self.info.irradiance_scale if scale is None else scale
-            if s != 1.0:
-                a = a * np.float32(s)
-        return a
+        return scale_irradiance(name, a, self.info.irradiance_scale if scale is None else scale)
 
     def _read(self, name: str, t: int) -> np.ndarray:
         return self._cache.get_or((name, t), lambda: self._decode(name, t))

@@ -14,7 +14,8 @@ import numpy as np
 from x2video.channels import SPECS, linear_to_srgb, tonemap
 from x2video.io.atomic import atomic_path, write_json_atomic
 from x2video.io.image import write_exr, write_ldr
-from x2video.io.shotdir import cameras_json, frame_name, shot_json
+from x2video.io.metadata import cameras_json, shot_json
+from x2video.io.shotdir import frame_name
 from x2video.io.units import OutputUnits
 from x2video.shot import Shot
 

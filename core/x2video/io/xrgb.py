@@ -20,7 +20,7 @@ import numpy as np
 
 from x2video.channels import INTRINSIC, SPECS
 from x2video.io.cache import LRU
-from x2video.io.convention import exposure_scale, log_luminance_sum, to_memory
+from x2video.io.convention import exposure_scale, log_luminance_sum, scale_irradiance, to_memory
 from x2video.io.image import IMAGE_EXTENSIONS, read_image, read_spec
 from x2video.shot import Shot, ShotInfo
 
@@ -115,12 +115,9 @@ class XRGBShot(Shot):
         if (img.height, img.width) != (self.info.height, self.info.width):
             raise ValueError(f"{path}: size {img.width}x{img.height}, the shot is {self.info.width}x{self.info.height}")
         a = to_memory(name, img, ldr_decode="srgb" if name == "rgb" else "gamma2.2", where=f"{path} (frame {t})")
-        if name == "irradiance":
-            s = self.info.irradiance_scale if scale is None else scale
-            if s != 1.0:
-                a = a * np.float32(s)
-            if scale is None:
-                a = np.clip(a, 0.0, 1.0)  # the release clamps irradiance to [0, 1]
+        a = scale_irradiance(name, a, self.info.irradiance_scale if scale is None else scale)
+        if name == "irradiance" and scale is None:
+            a = np.clip(a, 0.0, 1.0)  # the release clamps irradiance to [0, 1]
         return a
 
     def _read(self, name: str, t: int) -> np.ndarray:

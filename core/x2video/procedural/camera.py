@@ -35,15 +35,20 @@ class PathConfig:
     min_view_depth: float = 1.8
 
 
+def look_along(eye: np.ndarray, forward: np.ndarray, world_up: list[float]) -> np.ndarray:
+    """OpenGL camera-to-world (4, 4) at `eye` looking along the unit vector `forward` (the camera's -z), its +y
+    as close to `world_up` as the view allows."""
+    x = np.cross(forward, world_up)
+    x /= np.linalg.norm(x)
+    y = np.cross(x, forward)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = x, y, -forward, eye
+    return m
+
+
 def look_matrix(pos: np.ndarray, yaw: float, pitch: float) -> np.ndarray:
     """OpenGL camera-to-world (4, 4): camera looks along (cos p cos y, sin p, cos p sin y), +Y up."""
-    f = np.array([np.cos(pitch) * np.cos(yaw), np.sin(pitch), np.cos(pitch) * np.sin(yaw)])
-    x = np.cross(f, [0.0, 1.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(x, f)
-    m = np.eye(4)
-    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = x, y, -f, pos
-    return m
+    return look_along(pos, np.array([np.cos(pitch) * np.cos(yaw), np.sin(pitch), np.cos(pitch) * np.sin(yaw)]), [0.0, 1.0, 0.0])
 
 
 def free(scene: Scene, xz: np.ndarray, clearance: float) -> np.ndarray:

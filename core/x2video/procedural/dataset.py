@@ -55,7 +55,9 @@ def is_done(path: Path) -> bool:
 
 
 @dataclass
-class _Job:
+class RoomJob:
+    """One room of a data set for a worker to render: its index, seed, folder, frame count and size."""
+
     index: int
     seed: int
     out: str
@@ -67,7 +69,7 @@ class _Job:
 _RENDERER = None
 
 
-def _work(job: _Job) -> tuple[int, float]:
+def _work(job: RoomJob) -> tuple[int, float]:
     """Worker: render one room with this process's renderer (one EGL context per process)."""
     global _RENDERER
     from x2video.procedural.renderer import ProceduralRenderer
@@ -94,7 +96,7 @@ def make_dataset(out: str | Path, rooms: int, frames: int, size: tuple[int, int]
     out = Path(out)
     settings = {"rooms": rooms, "frames": frames, "width": width, "height": height, "seed": seed, "test_every": test_every}
     meta = begin_dataset(out, settings, "x2video-procedural-dataset")
-    jobs = [_Job(i, room_seed(seed, i), str(room_dir(out, i, test_every)), frames, width, height) for i in range(rooms)]
+    jobs = [RoomJob(i, room_seed(seed, i), str(room_dir(out, i, test_every)), frames, width, height) for i in range(rooms)]
     todo = [j for j in jobs if not is_done(Path(j.out))]
     log.info("%d rooms, %d already done, %d to render with %d worker(s)", len(jobs), len(jobs) - len(todo), len(todo), workers)
     done = len(jobs) - len(todo)

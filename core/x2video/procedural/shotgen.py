@@ -7,7 +7,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from x2video.channels import ALL
-from x2video.io.shotdir import ShotWriter
+from x2video.io import ShotWriter
 from x2video.procedural.camera import PathConfig, camera_path
 from x2video.procedural.motion import motion_field
 from x2video.procedural.renderer import ProceduralRenderer, RenderConfig

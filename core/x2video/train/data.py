@@ -30,8 +30,8 @@ def shot_dirs(data_dir: str | Path, split: str) -> list[Path]:
 
 
 def open_split(data_dir: str | Path, split: str) -> list[Shot]:
-    """Lazily opened shots of one split (`x2video.io.shotdir.load_shot`)."""
-    from x2video.io.shotdir import load_shot
+    """Lazily opened shots of one split (`x2video.io.load_shot`)."""
+    from x2video.io import load_shot
 
     return [load_shot(p) for p in shot_dirs(data_dir, split)]
 

@@ -51,6 +51,9 @@ class ResidualTrainConfig:
     """Weight of the log1p-space L1 beside the display-space L1."""
     noisy_p: float = 0.3
     """Probability that a crop's irradiance is the sampled (noisy) one the shot keeps beside the denoised one."""
+    exposure_aug: float = 2.0
+    """Each crop's light is scaled by a random gain in [1/a, a] (irradiance and target alike), so the net does
+    not key on the level the exposure normaliser happened to choose for a shot (1: off)."""
     val_every: int = 250
     """Validate on the held-out shots (full frames) every this many steps."""
     ckpt_every: int = 250
@@ -130,9 +133,12 @@ class Frames:
     `noisy_p` > 0 a crop takes the frame's sampled (noisy) irradiance instead of the denoised one with
     that probability, where the shot has it (noise augmentation: users' passes are often not denoised)."""
 
-    def __init__(self, files: list[Path], noisy_p: float = 0.0):
+    def __init__(self, files: list[Path], noisy_p: float = 0.0, exposure_aug: float = 1.0):
         self.x, self.y, self.scale, self.shot, self.noisy = [], [], [], [], []
         self.noisy_p = noisy_p
+        if exposure_aug < 1:
+            raise ValueError(f"exposure_aug must be >= 1 (a gain range [1/a, a]), got {exposure_aug}")
+        self.exposure_aug = exposure_aug
         for i, f in enumerate(files):
             d = np.load(f)
             for t in range(d["x"].shape[0]):
@@ -158,6 +164,10 @@ class Frames:
             x, y = x[:, r:r + s, c:c + s].astype(np.float32), y[:, r:r + s, c:c + s].astype(np.float32)
             if self.noisy[i] is not None and rng.random() < self.noisy_p:
                 x[NOISY_PLANES] = self.noisy[i][:, r:r + s, c:c + s]
+            if self.exposure_aug > 1:  # the same scene under a brighter or dimmer light: log planes and target alike
+                g = float(np.exp(rng.uniform(-1, 1) * np.log(self.exposure_aug)))
+                x[NOISY_PLANES] = np.log1p(g * np.expm1(x[NOISY_PLANES]))
+                y = y * g
             if rng.random() < 0.5:  # mirror left-right: the camera-space normal's x changes sign
                 x, y = x[:, :, ::-1].copy(), y[:, :, ::-1].copy()
                 x[3] = -x[3]
@@ -197,7 +207,7 @@ def train(data: Path, out: Path, cfg: ResidualTrainConfig, *, threads: int = 2, 
     val_files = [cache_shot(p, cache) for p in shot_dirs(data, val_split)]
     if not train_files:
         raise ValueError(f"{data}: no finished shots in train/ (make them with `x2video dataset make --renderer cycles`)")
-    tr, va = Frames(train_files, cfg.noisy_p), (Frames(val_files) if val_files else None)
+    tr, va = Frames(train_files, cfg.noisy_p, cfg.exposure_aug), (Frames(val_files) if val_files else None)
     torch.manual_seed(cfg.seed)
     net = R.ResidualNet(R.ResidualConfig(widths=tuple(cfg.widths)))
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=1e-4)

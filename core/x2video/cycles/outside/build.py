@@ -12,6 +12,7 @@ import numpy as np
 from mathutils import Matrix
 
 from x2video.cycles.classes import classify
+from x2video.procedural.camera import look_along
 
 Vec = tuple[float, float, float]
 
@@ -228,12 +229,7 @@ def look_at(loc: Vec, target: Vec) -> np.ndarray:
     eye, tgt = np.asarray(loc, float), np.asarray(target, float)
     fwd = tgt - eye
     fwd /= np.linalg.norm(fwd)
-    right = np.cross(fwd, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, fwd)
-    m = np.eye(4)
-    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = right, up, -fwd, eye
-    return m
+    return look_along(eye, fwd, [0.0, 0.0, 1.0])
 
 
 def camera_poses(spec: SceneSpec, num_frames: int) -> list[np.ndarray]:

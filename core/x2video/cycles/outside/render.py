@@ -19,7 +19,7 @@ from x2video.cycles.outside.build import Builder, add_camera, camera_poses
 from x2video.cycles.passes import wire_all_materials
 from x2video.cycles.shot import CyclesConfig, exposure_gain, render_frames, scale_lights, setup_render
 from x2video.io.atomic import write_json_atomic
-from x2video.io.shotdir import FORMAT_NAME, FORMAT_VERSION, cameras_json
+from x2video.io.metadata import FORMAT_NAME, FORMAT_VERSION, cameras_json
 from x2video.shot import CameraPose
 
 
