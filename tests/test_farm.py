@@ -20,7 +20,7 @@ import pytest
 from x2video.cli import main
 from x2video.cli.fields import to_flags
 from x2video.farm import find_jobs, run_farm, state
-from x2video.farm.openjd import SPECIFICATION, job_template, write_templates
+from x2video.farm.openjd import SPECIFICATION, write_templates
 from x2video.io import write_shot_folder
 from x2video.sampling.events import RenderSettings
 from x2video.shot import ArrayShot
@@ -43,7 +43,8 @@ def make_shot(path: Path, frames: int, seed: int) -> Path:
 def frames_of(folder: Path) -> dict[str, np.ndarray]:
     from x2video.io.image import read_image
 
-    return {p.name: read_image(p).pixels for p in sorted(folder.glob("*.exr"))}
+    images = {p.name: read_image(p) for p in sorted(folder.glob("*.exr"))}
+    return {name: np.stack([im.planes[c] for c in im.channel_names], -1) for name, im in images.items()}
 
 
 def assert_same_frames(a: Path, b: Path) -> None:

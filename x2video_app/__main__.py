@@ -1,4 +1,5 @@
-"""Entry point of the desktop editor: ``python -m x2video_app [SHOT|PROJECT]``."""
+"""Entry point of the desktop editor: ``python -m x2video_app [SHOT|PROJECT]``; ``--selftest [SHOT]`` opens it
+offscreen, renders two frames and exits 0 (`x2video_app.selftest`, for checking a bundle)."""
 import sys
 
 
@@ -6,9 +7,14 @@ def main(argv=None) -> int:
     import multiprocessing
 
     multiprocessing.freeze_support()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if "--selftest" in argv:
+        from x2video_app.selftest import run as selftest  # Qt imported lazily, only when the app starts
+
+        return selftest([a for a in argv if a != "--selftest"])
     from x2video_app.main_window import run  # Qt imported lazily, only when the app starts
 
-    return run(sys.argv[1:] if argv is None else argv)
+    return run(argv)
 
 
 if __name__ == "__main__":
