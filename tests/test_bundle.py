@@ -24,6 +24,7 @@ def _selftest(args, tmp_path, **env):
 def test_selftest_renders_two_frames_with_the_shipped_weights(tmp_path):
     pytest.importorskip("PySide6")
     from app_helpers import make_shot_dir
+
     from x2video.weights import shipped_weights
 
     if shipped_weights() is None:
