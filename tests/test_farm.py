@@ -163,12 +163,10 @@ def test_farm_openjd_flag_writes_templates_without_ray(tmp_path, capsys):
 
 # --- on a local Ray cluster of 2 workers ----------------------------------------------------------------------
 
-ray = pytest.importorskip("ray")
-
-
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
     """A local Ray cluster with 2 CPUs (2 worker processes at a time), a small object store, no dashboard."""
+    ray = pytest.importorskip("ray")
     ray.init(num_cpus=2, object_store_memory=80 * 1024**2, include_dashboard=False, log_to_driver=False,
              _temp_dir=str(tmp_path_factory.mktemp("ray")))
     yield
