@@ -8,6 +8,12 @@ def main(argv=None) -> int:
 
     multiprocessing.freeze_support()
     argv = sys.argv[1:] if argv is None else list(argv)
+    if len(argv) >= 2 and argv[0] == "--run-module":  # a frozen bundle's `python -m MODULE ARGS` (x2video_app.demo uses it)
+        import runpy
+
+        sys.argv = argv[1:]
+        runpy.run_module(argv[1], run_name="__main__", alter_sys=True)
+        return 0
     if "--selftest" in argv:
         from x2video_app.selftest import run as selftest  # Qt imported lazily, only when the app starts
 
