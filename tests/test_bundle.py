@@ -70,3 +70,11 @@ def test_bundle_builds_and_passes_its_selftest(tmp_path):
     assert list(out.rglob("x2video-tiny/config.json")) and list(out.rglob("libqoffscreen.so"))
     info = subprocess.run([str(out / "x2video"), "render", "--help"], capture_output=True, text=True, env={"PATH": "/usr/bin:/bin"}, timeout=600)
     assert info.returncode == 0 and "Seed of the initial noise" in info.stdout  # flag help from the bundled sources
+
+
+def test_run_module_runs_a_module_through_the_editor_entry_point():
+    """What a frozen bundle's editor does for `python -m MODULE` (it makes the demo shot that way): here `x2video --help`."""
+    p = subprocess.run([sys.executable, "-m", "x2video_app", "--run-module", "x2video", "info", "--help"], capture_output=True, text=True,
+                       timeout=300)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.startswith("usage: x2video info")
