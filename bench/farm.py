@@ -36,7 +36,7 @@ def measure(args: argparse.Namespace) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         for i in range(args.shots):
-            write_procedural_shot(root / "shots" / f"room_{i:02d}", 100 + i, args.frames, w, h)
+            write_procedural_shot(root / "shots" / f"room_{i:02d}", 100 + i, args.shot_frames, w, h)
         jobs = find_jobs([root / "shots"])
         for workers in args.workers:
             t0 = time.perf_counter()
@@ -58,7 +58,7 @@ def measure(args: argparse.Namespace) -> dict:
             print(f"{workers} worker(s): {len(result.done)} shots, {frames} frames in {wall:.1f} s = {row['frames_per_second']:.2f} frames/s, "
                   f"{row['shots_per_minute']:.2f} shots/min (Ray started in {ray_start:.1f} s)", flush=True)
     out = {"format": "x2video-farm-throughput", "command": command("farm"), "machine": machine_info("cpu"),
-           "shots": {"count": args.shots, "frames": args.frames, "size": [w, h], "kind": "procedural rooms"},
+           "shots": {"count": args.shots, "frames": args.shot_frames, "size": [w, h], "kind": "procedural rooms"},
            "settings": {k: v for k, v in vars(settings).items() if v != getattr(RenderSettings(), k)}, "runs": runs}
     if len(runs) >= 2:
         out["speedup"] = round(runs[0]["wall_seconds"] / runs[-1]["wall_seconds"], 3)
@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.farm", description=__doc__.split("\n\n")[0])
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="cluster sizes to measure (default: 1 2)")
     p.add_argument("--shots", type=int, default=4, help="procedural shots (default 4)")
-    p.add_argument("--frames", type=int, default=17, help="frames per shot (default 17)")
+    p.add_argument("--frames", dest="shot_frames", type=int, default=17, help="frames per shot (default 17)")
     p.add_argument("--size", type=size_arg, default=(160, 112), help="WxH (default 160x112, the model's training size)")
     p.add_argument("--out", type=Path, default=results_path("farm"), help="result JSON (default bench/results/farm/farm.json)")
     add_fields(p.add_argument_group("sampling"), RenderSettings, only=("preset", "quality", "seed"),
