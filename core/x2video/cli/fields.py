@@ -3,6 +3,7 @@ type, default and docstring, and `--field-name` follows from it (nerfstudio/tyro
 
     add_fields(parser, RenderSettings)             # --sampler {ddim,lcm}, --steps N, --seams/--no-seams, ...
     settings = from_args(RenderSettings, args)
+    to_flags(RenderSettings, settings)             # back to ['--seed', '3', '--no-seams', ...] (a job template)
 """
 from __future__ import annotations
 
@@ -141,3 +142,35 @@ def from_args(cls: type, args: argparse.Namespace, **overrides: Any) -> Any:
     """An instance of `cls` from the parsed flags `add_fields` added (fields without a flag keep their defaults)."""
     values = {f.name: getattr(args, f.name) for f in dataclasses.fields(cls) if f.init and hasattr(args, f.name)}
     return cls(**{**values, **overrides})
+
+
+def flag_value(value: Any) -> str:
+    """The command-line text of a field's value (the inverse of its `PARSERS` entry)."""
+    if isinstance(value, tuple) and len(value) == 2 and all(isinstance(v, int) for v in value):
+        return ":".join(map(str, value))
+    if isinstance(value, tuple) and all(isinstance(v, int) for v in value):
+        return ",".join(map(str, value))
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def to_flags(cls: type, instance: Any, *, only_changed: bool = True) -> list[str]:
+    """The flags `add_fields(parser, cls)` would parse back into `instance`: `--field-name VALUE` (`--x`/`--no-x` for a
+    bool) for each field that differs from the class's default (all fields with `only_changed=False`). A field left
+    unset (None) gives no flag; one set to None over a non-None default has no flag to say so (ValueError)."""
+    default = cls()
+    out: list[str] = []
+    for f in dataclasses.fields(cls):
+        if not f.init:
+            continue
+        value, base = getattr(instance, f.name), getattr(default, f.name)
+        if only_changed and value == base:
+            continue
+        if value is None:
+            if base is None:
+                continue
+            raise ValueError(f"{cls.__name__}.{f.name} is None, which no flag {flag(f.name)} can say")
+        if isinstance(value, bool):
+            out.append(flag(f.name) if value else "--no-" + f.name.replace("_", "-"))
+        else:
+            out += [flag(f.name), flag_value(value)]
+    return out

@@ -22,6 +22,8 @@ def _umask() -> int:
 
 #: files we create get the usual permissions (mkstemp would leave them 0600)
 _FILE_MODE = 0o666 & ~_umask()
+#: folders we create with mkdtemp and rename into place get the usual permissions too (mkdtemp makes them 0700)
+DIR_MODE = 0o777 & ~_umask()
 
 
 def temp_path_for(path: str | Path) -> Path:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from x2video.io.atomic import DIR_MODE
 from x2video.io.units import OutputUnits
 from x2video.sampling.events import FramesReady, RenderCancelled, RenderEvent, RenderFailed, RenderFinished
 
@@ -118,6 +119,7 @@ class FrameSink:
         if self.out.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.", suffix=".old", dir=self.out.parent))
             os.replace(self.out, old / "previous")
+        os.chmod(self._staging, DIR_MODE)  # mkdtemp made it 0700: a shared render folder must be readable by others
         os.replace(self._staging, self.out)
         self._staging = None
         if old is not None:

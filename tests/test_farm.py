@@ -1,0 +1,279 @@
+"""`x2video farm`: jobs from folders and list files, done markers and resume, Open Job Description templates, and
+renders on a local Ray cluster of 2 workers: the farm's frames equal `x2video render`'s in one process (same seed,
+bit for bit: both run torch on one thread), and a worker killed mid-render is retried while nothing finished is
+rendered again."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from x2video.cli import main
+from x2video.cli.fields import to_flags
+from x2video.farm import find_jobs, run_farm, state
+from x2video.farm.openjd import SPECIFICATION, write_templates
+from x2video.io import write_shot_folder
+from x2video.sampling.events import RenderSettings
+from x2video.shot import ArrayShot
+from x2video.weights import ModelOptions
+
+H, W = 32, 48
+
+
+def make_shot(path: Path, frames: int, seed: int) -> Path:
+    rng = np.random.default_rng(seed)
+    n = np.zeros((frames, H, W, 3), np.float32)
+    n[..., 2] = 1
+    albedo = (0.2 + 0.6 * rng.random((1, H, W, 3))).repeat(frames, 0).astype(np.float32)
+    irr = (0.5 + 0.5 * rng.random((frames, H, W, 3))).astype(np.float32)
+    s = ArrayShot({"albedo": albedo, "normal": n, "roughness": np.full((frames, H, W, 1), 0.5, np.float32),
+                   "metallic": np.zeros((frames, H, W, 1), np.float32), "irradiance": irr}, fps=8.0)
+    return write_shot_folder(s, path)
+
+
+def frames_of(folder: Path) -> dict[str, np.ndarray]:
+    from x2video.io.image import read_image
+
+    images = {p.name: read_image(p) for p in sorted(folder.glob("*.exr"))}
+    return {name: np.stack([im.planes[c] for c in im.channel_names], -1) for name, im in images.items()}
+
+
+def assert_same_frames(a: Path, b: Path) -> None:
+    fa, fb = frames_of(a), frames_of(b)
+    assert fa and sorted(fa) == sorted(fb), (sorted(fa), sorted(fb))
+    for name in fa:
+        np.testing.assert_array_equal(fa[name], fb[name], err_msg=f"{a / name} vs {b / name}")
+
+
+# --- jobs, markers, templates: no Ray -------------------------------------------------------------------
+
+
+def test_jobs_from_a_folder_a_list_file_and_a_project(tmp_path):
+    from x2video.edits import Edits, Project, save_project
+
+    shots = tmp_path / "shots"
+    a, b = make_shot(shots / "a", 3, 0), make_shot(shots / "b", 3, 1)
+    (shots / "notes").mkdir()  # neither shot nor project: ignored in a folder of shots
+    save_project(tmp_path / "dusk.x2v.json", Project(shot=str(a), edits=Edits(global_prompt="dusk")))
+    assert [(j.name, j.kind) for j in find_jobs([shots])] == [("a", "shot"), ("b", "shot")]
+    listing = tmp_path / "list.txt"
+    listing.write_text("# nightly\nshots/b\n\ndusk.x2v.json  # the graded one\n")
+    jobs = find_jobs([listing])
+    assert [(j.name, j.kind, j.source) for j in jobs] == [("b", "shot", b.resolve()), ("dusk", "project", (tmp_path / "dusk.x2v.json").resolve())]
+    assert [j.name for j in find_jobs([a])] == ["a"]  # a shot itself is one job
+
+
+def test_job_errors_name_the_file_and_line(tmp_path):
+    make_shot(tmp_path / "x" / "a", 2, 0)
+    make_shot(tmp_path / "y" / "a", 2, 0)
+    with pytest.raises(ValueError, match="two jobs would write the output 'a'"):
+        find_jobs([tmp_path / "x", tmp_path / "y"])
+    listing = tmp_path / "list.txt"
+    listing.write_text("x/a\nnope\n")
+    with pytest.raises(FileNotFoundError, match=r"list.txt, line 2"):
+        find_jobs([listing])
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="neither a shot nor a folder"):
+        find_jobs([tmp_path / "empty"])
+
+
+def test_to_flags_round_trips_through_the_parser():
+    import argparse
+
+    from x2video.cli.fields import add_fields, from_args
+
+    s = RenderSettings(seed=3, seams=False, frames=(2, 7), exposure=1.5, preset="fast", noise_shared=0.5, quality="formula")
+    flags = to_flags(RenderSettings, s)
+    assert "--no-seams" in flags and flags[flags.index("--frames") + 1] == "2:7" and "--steps" not in flags
+    p = argparse.ArgumentParser()
+    add_fields(p, RenderSettings)
+    assert from_args(RenderSettings, p.parse_args(flags)) == s
+    assert from_args(RenderSettings, p.parse_args(to_flags(RenderSettings, s, only_changed=False))) == s
+
+
+def test_marker_with_other_settings_is_an_error_not_a_silent_rerender(tmp_path):
+    job = find_jobs([make_shot(tmp_path / "a", 2, 0)])[0]
+    out = tmp_path / "out"
+    (out / "a").mkdir(parents=True)
+    key = state.job_key(job, RenderSettings(seed=1), ModelOptions(), "exr", None)
+    state.write_marker(out, job, key, out / "a", 2, 1.0, 1)
+    assert state.finished(out, job, key)["frames"] == 2
+    with pytest.raises(ValueError, match=r"a.done.json: this shot was rendered with other settings.seed"):
+        state.finished(out, job, state.job_key(job, RenderSettings(seed=2), ModelOptions(), "exr", None))
+    shutil.rmtree(out / "a")  # output removed by hand: to render again
+    assert state.finished(out, job, key) is None
+
+
+def test_openjd_templates_validate_with_openjd_model(tmp_path):
+    openjd_model = pytest.importorskip("openjd.model")
+    from x2video.edits import Edits, Project, save_project
+
+    a = make_shot(tmp_path / "shots" / "a", 3, 0)
+    save_project(tmp_path / "shots" / "dusk.x2v.json", Project(shot=str(a), edits=Edits(global_prompt="dusk")))
+    settings = RenderSettings(preset="fast", seed=4, seams=False)
+    paths = write_templates(find_jobs([tmp_path / "shots"]), tmp_path / "jobs", tmp_path / "out", settings, ModelOptions(untrained=True), "mp4", 12.0)
+    assert [p.name for p in paths] == ["a.template.json", "dusk.template.json"]
+    for path in paths:
+        doc = json.loads(path.read_text())
+        assert doc["specificationVersion"] == SPECIFICATION
+        template = openjd_model.decode_job_template(template=doc)
+        values = openjd_model.preprocess_job_parameters(job_template=template, job_parameter_values=json.loads(path.with_name(
+            path.name.replace(".template.", ".params.")).read_text()), job_template_dir=path.parent, current_working_dir=tmp_path)
+        job = openjd_model.create_job(job_template=template, job_parameter_values=values)
+        assert [s.name for s in job.steps] == ["Render"]
+        args = doc["steps"][0]["script"]["actions"]["onRun"]["args"]
+        assert args[:1] == ["render"] and "--untrained" in args and "--no-seams" in args and args[args.index("--seed") + 1] == "4"
+        assert args[args.index("--fps") + 1] == "12.0"
+    dusk = json.loads(paths[1].read_text())
+    assert dusk["steps"][0]["script"]["actions"]["onRun"]["args"][1:3] == ["--project", "{{Param.Project}}"]
+    assert json.loads((tmp_path / "jobs" / "dusk.params.json").read_text())["Output"] == str((tmp_path / "out" / "dusk.mp4").resolve())
+
+
+def test_openjd_cli_runs_a_template_here(tmp_path):
+    """`openjd run` executes the template's step on this machine: the formula render lands where the template says."""
+    openjd = Path(sys.executable).with_name("openjd")
+    x2video = Path(sys.executable).with_name("x2video")
+    if not openjd.is_file() or not x2video.is_file():
+        pytest.skip("openjd-cli or the x2video launcher is not installed beside this Python")
+    job = find_jobs([make_shot(tmp_path / "a", 3, 0)])[0]
+    out = tmp_path / "out"
+    [path] = write_templates([job], tmp_path / "jobs", out, RenderSettings(quality="formula"), ModelOptions())
+    p = subprocess.run([str(openjd), "run", str(path), "--step", "Render", "-p", f"file://{path.parent / 'a.params.json'}",
+                        "-p", f"X2Video={x2video}"], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+    assert sorted(f.name for f in (out / "a").iterdir()) == ["000000.exr", "000001.exr", "000002.exr"]
+
+
+def test_farm_openjd_flag_writes_templates_without_ray(tmp_path, capsys):
+    make_shot(tmp_path / "shots" / "a", 2, 0)
+    assert main(["farm", str(tmp_path / "shots"), "--out", str(tmp_path / "out"), "--openjd", str(tmp_path / "jobs"), "--seed", "9"]) == 0
+    doc = json.loads((tmp_path / "jobs" / "a.template.json").read_text())
+    assert doc["steps"][0]["script"]["actions"]["onRun"]["args"][-2:] == ["--seed", "9"]
+    assert "wrote 1 Open Job Description template" in capsys.readouterr().out
+
+
+# --- on a local Ray cluster of 2 workers ----------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    """A local Ray cluster with 2 CPUs (2 worker processes at a time), a small object store, no dashboard."""
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, object_store_memory=80 * 1024**2, include_dashboard=False, log_to_driver=False,
+             _temp_dir=str(tmp_path_factory.mktemp("ray")))
+    yield
+    ray.shutdown()
+
+
+FAST = ["--preset", "fast", "--quality", "diffusion", "--seed", "5"]
+
+
+@pytest.fixture(scope="module")
+def shots(tmp_path_factory):
+    """Three tiny shots (the last one longer: it is the one whose worker gets killed) and their single-process renders."""
+    import torch
+
+    root = tmp_path_factory.mktemp("farm")
+    shots = [make_shot(root / "shots" / n, f, i) for i, (n, f) in enumerate([("a", 5), ("b", 9), ("c", 17)])]
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # as a farm task with 1 CPU: same thread count, same floating-point sums
+    try:
+        for s in shots:
+            assert main(["render", str(s), "--out", str(root / "ref" / s.name), *FAST]) == 0
+    finally:
+        torch.set_num_threads(threads)
+    return root
+
+
+def _settings() -> RenderSettings:
+    return RenderSettings(preset="fast", quality="diffusion", seed=5)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_farm_frames_equal_a_single_process_render(cluster, shots, tmp_path):
+    out = tmp_path / "out"
+    lines: list[str] = []
+    result = run_farm(find_jobs([shots / "shots"]), out, _settings(), ModelOptions(), write=lines.append, poll_seconds=0.1)
+    assert result.ok and sorted(result.done) == ["a", "b", "c"], (result.failed, lines)
+    for name in "abc":
+        assert_same_frames(shots / "ref" / name, out / name)
+        assert json.loads((out / f"{name}.done.json").read_text())["frames"] == {"a": 5, "b": 9, "c": 17}[name]
+    assert any(line.startswith("farm c  running:") and "frames" in line for line in lines), lines  # progress per shot
+    assert not list(out.glob(".*partial"))
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)
+def test_killed_worker_is_retried_and_nothing_finished_is_redone(cluster, shots, tmp_path):
+    out = tmp_path / "out"
+    killed: dict = {}
+    finished_at_kill: dict[str, tuple] = {}
+    stop = threading.Event()
+
+    def killer() -> None:  # kill the worker that renders c once its keyframes exist (mid-render)
+        while not stop.is_set():
+            s = state.read_status(out, "c")
+            if s.get("state") == "running" and (s.get("frames_done") or 0) > 0:
+                for name in "ab":
+                    m = state.marker_path(out, name)
+                    if m.exists():
+                        finished_at_kill[name] = (m.stat().st_mtime_ns, m.read_bytes())
+                killed.update(s)
+                os.kill(s["pid"], signal.SIGKILL)
+                return
+            time.sleep(0.02)
+
+    thread = threading.Thread(target=killer, daemon=True)
+    thread.start()
+    try:
+        result = run_farm(find_jobs([shots / "shots"]), out, _settings(), ModelOptions(), retries=2, write=lambda s: None, poll_seconds=0.1)
+    finally:
+        stop.set()
+        thread.join(5)
+    assert killed, "the killer never saw shot c running with frames"
+    assert 0 < killed["frames_done"] < 17
+    assert result.ok and sorted(result.done) == ["a", "b", "c"], result.failed
+    starts = {n: state.read_status(out, n)["starts"] for n in "abc"}
+    assert [s["attempt"] for s in starts["c"]] == [1, 2] and starts["c"][0]["pid"] == killed["pid"] != starts["c"][1]["pid"]
+    assert len(starts["a"]) == len(starts["b"]) == 1  # nothing finished was rendered again
+    assert json.loads((out / "c.done.json").read_text())["attempt"] == 2
+    for name, (mtime, data) in finished_at_kill.items():
+        m = state.marker_path(out, name)
+        assert (m.stat().st_mtime_ns, m.read_bytes()) == (mtime, data)
+    for name in "abc":
+        assert_same_frames(shots / "ref" / name, out / name)
+    assert not list(out.glob(".*partial")), "the killed attempt's staging folder was left behind"
+
+    # resume: the same command again renders nothing and starts nothing
+    again = run_farm(find_jobs([shots / "shots"]), out, _settings(), ModelOptions(), write=lambda s: None)
+    assert sorted(again.skipped) == ["a", "b", "c"] and not again.done
+    assert {n: state.read_status(out, n)["starts"] for n in "abc"} == starts
+
+
+@pytest.mark.timeout(600)
+def test_cli_farm_formula_resume_and_status(cluster, tmp_path, capsys):
+    """`x2video farm` end to end (formula tier: no weights): progress lines, a second run skips, --status reads OUT."""
+    shots = tmp_path / "shots"
+    make_shot(shots / "a", 3, 0)
+    make_shot(shots / "b", 4, 1)
+    out = tmp_path / "out"
+    assert main(["farm", str(shots), "--out", str(out), "--quality", "formula"]) == 0
+    text = capsys.readouterr().out
+    assert "farm a  done: 3 frames" in text and "farm b  done: 4 frames" in text and "2 rendered, 0 finished before, 0 failed" in text
+    assert main(["render", str(shots / "b"), "--out", str(tmp_path / "ref_b"), "--quality", "formula"]) == 0
+    assert_same_frames(tmp_path / "ref_b", out / "b")
+    assert main(["farm", str(shots), "--out", str(out), "--quality", "formula"]) == 0
+    assert "0 rendered, 2 finished before" in capsys.readouterr().out
+    assert main(["farm", str(shots), "--out", str(out), "--quality", "formula", "--seed", "3"]) == 2  # other settings: refused
+    assert "rendered with other settings.seed" in capsys.readouterr().err
+    assert main(["farm", "--out", str(out), "--status"]) == 0
+    assert "a: done, 3 frames" in capsys.readouterr().out
