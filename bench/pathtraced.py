@@ -91,6 +91,7 @@ def render_tier(renderer: Renderer, shot, tier: str, condition: str, **overrides
 
 
 LABELS = {"albedo_x_irradiance|all": "formula: albedo × irradiance", "formula|all": "tier 0 (formula)", "residual|all": "tier 1 (residual net)",
+          "residual_guess|all": "tier 1, --guess-unseen (net's guess in sky and glass)",
           "diffusion|all": "tier 2 (diffusion, fast preset)", "diffusion|drop_irradiance": "tier 2, irradiance dropped"}
 
 
@@ -185,6 +186,8 @@ def main(argv: list[str] | None = None) -> int:
     tiers = [t for t in args.tiers.split(",") if t]
     conditions = [c for c in args.conditions.split(",") if c]
     runs = [(f"{tier}|{cond}", tier, cond, {}) for cond in conditions for tier in tiers if tier == "diffusion" or cond == "all"]
+    if "residual" in tiers and "all" in conditions:  # tier 1 with its guess where the channels hold no light (off by default)
+        runs.append(("residual_guess|all", "residual", "all", {"guess_unseen": True}))
     summary, per_shot = evaluate(renderer, shots, runs)
     out = {"format": "x2video-pathtraced", "command": command("pathtraced", argv), "data": portable_path(args.data), "split": args.split,
            "shots": len(shots), "weights": portable_path(weights) if args.weights else "shipped", "threads": args.threads,

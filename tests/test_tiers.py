@@ -211,3 +211,29 @@ def test_auto_keeps_the_formula_when_the_net_is_not_trusted():
     ch = shot.frame(1)
     np.testing.assert_allclose(frames[1], ch["albedo"] * ch["irradiance"], atol=1e-6)
     assert tiers.choose_tier("residual", [], False, True, residual_trusted=False).tier == "residual"  # forcing still works
+
+
+def test_tier1_keeps_the_formula_where_the_channels_hold_no_light():
+    shot = full_shot(1, 16, 24)
+    ch = {n: shot.channel(n, 0).copy() for n in shot.channels}
+    ch["irradiance"][:4, :4] = 0  # clear glass: geometry, no diffuse light, not metal
+    ch["irradiance"][:4, 8:12] = 0
+    ch["metallic"][:4, 8:12] = 1  # a rough metal: no diffuse light either, but the net's reflection is kept
+    ch["roughness"][:4, 8:12] = 0.4
+    ch["irradiance"][:4, 16:20] = 0
+    ch["metallic"][:4, 16:20] = 1  # a mirror: what it shows is elsewhere
+    ch["roughness"][:4, 16:20] = 0.02
+    ch["normal"][12:, :4] = 0  # sky: no geometry
+    unseen = R.unseen_light(ch)
+    assert unseen[:4, :4].all() and unseen[12:, :4].all() and unseen[:4, 16:20].all() and not unseen[:4, 8:12].any()
+    assert unseen.mean() < 0.25
+    arrays = {n: v[None] for n, v in ch.items()}
+    m = with_net()
+    _, kept = render(m, ArrayShot(arrays), RenderSettings(quality="residual"))
+    _, guessed = render(m, ArrayShot(arrays), RenderSettings(quality="residual", guess_unseen=True))
+    form = R.formula(ch)
+    sky = np.s_[13:, :2]  # inside the sky patch, away from the grown edge
+    assert np.allclose(kept[0][sky], form[sky]) and not np.allclose(guessed[0][sky], form[sky])
+    assert np.allclose(kept[0][:4, 8:12], guessed[0][:4, 8:12])  # metal: the net's output either way
+    assert np.allclose(kept[0][1:3, 17:19], form[1:3, 17:19])  # the mirror's inside keeps the formula
+    assert np.allclose(kept[0][9:11, 12:16], guessed[0][9:11, 12:16])  # lit surfaces far from the patches: unchanged

@@ -122,6 +122,30 @@ def formula(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None =
     return (np.clip(_finite(al), 0, 1) * np.maximum(_finite(ir), 0)).astype(np.float32)
 
 
+#: a metal smoother than this is a mirror: what it shows is a sharp image of elsewhere, not in its channels
+MIRROR_ROUGHNESS = 0.1
+
+
+def unseen_light(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None = None) -> np.ndarray | None:
+    """(H, W) bool: pixels whose channels say nothing of the light seen there: no geometry (sky, a backdrop through
+    an open window), a surface neither lit diffusely nor metal (clear glass: a path tracer's diffuse passes are 0
+    there, so what shows through it is not in the channels), or a mirror (a metal smoother than `MIRROR_ROUGHNESS`).
+    None when normal or irradiance is missing.
+    What the tier-1 net puts there is a guess learned from the training rooms (mostly daylight behind windows)."""
+    nr, ir = ch.get("normal"), ch.get("irradiance")
+    if nr is None or ir is None:
+        return None
+    geometry = np.linalg.norm(_finite(nr)[..., :3], axis=-1) > 0.5
+    light = np.maximum(_finite(ir), 0)
+    light = light.max(-1) if light.ndim == 3 else light
+    level = float(light[geometry].mean()) if geometry.any() else 0.0
+    me = ch.get("metallic")
+    metal = (np.asarray(_finite(me)).reshape(light.shape) >= 0.5) if me is not None else np.zeros(light.shape, bool)
+    ro = ch.get("roughness")
+    mirror = metal & (np.asarray(_finite(ro)).reshape(light.shape) < MIRROR_ROUGHNESS) if ro is not None else np.zeros(light.shape, bool)
+    return ~geometry | (geometry & (light <= 1e-3 * level) & ~metal) | (geometry & mirror)
+
+
 def features(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(C_in, H, W) network input and (3, H, W) linear formula (albedo x irradiance) of one frame's channels
     (memory convention, irradiance exposure-normalised). A dropped channel is zeros with its present flag 0;

@@ -72,6 +72,10 @@ class RenderSettings:
     preset: Literal["fast", "quality"] | None = None
     """Overrides sampler and steps when set: 'fast' = LCM-2 if distilled weights are loaded, else DDIM-4;
     'quality' = DDIM-20 (`x2video.sampling.renderer.select_steps`)."""
+    guess_unseen: bool = False
+    """Tier 1: let the net guess the light where the channels hold none (sky and backdrops through windows, what
+    shows through clear glass); its guess follows its training rooms, mostly daylight. Off: the formula there
+    (black unless the channels light it), never a daylight sky painted into a night window."""
     working_pixels: int = 320 * 224
     """Diffusion tier, large frames: a frame with more pixels than this runs the diffusion network at a working
     resolution of at most this many pixels (aspect kept), near the size it was trained at, and the network's

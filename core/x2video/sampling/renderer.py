@@ -327,7 +327,7 @@ class Renderer:
                 reference = (reference[0], pad_image(reference[1], ph, pw))
         settings = self._validate(shot, settings)
         if choice.regions:
-            emit = self._composite(emit, full_conditioning, net)
+            emit = self._composite(emit, full_conditioning, net, settings.guess_unseen)
         windows = self.plan(shot, settings, None if reference is None else reference[0])
         keep_until = last_use(windows)
 
@@ -386,21 +386,22 @@ class Renderer:
             fs = order[i:i + batch] if i else order[:1]
             conds = [conditioning(f) for f in fs]
             if choice.tier == "residual":
-                images = tiers.residual_frames(net, conds, self.model.device, batch)
+                images = tiers.residual_frames(net, conds, self.model.device, batch, settings.guess_unseen)
             else:
                 images = [tiers.formula_frame(c) for c in conds]
             done.update(fs)
             emit(FramesReady(window=index, frames=dict(zip(fs, images)), level=0, mode=choice.tier, seconds=time.perf_counter() - tw))
         emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))
 
-    def _composite(self, emit: Callable[[RenderEvent], None], conditioning: Callable[[int], FrameConditioning], net) -> Callable[[RenderEvent], None]:
+    def _composite(self, emit: Callable[[RenderEvent], None], conditioning: Callable[[int], FrameConditioning], net,
+                   guess_unseen: bool = False) -> Callable[[RenderEvent], None]:
         """Wrap `emit` so each generated frame keeps tier 2 only inside its A|M|R regions (feathered), tier 1 elsewhere."""
 
         def wrapped(event: RenderEvent) -> None:
             if isinstance(event, FramesReady):
                 fs = list(event.frames)
                 conds = [conditioning(f) for f in fs]
-                base = tiers.residual_frames(net, conds, self.model.device)
+                base = tiers.residual_frames(net, conds, self.model.device, guess_unseen=guess_unseen)
                 frames = {}
                 for f, c, b in zip(fs, conds, base):
                     w = tiers.feathered(c.amr_mask)[..., None]  # (H, W, 1)

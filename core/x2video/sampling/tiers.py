@@ -104,11 +104,18 @@ def formula_frame(cond: FrameConditioning) -> np.ndarray:
 
 
 @torch.inference_mode()
-def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.device | str = "cpu", batch: int = 4) -> list[np.ndarray]:
+def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.device | str = "cpu", batch: int = 4,
+                    guess_unseen: bool = False) -> list[np.ndarray]:
     """Tier 1: (H, W, 3) linear frames from the tier-1 net, up to `batch` frames per pass and never more than
     `residual.MAX_PIXELS` pixels in one: a frame larger than that runs in overlapping tiles (`residual.apply_tiled`,
-    equal to the whole-frame pass to float precision), so the net's working memory does not grow with the frame."""
+    equal to the whole-frame pass to float precision), so the net's working memory does not grow with the frame.
+    Unless `guess_unseen`, pixels whose channels say nothing of their light (`residual.unseen_light`: sky, clear
+    glass) keep the formula instead of the net's guess."""
     from x2video.model.residual import MAX_PIXELS, apply, apply_tiled, features, needs_tiles
+
+    if not guess_unseen:
+        frames = residual_frames(net, conds, device, batch, guess_unseen=True)
+        return [keep_formula_where_unseen(f, c.channels) for f, c in zip(frames, conds)]
 
     def shape(c: FrameConditioning) -> tuple[int, int] | None:
         return tuple(np.shape(c.amr_mask)[:2]) if np.size(c.amr_mask) else None  # type: ignore[return-value]
@@ -135,6 +142,18 @@ def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.devic
         out.extend(np.ascontiguousarray(f) for f in y)
         i += len(group)
     return out
+
+
+def keep_formula_where_unseen(frame: np.ndarray, channels, px: float = 2.0) -> np.ndarray:
+    """`frame` (H, W, 3, a tier-1 render) with the formula where `residual.unseen_light` says the channels hold
+    nothing of the light, blended over `px` pixels beyond (`feathered`), so the net's halo at the edge goes too."""
+    from x2video.model.residual import formula, unseen_light
+
+    m = unseen_light(channels, frame.shape[:2])
+    if m is None or not m.any():
+        return frame
+    w = feathered(m, px)[..., None]
+    return (w * formula(channels, frame.shape[:2]) + (1 - w) * frame).astype(np.float32)
 
 
 def feathered(mask: np.ndarray, px: float = FEATHER_PX) -> np.ndarray:
