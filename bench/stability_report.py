@@ -7,7 +7,8 @@ from typing import Any
 
 import numpy as np
 
-COLOURS = {"formula": (60, 60, 60), "auto": (200, 120, 0), "diffusion": (30, 30, 220)}  # BGR
+COLOURS = {"formula": (60, 60, 60), "residual": (0, 150, 0), "auto": (200, 120, 0), "diffusion": (30, 30, 220)}  # BGR
+METHODS = ("formula", "residual", "auto", "diffusion")
 EXTRA_COLOURS = [(0, 150, 0), (150, 0, 150), (0, 150, 150), (120, 120, 0)]
 
 
@@ -173,6 +174,9 @@ def product_note(f: dict) -> str:
         return "the render fails with RenderFailed carrying the message; nothing is written (the editor shows it in the log)"
     if fam == "channels" and name.count("+") == 4:
         fam = "length"  # every channel kept: the plain case
+    if fam == "channels" and method == "residual":
+        return ("tier 1 forced with a channel missing: the net reads the missing channel as zeros and was never trained so; "
+                "'auto' never does this (any dropped channel sends it to the sampler), only quality 'residual' forced by hand")
     if fam == "channels" and method == "formula":
         return ("the formula needs albedo and irradiance; without either it is black. 'auto' never runs the formula here: any "
                 "dropped channel sends it to the diffusion sampler (x2video.sampling.tiers.generation_reasons; the log says which)")
@@ -200,8 +204,8 @@ def product_note(f: dict) -> str:
         return ("channels are used as given: a noisy irradiance makes a noisy frame in every tier; denoise the passes first "
                 "(Cycles' denoiser, OIDN)")
     if fam == "limits":
-        return ("windows, mirrors and metals are what the formula cannot do (no glossy term, no sky); tier 1 learns them once "
-                "the shipped residual net lands; until then 'auto' equals the formula there")
+        return ("windows, mirrors and metals are what the formula cannot do (no glossy term, no sky) and what tier 1 is trained "
+                "to add; the per-class PSNR says how far each tier gets")
     return ""
 
 
@@ -223,8 +227,8 @@ def observations(cells: list[dict]) -> list[str]:
         out.append(f"- With albedo and irradiance kept but some of normal/roughness/metallic dropped ({len(part)} subsets), 'auto' "
                    f"runs the sampler: {lo:.1f} to {hi:.1f} dB, where the formula gives {part[0][1]['psnr']:.1f} dB. A fallback to "
                    "tier 0/1 for those subsets would never be worse here.")
-    big = [c for c in cells if c["family"] == "size" and c["method"] == "auto" and c.get("params", {}).get("size") == [1920, 1080]
-           and not c.get("skipped") and not c["crashed"]]
+    big = [c for c in cells if c["family"] == "size" and c.get("params", {}).get("size") == [1920, 1080] and not c.get("skipped")
+           and not c["crashed"] and (c["method"] == "residual" or (c["method"] == "auto" and c.get("tier") == "residual"))]
     if big:
         c = big[0]
         out.append(f"- Tier 1 at 1920x1080 ({c['frames']} frames, batches of 4): {c['seconds'] / c['frames']:.1f} s a frame and "
@@ -249,9 +253,22 @@ def observations(cells: list[dict]) -> list[str]:
     return out or ["- none"]
 
 
+def tier1_note(model: dict) -> str:
+    """What the 'residual' and 'auto' columns show, from the run's model record."""
+    net = str(model.get("residual_net", ""))
+    if net.startswith("randomly"):
+        return ("tier 1 is a randomly initialised net (equal to the formula: its output layer starts at zero), so 'residual' and "
+                "'auto' where it picks tier 1 equal the formula")
+    if model.get("auto_uses_tier1", True):
+        return f"tier 1 is the {net or 'loaded'} net, and 'auto' runs it wherever nothing must be generated"
+    return (f"tier 1 is the {net or 'loaded'} net; its record (residual.json 'auto': false, it measured below the formula on the "
+            "outside scenes) keeps 'auto' on the formula wherever nothing must be generated, so the 'residual' column (quality "
+            "'residual' forced) is where tier 1 shows")
+
+
 def write_report(out: dict, md: Path, figs: Path) -> None:
     cells = out["cells"]
-    methods = [m for m in ("formula", "auto", "diffusion") if any(c["method"] == m for c in cells)]
+    methods = [m for m in METHODS if any(c["method"] == m for c in cells)]
     figs.mkdir(parents=True, exist_ok=True)
     suffix = "_quick" if out.get("quick") else ""
     images: list[tuple[str, str]] = []
@@ -370,9 +387,8 @@ def write_report(out: dict, md: Path, figs: Path) -> None:
     lines += [
         "",
         "Reading it: timings are wall seconds on 2 CPU cores shared with other jobs whose load varied a lot during the runs "
-        "(a 2-frame diffusion cell took from under 1 s to 30 s), so compare seconds only between neighbouring cells; tier 1 is the "
-        "randomly initialised net until the shipped residual weights land, so 'auto' equals the formula wherever it picks "
-        "tier 1; peak RSS is the whole process's (the loaded model is most of it), and after a 1920x1080 tier-1 frame the "
+        "(a 2-frame diffusion cell took from under 1 s to 30 s), so compare seconds only between neighbouring cells; "
+        + tier1_note(out["model"]) + "; peak RSS is the whole process's (the loaded model is most of it), and after a 1920x1080 tier-1 frame the "
         "process keeps about 2 GB more (not returned by malloc_trim; likely ONNX Runtime's memory arena), "
         "which is why the size family runs last: read the bracketed "
         "number (above the cell's start) there.",
