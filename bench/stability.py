@@ -609,9 +609,16 @@ def findings(cells: list[dict]) -> list[dict]:
 
 # --------------------------------------------------------------------------------------------- report
 def merge_results(outs: list[dict]) -> dict:
-    """One result from several runs: the first's header, every run's cells (a later run's cell replaces an earlier
-    one of the same family, case and method, in place), the commands joined, findings recomputed."""
+    """One result from several runs: the first's header, but the model record of the last run that has one (the cells
+    of the tiers it loads replace the earlier runs') and the longest list of source shots; every run's cells (a later
+    run's cell replaces an earlier one of the same family, case and method, in place), the commands joined, findings
+    recomputed."""
     merged = dict(outs[0])
+    models = [o["model"] for o in outs if o.get("model")]
+    if models:
+        merged["model"] = models[-1]
+    if any("sources" in o for o in outs):
+        merged["sources"] = max((o.get("sources", []) for o in outs), key=len)
     cells: dict[tuple[str, str, str], dict] = {}
     for o in outs:
         for c in o["cells"]:
