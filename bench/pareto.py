@@ -259,12 +259,11 @@ def warm_up(model: Any, shot: Any, methods: list[Method]) -> None:
 
 
 # --------------------------------------------------------------------------------------------- the bench
-def measure(opts: ParetoOptions, argv: list[str] | None) -> dict:
+def measure(opts: ParetoOptions, argv: list[str] | None, on_partial: Any = None) -> dict:
+    """The result (see the module docstring); `on_partial(result)` after each size, with "complete": False."""
     import torch
 
-    from x2video.eval.machine import machine_info
     from x2video.io import load_shot
-    from x2video.io.paths import portable_path
     from x2video.sampling.renderer import Renderer
 
     if not opts.data:
@@ -295,6 +294,9 @@ def measure(opts: ParetoOptions, argv: list[str] | None) -> dict:
     rows: list[dict] = []
     unavailable: list[dict] = []
     ground_truth: dict[str, Any] = {}
+
+    def result(complete: bool) -> dict:
+        return _result(opts, argv, model, folders, sizes, rooms, frames, ground_truth, rows, unavailable, load0, t_all, complete)
     for (w, h), n_rooms, n_frames in zip(sizes, rooms, frames):
         dirs = found[(w, h)][:n_rooms]
         shots = [load_shot(d) for d in dirs]
@@ -373,10 +375,20 @@ def measure(opts: ParetoOptions, argv: list[str] | None) -> dict:
             rows.append(row)
             print(f"{row['name']:>36}: {row['wall_seconds_per_frame']:8.3f} s/frame ({row['cpu_seconds_per_frame']:8.3f} CPU s)  "
                   f"PSNR {row['psnr']:6.2f}  TC {row['tc']}", file=sys.stderr, flush=True)
+        if on_partial is not None and (w, h) != sizes[-1]:
+            on_partial(result(False))
+    return result(True)
+
+
+def _result(opts: ParetoOptions, argv: list[str] | None, model: Any, folders: list[Path], sizes: list, rooms: list[int], frames: list[int],
+            ground_truth: dict, rows: list[dict], unavailable: list[dict], load0: tuple, t_all: float, complete: bool) -> dict:
+    from x2video.eval.machine import machine_info
+    from x2video.io.paths import portable_path
     from x2video.weights import shipped_weights
 
     weights = portable_path(opts.weights) if opts.weights else f"shipped ({portable_path(shipped_weights() or '?')})"
-    return {"format": "x2video-pareto", "command": command("pareto", argv), "machine": machine_info(model.device if model is not None else "cpu"),
+    return {"format": "x2video-pareto", "complete": complete, "command": command("pareto", argv),
+            "machine": machine_info(model.device if model is not None else "cpu"),
             "threads": opts.threads, "clock": opts.clock, "load_average_start": [round(v, 2) for v in load0],
             "load_average_end": [round(v, 2) for v in os.getloadavg()], "weights": weights,
             "residual_net": bool(model is not None and model.residual_net is not None), "has_lcm": bool(model is not None and model.has_lcm),
@@ -532,9 +544,9 @@ def main(argv: list[str] | None = None) -> int:
     opts = from_args(ParetoOptions, ap.parse_args(argv))
     from x2video.io.atomic import write_json_atomic, write_text_atomic
 
-    result = _clean(measure(opts, argv))
     out = Path(opts.out) if opts.out else DOCS / "pareto.json"
     out.parent.mkdir(parents=True, exist_ok=True)
+    result = _clean(measure(opts, argv, lambda partial: write_json_atomic(out, _clean(partial))))
     write_json_atomic(out, result)
     md = results_path("pareto", out.stem, ".md") if not opts.out else out.with_suffix(".md")
     md.parent.mkdir(parents=True, exist_ok=True)

@@ -197,7 +197,8 @@ def product_note(f: dict) -> str:
     if fam == "hostile":
         return f"{files}. In memory: tiers 0/1 and the sampler count NaN/Inf as 0 (core fixes); out-of-range values go through as given"
     if below and method == "diffusion" and fam in ("channels", "masks", "length", "size", "noise", "limits"):
-        return ("'auto' does not run the sampler when every channel is present (tier 1 renders); the sampler is there only when "
+        return ("'auto' does not run the sampler when every channel is present (tier 1 renders, or the formula where the net's "
+                "record does not trust it, as for the shipped net); the sampler is there only when "
                 "forced (quality 'diffusion') or for what must be generated. Its gap to the formula here is the tiny shipped "
                 "model at preset fast (LCM-2), largest at sizes whose latent is a few pixels")
     if fam == "noise":
@@ -247,6 +248,12 @@ def observations(cells: list[dict]) -> list[str]:
         c = d[-1]
         out.append(f"- The sampler on {c['frames']} frames: dE {c['delta_e_first']:.2f} over the first tenth, {c['delta_e_last']:.2f} "
                    "over the last (longer shots were skipped for the sampler on this CPU).")
+    fams = ("length", "size", "noise", "limits")
+    pairs = [(c, get.get((c["family"], c["name"], "formula"))) for c in cells if c["method"] == "residual" and c["family"] in fams]
+    diffs = [c["psnr"] - f["psnr"] for c, f in pairs if f and c.get("psnr") is not None and f.get("psnr") is not None]
+    if diffs:
+        out.append(f"- Tier 1 forced, against the formula on the same case with every channel present ({len(diffs)} cases: "
+                   f"{', '.join(fams)}): median {float(np.median(diffs)):+.2f} dB, from {min(diffs):+.2f} to {max(diffs):+.2f} dB.")
     lim = [c for c in cells if c["family"] == "limits" and c.get("pixel_share", {}).get("window")]
     if not lim:
         out.append("- No window pixels (normal == 0) in the shots run: the window class is unmeasured here.")
