@@ -620,9 +620,9 @@ def merge_results(outs: list[dict]) -> dict:
     if any("sources" in o for o in outs):
         merged["sources"] = max((o.get("sources", []) for o in outs), key=len)
     cells: dict[tuple[str, str, str], dict] = {}
-    for o in outs:
+    for i, o in enumerate(outs):
         for c in o["cells"]:
-            cells[(c["family"], c["name"], c["method"])] = c
+            cells[(c["family"], c["name"], c["method"])] = {**c, "run": i}  # which run it comes from (the report says)
     merged["cells"] = list(cells.values())
     merged["command"] = " ; ".join(o["command"] for o in outs)
     merged["wall_seconds"] = sum(o.get("wall_seconds", 0.0) for o in outs)

@@ -189,3 +189,12 @@ def test_auto_keeps_the_formula_when_the_net_is_not_trusted():
     ch = shot.frame(1)
     np.testing.assert_allclose(frames[1], ch["albedo"] * ch["irradiance"], atol=1e-6)
     assert tiers.choose_tier("residual", [], False, True, residual_trusted=False).tier == "residual"  # forcing still works
+
+
+def test_residual_features_clamp_roughness_and_metallic():
+    rng = np.random.default_rng(0)
+    ch = {"albedo": rng.uniform(0, 1, (8, 8, 3)).astype(np.float32), "normal": np.dstack([np.zeros((8, 8, 2)), np.ones((8, 8, 1))]).astype(np.float32),
+          "roughness": np.full((8, 8, 1), 0.0, np.float32), "metallic": np.full((8, 8, 1), 1.0, np.float32),
+          "irradiance": np.ones((8, 8, 3), np.float32)}
+    hostile = {**ch, "roughness": np.full((8, 8, 1), -0.5, np.float32), "metallic": np.full((8, 8, 1), 3.0, np.float32)}
+    assert np.array_equal(R.features(hostile)[0], R.features(ch)[0])
