@@ -88,6 +88,8 @@ class ParetoOptions:
     """Result JSON (default docs/pareto.json; the PNG beside it, the Markdown in bench/results/pareto/)."""
     png: bool = True
     """Draw the PNG (needs matplotlib: pip install 'x2video-studio[bench]')."""
+    replot: str = ""
+    """Measure nothing: redraw the PNG and the Markdown from this result JSON (e.g. docs/pareto.json)."""
 
 
 @dataclass(frozen=True)
@@ -485,7 +487,12 @@ def draw(result: dict, path: Path) -> Path:
         ax.grid(alpha=0.3, which="both")
     handles, labels = axes[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=7, frameon=False)
-    gt = "; ".join(f"{k}: {v['note'].split(';')[0]}" for k, v in result["ground_truth"].items())
+    gts = {(v["kind"], str(v["samples"])) for v in result["ground_truth"].values()}
+    gt = "; ".join(f"{k}: {'Cycles' if v['kind'] == 'bench reference' else 'the data set'} at {v['samples']} spp + OIDN"
+                   + (" (own noise seed)" if v["kind"] == "bench reference" else "") for k, v in result["ground_truth"].items())
+    if len(gts) == 1 and len(result["ground_truth"]) > 1:
+        v = next(iter(result["ground_truth"].values()))
+        gt = f"{'Cycles' if v['kind'] == 'bench reference' else 'the data set'} at {v['samples']} spp + OIDN, every size"
     fig.suptitle(f"speed vs accuracy on path-traced test rooms ({machine_label(result['machine'])}, {result['threads']} threads, load "
                  f"{result['load_average_start'][0]:.1f})\nground truth: {gt}\nformula: horizontal line; solid = "
                  f"{sizes[0][0]}x{sizes[0][1]}" + (f", dashed = {sizes[1][0]}x{sizes[1][1]}" if len(sizes) > 1 else ""), fontsize=8)
@@ -524,7 +531,7 @@ def markdown(result: dict) -> str:
                      f"wall s/frame): {sp(s['speedup_over_ddim20_cpu'])} faster than DDIM-20 and {sp(s['speedup_over_cycles64_cpu'])} faster "
                      f"than Cycles at 64 samples in CPU time ({sp(s['speedup_over_ddim20_wall'])} and {sp(s['speedup_over_cycles64_wall'])} "
                      "in wall time)"
-                     + (f" ({s['cycles64_psnr']:.2f} dB)" if s.get("cycles64_psnr") is not None else "") + ".")
+                     + (f"; Cycles at 64 samples scores {s['cycles64_psnr']:.2f} dB" if s.get("cycles64_psnr") is not None else "") + ".")
     return "\n".join(lines) + "\n"
 
 
@@ -543,6 +550,14 @@ def main(argv: list[str] | None = None) -> int:
     add_fields(ap, ParetoOptions)
     opts = from_args(ParetoOptions, ap.parse_args(argv))
     from x2video.io.atomic import write_json_atomic, write_text_atomic
+
+    if opts.replot:
+        src = Path(opts.replot)
+        result = json.loads(src.read_text())
+        md = results_path("pareto", src.stem, ".md") if not opts.out else Path(opts.out).with_suffix(".md")
+        write_text_atomic(md, markdown(result))
+        print(f"wrote {md}, {draw(result, src.with_suffix('.png')) if opts.png else ''}")
+        return 0
 
     out = Path(opts.out) if opts.out else DOCS / "pareto.json"
     out.parent.mkdir(parents=True, exist_ok=True)
