@@ -23,22 +23,20 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from bench.common import command, results_path
+from bench.ptscore import display, render_timed, score, shot_dirs, truth
 from x2video.channels import tonemap
 from x2video.eval.machine import machine_info
 from x2video.io import load_shot
 from x2video.io.atomic import write_json_atomic
 from x2video.io.image import read_image
 from x2video.io.paths import portable_path
-from x2video.metrics.image import psnr, ssim
-from x2video.metrics.temporal import temporal_consistency
-from x2video.sampling.events import FramesReady, RenderSettings
+from x2video.sampling.events import RenderSettings
 from x2video.sampling.renderer import Renderer
 
 CLASSES = ("diffuse", "glossy", "metal", "glass", "emitter", "window")
@@ -78,16 +76,8 @@ def render_tier(renderer: Renderer, shot, tier: str, condition: str, **overrides
     if condition == "drop_irradiance":
         edits = Edits()
         edits.dropped = {"irradiance"}
-    frames: dict[int, np.ndarray] = {}
-
-    def on_event(e) -> None:
-        if isinstance(e, FramesReady):
-            frames.update(e.frames)
-
     settings = RenderSettings(quality=tier if tier != "diffusion" else "diffusion", preset="fast" if tier == "diffusion" else None, **overrides)
-    t0 = time.perf_counter()
-    renderer.render(shot, edits, settings, on_event)
-    return [frames[t] for t in range(shot.num_frames)], time.perf_counter() - t0
+    return render_timed(renderer, shot, settings, edits)
 
 
 LABELS = {"albedo_x_irradiance|all": "formula: albedo × irradiance", "formula|all": "tier 0 (formula)", "residual|all": "tier 1 (residual net)",
@@ -119,34 +109,32 @@ def evaluate(renderer: Renderer, shots: list[Path], runs: list[tuple[str, str, s
         shot = load_shot(sp)
         s = float(shot.info.irradiance_scale)
         files = sorted(sp.glob("*.exr"))
-        gts, forms, classes = [], [], []
+        gts, forms, classes = truth(shot), [], []
         for t in range(shot.num_frames):
             fr = shot.frame(t)
-            gts.append(tonemap(fr["rgb"]))
             forms.append(tonemap(fr["albedo"] * fr["irradiance"] / s))
             classes.append(material_classes(files[t], fr) if len(files) == shot.num_frames else np.zeros(gts[-1].shape[:2], np.int8))
         tc_gt_ok = shot.num_frames >= 2
         results = {"albedo_x_irradiance|all": (forms, 0.0)}
         for key, tier, cond, overrides in runs:
             frames, secs = render_tier(renderer, shot, tier, cond, **overrides)
-            results[key] = ([tonemap(f / s) for f in frames], secs)
+            results[key] = (display(frames, s), secs)
         shot_row = {"shot": f"{sp.parent.name}/{sp.name}", "frames": shot.num_frames, "size": list(shot.size[::-1])}
         for key, (disp, secs) in results.items():
             r = rows.setdefault(key, {"psnr": [], "ssim": [], "tc": [], "sec_per_frame": [], "sse": np.zeros(len(CLASSES)), "npx": np.zeros(len(CLASSES))})
-            ps = [psnr(p, g) for p, g in zip(disp, gts)]
-            ss = [ssim(p, g) for p, g in zip(disp, gts)]
-            tc = temporal_consistency(disp, gts).tc if tc_gt_ok else None
+            m = score(disp, gts)
+            tc = m["tc"] if tc_gt_ok else None
             for p, g, c in zip(disp, gts, classes):
                 for k in range(len(CLASSES)):
                     e, n = masked_psnr(p, g, c == k)
                     r["sse"][k] += e
                     r["npx"][k] += n
-            r["psnr"].append(float(np.mean(ps)))
-            r["ssim"].append(float(np.mean(ss)))
+            r["psnr"].append(m["psnr"])
+            r["ssim"].append(m["ssim"])
             if tc is not None:
                 r["tc"].append(float(tc))
             r["sec_per_frame"].append(secs / shot.num_frames)
-            shot_row[key] = {"psnr": round(float(np.mean(ps)), 3), "ssim": round(float(np.mean(ss)), 4), "tc": None if tc is None else round(float(tc), 3)}
+            shot_row[key] = {"psnr": round(m["psnr"], 3), "ssim": round(m["ssim"], 4), "tc": None if tc is None else round(float(tc), 3)}
         per_shot.append(shot_row)
         print(json.dumps(shot_row), flush=True)
     summary = {}
@@ -180,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     weights = Path(args.weights) if args.weights else Path("shipped")
     renderer = Renderer(model)
     root = Path(args.data) / args.split if args.split else Path(args.data)
-    shots = sorted(p for p in root.iterdir() if (p / "shot.json").is_file())
+    shots = shot_dirs(root)
     if args.max_shots:
         shots = shots[: args.max_shots]
     tiers = [t for t in args.tiers.split(",") if t]

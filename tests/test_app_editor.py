@@ -233,3 +233,25 @@ def test_slider_drag_is_one_undo_step(win):
     win.act_undo.trigger()
     assert win.doc.edits.tuning(None)["hue"] == 0.0 and win.doc.edits.ops == []
     assert win.edit_panel.hue.value() == 0.0  # the panel follows the document
+
+
+def test_render_start_marks_its_setting_on_the_pareto_chart(win, tmp_path):
+    import json
+    from types import SimpleNamespace
+
+    from sampling_fake import FakeModel
+
+    from x2video.sampling.events import RenderSettings
+    from x2video_app.charts import load_pareto
+
+    h, w = win.doc.shot.size
+    rows = [{"method": m, "label": m, "family": m, "size": [w, h], "seconds_per_frame": 0.5, "psnr": 20.0} for m in ("formula", "lcm-2", "ddim-4")]
+    (tmp_path / "pareto.json").write_text(json.dumps({"format": "x2video-pareto", "rows": rows}))
+    win.charts.pareto = load_pareto(tmp_path / "pareto.json")
+    win.render_settings = RenderSettings(preset="fast")
+    win.render_ctl.renderer = SimpleNamespace(model=FakeModel(has_lcm=True))  # the preset resolves as the Renderer does
+    assert win.mark_chart("diffusion")["method"] == "lcm-2"
+    win.render_ctl.renderer = SimpleNamespace(model=FakeModel(has_lcm=False))
+    assert win.mark_chart("diffusion")["method"] == "ddim-4"
+    assert win.mark_chart("formula")["method"] == "formula"
+    win.render_ctl.renderer = None

@@ -9,8 +9,8 @@ pytest.importorskip("pytestqt")
 
 from PySide6.QtCore import QPoint, QPointF, Qt  # noqa: E402
 
-from x2video.sampling.events import FramesReady, RenderFinished, RenderStarted, StepDone, WindowStarted  # noqa: E402
-from x2video_app.charts import Charts, find_bench_points  # noqa: E402
+from x2video.sampling.events import FramesReady, RenderFinished, RenderSettings, RenderStarted, StepDone, WindowStarted  # noqa: E402
+from x2video_app.charts import Charts, find_bench_points, pareto_key  # noqa: E402
 from x2video_app.display import channel_to_u8, ids_palette, overlay_masks, side_by_side  # noqa: E402
 from x2video_app.render_state import RenderState  # noqa: E402
 from x2video_app.timeline import Timeline  # noqa: E402
@@ -93,6 +93,24 @@ def test_bench_points_found_in_nested_results(tmp_path, qtbot):
     c.add_window(0, 2, 1.5)
     c.add_window(1, 1, 0.7)
     assert c.windows == [(0, 2, 1.5), (1, 1, 0.7)]
+
+
+def test_pareto_chart_marks_the_current_setting_at_the_nearest_size(tmp_path, qtbot):
+    rows = [{"method": m, "label": lab, "family": fam, "size": list(size), "seconds_per_frame": spf, "psnr": db}
+            for size in ((160, 112), (320, 224)) for m, lab, fam, spf, db in
+            (("formula", "formula (tier 0)", "formula", 0.002, 23.5), ("ddim-4", "DDIM-4", "ddim-recursive", 1.5, 22.0),
+             ("lcm-2", "LCM-2", "lcm-recursive", 0.5 * size[0] / 160, 21.0), ("cycles-64", "Cycles 64 spp + OIDN", "cycles", 20.0, 35.0))]
+    path = tmp_path / "pareto.json"
+    path.write_text(json.dumps({"format": "x2video-pareto", "rows": rows}))
+    c = Charts(tmp_path, pareto=path)
+    qtbot.addWidget(c)
+    assert "4 settings" in c.bench_note.text()
+    mark = c.mark_setting(pareto_key("diffusion", RenderSettings(sampler="lcm", steps=2)), (300, 200))
+    assert mark is not None and mark["size"] == [320, 224] and mark["seconds_per_frame"] == 1.0 and c.marked is mark
+    assert "LCM-2" in c.bench_note.text() and "320x224" in c.bench_note.text()
+    assert c.mark_setting("ddim-7", (160, 112)) is None and "not among the measured" in c.bench_note.text()
+    assert c.mark_setting(pareto_key("formula", RenderSettings()), (160, 112))["psnr"] == 23.5
+    assert Charts(tmp_path, pareto=tmp_path / "missing.json").pareto is None  # falls back to the bench points
 
 
 def test_render_state_tracks_levels_keyframes_and_eta():

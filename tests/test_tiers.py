@@ -237,3 +237,12 @@ def test_tier1_keeps_the_formula_where_the_channels_hold_no_light():
     assert np.allclose(kept[0][:4, 8:12], guessed[0][:4, 8:12])  # metal: the net's output either way
     assert np.allclose(kept[0][1:3, 17:19], form[1:3, 17:19])  # the mirror's inside keeps the formula
     assert np.allclose(kept[0][9:11, 12:16], guessed[0][9:11, 12:16])  # lit surfaces far from the patches: unchanged
+
+
+def test_residual_features_clamp_roughness_and_metallic():
+    rng = np.random.default_rng(0)
+    ch = {"albedo": rng.uniform(0, 1, (8, 8, 3)).astype(np.float32), "normal": np.dstack([np.zeros((8, 8, 2)), np.ones((8, 8, 1))]).astype(np.float32),
+          "roughness": np.full((8, 8, 1), 0.0, np.float32), "metallic": np.full((8, 8, 1), 1.0, np.float32),
+          "irradiance": np.ones((8, 8, 3), np.float32)}
+    hostile = {**ch, "roughness": np.full((8, 8, 1), -0.5, np.float32), "metallic": np.full((8, 8, 1), 3.0, np.float32)}
+    assert np.array_equal(R.features(hostile)[0], R.features(ch)[0])

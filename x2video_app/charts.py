@@ -1,8 +1,10 @@
-"""pyqtgraph charts: seconds per window of the current render (by level), and speed vs accuracy from bench results."""
+"""pyqtgraph charts: seconds per window of the current render (by level), and speed vs accuracy: the chart of
+`bench.pareto` (docs/pareto.json) with the current render's setting marked, else every bench result's points."""
 from __future__ import annotations
 
 import json
 import logging
+import math
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +20,39 @@ log = logging.getLogger(__name__)
 _SPEED_KEYS = ("seconds_per_frame", "sec_per_frame", "s_per_frame", "spf")
 _ACC_KEYS = ("psnr", "PSNR")
 _LABEL_KEYS = ("name", "label", "preset", "setting", "config")
+#: where `bench.pareto` writes its chart's numbers (a source checkout), and a copy packaged with the weights
+PARETO_PATHS = (Path(__file__).resolve().parents[1] / "docs" / "pareto.json", Path(__file__).resolve().parents[1] / "resources" / "pareto.json")
+#: pareto family -> point colour
+_FAMILY_COLOURS = {"formula": (200, 200, 200), "residual": (80, 200, 90), "ddim-recursive": (64, 150, 255), "ddim-sequential": (90, 210, 230),
+                   "lcm-recursive": (255, 160, 40), "lcm-sequential": (240, 210, 60), "cycles": (230, 70, 70)}
+
+
+def pareto_key(tier: str, settings: Any) -> str:
+    """The `bench.pareto` method of a render: 'formula', 'residual', or 'ddim-S' / 'lcm-S' (with '-seq' for sequential
+    sampling) from the RenderSettings the sampler ran with (a preset already resolved to sampler and steps)."""
+    if tier in ("formula", "residual"):
+        return tier
+    return f"{settings.sampler}-{settings.steps}" + ("-seq" if settings.scheme == "sequential" else "")
+
+
+def pareto_path() -> Path | None:
+    """The first of PARETO_PATHS that exists."""
+    return next((p for p in PARETO_PATHS if p.is_file()), None)
+
+
+def load_pareto(path: Path | None = None) -> dict | None:
+    """docs/pareto.json (or `path`), or None when there is none or it cannot be read (logged)."""
+    for p in [path] if path is not None else PARETO_PATHS:
+        if p is not None and Path(p).is_file():
+            try:
+                data = json.loads(Path(p).read_text())
+                if data.get("format") == "x2video-pareto" and isinstance(data.get("rows"), list):
+                    data["_path"] = str(p)
+                    return data
+                log.warning("%s: not a bench.pareto result (format %r)", p, data.get("format"))
+            except (OSError, ValueError) as e:
+                log.warning("skipping %s: %s", p, e)
+    return None
 
 
 def find_bench_points(obj: Any, source: str = "") -> list[tuple[str, float, float]]:
@@ -59,7 +94,8 @@ def load_bench_points(results_dir: Path) -> list[tuple[str, float, float]]:
 class Charts(QWidget):
     """Two tabs: 'This render' (bar per window, coloured by level) and 'Speed vs accuracy'."""
 
-    def __init__(self, results_dir: Path | None = None, parent=None) -> None:
+    def __init__(self, results_dir: Path | None = None, parent=None, pareto: Path | None = None) -> None:
+        """`pareto`: a bench.pareto JSON to chart (`pareto_path()`); without one, the points of every JSON under `results_dir`."""
         super().__init__(parent)
         pg.setConfigOptions(antialias=True)
         self.tabs = QTabWidget()
@@ -97,7 +133,11 @@ class Charts(QWidget):
         self.windows: list[tuple[int, int, float]] = []  # (window index, level, seconds)
         self.top_level = 1
         self.reset(1)
-        if results_dir is not None:
+        self.pareto = load_pareto(pareto) if pareto is not None else None
+        self.marked: dict | None = None  # the pareto row of the current render's setting
+        if self.pareto is not None:
+            self.show_pareto()
+        elif results_dir is not None:
             self.load_bench(results_dir)
 
     # -- this render -----------------------------------------------------------
@@ -131,6 +171,49 @@ class Charts(QWidget):
             self.legend.setText("&nbsp;&nbsp;".join(parts))
 
     # -- bench -----------------------------------------------------------------
+    def show_pareto(self, key: str | None = None, size: tuple[int, int] | None = None) -> dict | None:
+        """Plot docs/pareto.json's rows of the size nearest `size` (W, H; default the first), seconds per frame on a log
+        axis against PSNR, and ring the row of method `key` (`pareto_key`). Returns that row, or None."""
+        data = self.pareto or {}
+        rows = [r for r in data.get("rows", []) if r.get("psnr") is not None and (r.get("seconds_per_frame") or 0) > 0]
+        self.bench_plot.clear()
+        self.marked = None
+        if not rows:
+            self.bench_note.setText("No speed/accuracy chart yet (python -m bench.pareto writes docs/pareto.json).")
+            return None
+        sizes = sorted({tuple(r["size"]) for r in rows})
+        want = size or sizes[0]
+        at = min(sizes, key=lambda s: abs(math.log(s[0] * s[1] / max(want[0] * want[1], 1))))
+        rows = [r for r in rows if tuple(r["size"]) == at]
+        self.bench_plot.setLogMode(x=True, y=False)
+        self.bench_plot.setLabel("bottom", "seconds per frame (log)")
+        for fam in dict.fromkeys(r.get("family", "") for r in rows):
+            pts = sorted((r for r in rows if r.get("family", "") == fam), key=lambda r: r["seconds_per_frame"])
+            c = _FAMILY_COLOURS.get(fam, (64, 170, 255))
+            self.bench_plot.plot([r["seconds_per_frame"] for r in pts], [r["psnr"] for r in pts], pen=pg.mkPen(c, width=1),
+                                 symbol="o", symbolBrush=pg.mkBrush(*c), symbolPen=pg.mkPen("w"), symbolSize=8)
+            for r in pts:
+                t = pg.TextItem(str(r.get("label", r.get("method"))).replace(" + OIDN", ""), color=c, anchor=(0, 1))
+                t.setPos(math.log10(r["seconds_per_frame"]), r["psnr"])
+                self.bench_plot.addItem(t)
+        mark = next((r for r in rows if key is not None and r.get("method") == key), None)
+        where = f"{at[0]}x{at[1]}, {data.get('_path', 'docs/pareto.json')}"
+        if mark is not None:
+            self.bench_plot.addItem(pg.ScatterPlotItem(x=[math.log10(mark["seconds_per_frame"])], y=[mark["psnr"]], size=22, symbol="o",
+                                                       brush=pg.mkBrush(0, 0, 0, 0), pen=pg.mkPen((255, 255, 0), width=3)))
+            self.marked = mark
+            self.bench_note.setText(f"This render: {mark['label']}, measured {mark['seconds_per_frame']:.3g} s/frame and "
+                                    f"{mark['psnr']:.2f} dB PSNR on path-traced rooms at {where}.")
+        elif key is not None:
+            self.bench_note.setText(f"This render ({key}) is not among the measured settings ({where}).")
+        else:
+            self.bench_note.setText(f"{len(rows)} settings measured on path-traced rooms at {where}.")
+        return mark
+
+    def mark_setting(self, key: str, size: tuple[int, int] | None = None) -> dict | None:
+        """Ring the current render's setting (`pareto_key`) on the speed/accuracy chart, at the size nearest `size` (W, H)."""
+        return self.show_pareto(key, size) if self.pareto is not None else None
+
     def load_bench(self, results_dir: Path) -> int:
         points = load_bench_points(results_dir) if Path(results_dir).is_dir() else []
         self.bench_plot.clear()

@@ -25,7 +25,7 @@ from PySide6.QtWidgets import (
 from shiboken6 import isValid
 
 from x2video.sampling.events import FramesReady, RenderStarted, WindowStarted
-from x2video_app.charts import Charts
+from x2video_app.charts import Charts, pareto_key, pareto_path
 from x2video_app.display import VIEW_MODES
 from x2video_app.document import Document
 from x2video_app.edit_actions import EditActions
@@ -57,6 +57,7 @@ class MainWindow(QMainWindow):
         self.resize(1440, 900)
         self.ask = self._ask  # replaceable in tests: (title, text, buttons, default) -> button
         self.errors_shown: list[tuple[str, str]] = []  # (title, text) of every error dialog, for tests
+        self.render_settings = None  # the last render's RenderSettings (the speed/accuracy chart marks it)
         #: seconds from pressing Render to the first frame painted in the viewer, the formula's preview or the
         #: render's own (last render)
         self.first_frame_shown_s: float | None = None
@@ -99,7 +100,7 @@ class MainWindow(QMainWindow):
         self.edit_panel = EditPanel()
         self.scene_panel = ScenePanel()
         self.render_panel = RenderPanel()
-        self.charts = Charts(bench_dir if bench_dir is not None else BENCH_RESULTS)
+        self.charts = Charts(bench_dir if bench_dir is not None else BENCH_RESULTS, pareto=pareto_path() if bench_dir is None else None)
         self.docks = {}
         for name, w, area in (
             ("Masks", self.mask_panel, Qt.DockWidgetArea.RightDockWidgetArea),
@@ -297,6 +298,7 @@ class MainWindow(QMainWindow):
                 return False
             self.act_untrained.setChecked(True)
         settings = self.render_ctl.settings(**self.render_panel.values())
+        self.render_settings = settings  # the chart marks this setting when the render says which tier runs
         if self.follow_box.isChecked() and self.doc.view not in ("rendered", "side-by-side"):
             self.doc.set_view("rendered")
         self.first_keyframe_shown_s = self.first_frame_shown_s = None
@@ -318,6 +320,18 @@ class MainWindow(QMainWindow):
         self.render_panel.show_state(self.doc.render)
         self.refresh_timeline()
 
+    def mark_chart(self, tier: str) -> dict | None:
+        """Ring the running render's setting on the speed/accuracy chart (docs/pareto.json), at the shot's size."""
+        settings, model = self.render_settings, getattr(self.render_ctl.renderer, "model", None)
+        if settings is None or self.doc.shot is None:
+            return None
+        if tier == "diffusion" and model is not None:
+            from x2video.sampling.renderer import select_steps  # the preset as the Renderer resolves it
+
+            settings = select_steps(settings, model)
+        h, w = self.doc.shot.size
+        return self.charts.mark_setting(pareto_key(tier, settings), (w, h))
+
     def _shown_after_press(self) -> float | None:
         """Paint the viewer now; seconds since Render was pressed."""
         if self.render_ctl.pressed_at is None:
@@ -335,6 +349,7 @@ class MainWindow(QMainWindow):
         elif isinstance(ev, RenderStarted):
             self.charts.reset(0 if st.per_frame else max(ev.levels) if ev.levels else 1, ev.num_windows)
             self.statusBar().showMessage(f"Rendering with the {ev.tier} tier" + (f": {ev.reason}" if ev.reason else ""), 15000)
+            self.mark_chart(ev.tier)
             log.info("render tier %s (%s)", ev.tier, ev.reason)
         elif isinstance(ev, FramesReady):
             self.charts.add_window(ev.window, 0 if st.per_frame else ev.level, ev.seconds)

@@ -18,7 +18,7 @@ from typing import Callable
 import bpy
 import numpy as np
 
-from x2video.cycles.passes import compositor_output, configure_view_layer, wire_all_materials
+from x2video.cycles.passes import PASS_FLAGS, compositor_output, configure_view_layer, wire_all_materials
 from x2video.cycles.room import build_room, extras_for
 from x2video.io.atomic import write_json_atomic
 from x2video.io.metadata import FORMAT_NAME, FORMAT_VERSION, cameras_json
@@ -103,13 +103,14 @@ def _render_to(path: Path) -> None:
 
 
 def _read_combined(path: Path) -> np.ndarray:
-    """(H, W, 3) linear Combined of a single-layer EXR written by Blender (read back with Blender itself)."""
+    """(H, W, 3) linear Combined of a single-layer EXR written by Blender (read back with Blender itself), top row
+    first (Blender's pixel buffer starts at the bottom row)."""
     img = bpy.data.images.load(str(path))
     w, h = img.size
     px = np.empty(w * h * 4, np.float32)
     img.pixels.foreach_get(px)
     bpy.data.images.remove(img)
-    return px.reshape(h, w, 4)[..., :3]
+    return np.ascontiguousarray(px.reshape(h, w, 4)[::-1, :, :3])
 
 
 def exposure_gain(scene: "bpy.types.Scene", frames: list[int], target: float) -> float:
@@ -206,3 +207,44 @@ def write_room_shot(out_dir: str | Path, seed: int, num_frames: int, width: int,
                   "material_class": {str(k): v for k, v in built["material_class"].items()}},
     })
     return out
+
+
+def beauty_scene(seed: int, poses: list[CameraPose], width: int, height: int, light_gain: float, threads: int = 1,
+                 bounces: int = CyclesConfig.bounces) -> "bpy.types.Scene":
+    """Room `seed` as `write_room_shot` builds it, for rendering the picture alone, as a Blender user would: the
+    camera keyed at `poses` (Blender's world, as cameras.json beside the room's frames holds them), every light
+    scaled by `light_gain` (the room's shot.json records the gain its exposure probe chose), Combined only (no
+    passes, AOVs or compositor), single-layer float EXR. Render frames with `render_beauty`."""
+    scene_desc = generate_scene(seed)
+    build_room(scene_desc, extras_for(scene_desc, seed))
+    scene = setup_render(width, height, CyclesConfig(threads=threads, bounces=bounces))
+    axes = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], float)  # ours -> Blender (orthogonal)
+    add_camera([CameraPose(axes.T @ np.asarray(p.cam_to_world, float), p.fov_y_deg) for p in poses])
+    wire_all_materials()  # as the room's build did, so that the scene is the same one
+    scale_lights(light_gain)
+    layer = scene.view_layers[0]
+    for flag in PASS_FLAGS:
+        setattr(layer, flag, flag == "use_pass_combined")
+    while len(layer.aovs):
+        layer.aovs.remove(layer.aovs[0])
+    scene.use_nodes = False
+    s = scene.render.image_settings
+    s.file_format, s.color_depth, s.color_mode = "OPEN_EXR", "32", "RGB"
+    return scene
+
+
+def render_beauty(scene: "bpy.types.Scene", t: int, samples: int, *, denoise: bool = True, seed: int = 0) -> tuple[np.ndarray, float]:
+    """((H, W, 3) linear Combined of frame `t` at `samples` samples per pixel (adaptive, as the data sets are made),
+    OpenImageDenoise'd when `denoise`, noise pattern `seed`; wall seconds of the render and the EXR write)."""
+    scene.cycles.samples = int(samples)
+    scene.cycles.use_denoising = bool(denoise)
+    if denoise:
+        scene.cycles.denoiser = "OPENIMAGEDENOISE"
+    scene.cycles.seed = int(seed)
+    scene.frame_set(t)
+    with tempfile.TemporaryDirectory(prefix="x2video_beauty_") as tmp:
+        f = Path(tmp) / "beauty.exr"
+        t0 = time.perf_counter()
+        _render_to(f)
+        secs = time.perf_counter() - t0
+        return _read_combined(f), secs

@@ -150,7 +150,8 @@ def features(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None 
     """(C_in, H, W) network input and (3, H, W) linear formula (albedo x irradiance) of one frame's channels
     (memory convention, irradiance exposure-normalised). A dropped channel is zeros with its present flag 0;
     `shape` = (H, W) is needed only when every channel is dropped. Non-finite values count as 0 (one NaN
-    would otherwise reach the net's global context and blank the whole frame)."""
+    would otherwise reach the net's global context and blank the whole frame); roughness and metallic are
+    clamped to [0, 1]."""
     h, w = _frame_shape(ch, shape)
 
     def get(name: str, n: int) -> tuple[np.ndarray, float]:
@@ -164,6 +165,7 @@ def features(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None 
     nr, pn = get("normal", 3)
     ro, pr = get("roughness", 1)
     me, pm = get("metallic", 1)
+    ro, me = np.clip(ro, 0, 1), np.clip(me, 0, 1)  # their range, as the loaders and the sampler's to_vae_range clamp them
     ir, pi = get("irradiance", 3)
     shading = formula(ch, (h, w))
     x = np.empty((20, h, w), np.float32)  # filled plane by plane: no (H, W, 20) intermediate on large frames

@@ -1,0 +1,585 @@
+"""The speed-accuracy chart: seconds per frame (log) against PSNR and TC on path-traced test rooms, for every way
+of making the picture: the formula, tier 1, the diffusion sampler's step counts and schemes, and Cycles itself.
+
+    python -m bench.pareto --data DATA/pt160,DATA/pt320 --sizes 160x112,320x224 [--rooms 2 --frames 4] (or --rooms 2,1: per size)
+        [--methods formula,residual,ddim-20,...,cycles-64] [--reference-samples 128] [--threads 2]
+
+For each size, the first `--rooms` finished shots of that size among the `--data` folders (DATA/<split>/<shot>/,
+from `x2video dataset make --renderer cycles`) and their first `--frames` frames. Methods:
+
+    formula          tier 0: albedo x irradiance (RenderSettings.quality 'formula')
+    residual         tier 1: one pass of the shipped tier-1 net (quality 'residual')
+    ddim-S, lcm-S    tier 2: the video diffusion sampler with S steps, Recursive Sampling
+    ddim-S-seq, ...  the same with sequential sampling (skipped, and said so, where the two plans are the same
+                     windows: shots no longer than one window)
+    cycles-S         Cycles at S samples per pixel, OpenImageDenoise'd: the room rebuilt from its seed
+                     (`x2video.cycles.shot.beauty_scene`: same scene, cameras, light gain) and only the picture
+                     rendered, as a Blender user would, in a Blender process of its own, timed in this run
+
+Ground truth: with `--reference-samples R` (default 128) the bench renders its own reference of the same frames
+with Cycles at R samples, denoised, with another noise seed than the rows (the data sets' frames were rendered
+at fewer samples, often 32, with the rows' seed: a Cycles row at 64 samples is not to be scored against them);
+with 0 it scores against the data set's frames (N samples, OpenImageDenoise'd) and says so. Every row is also
+scored against the data set's frames (`psnr_dataset`). Scoring is `bench.ptscore` (as bench.pathtraced):
+PSNR/SSIM on display images in the shot's units, TC = warping error over the ground truth's (DIS flow).
+
+Seconds per frame: wall time of the render of the shot's frames over their count; the model loaded, one
+untimed warm-up per size, each method with a fresh conditioning cache (it pays its own encoding); Cycles:
+the render call per frame (scene sync, path tracing, denoising, writing the EXR), the scene built beforehand.
+
+Writes docs/pareto.json (`--out`), docs/pareto.png (two panels, matplotlib) and bench/results/pareto/pareto.md.
+The editor's speed-vs-accuracy chart reads docs/pareto.json and marks the setting of the current render.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import multiprocessing as mp
+import os
+import re
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from bench.common import command, results_path
+from bench.ptscore import display, render_timed, score, shot_dirs, truth
+from x2video.cli.fields import add_fields, from_args
+
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+METHODS = ("formula", "residual", "ddim-1", "ddim-2", "ddim-4", "ddim-8", "ddim-20", "lcm-1", "lcm-2", "lcm-4",
+           "ddim-4-seq", "ddim-20-seq", "lcm-2-seq", "cycles-4", "cycles-16", "cycles-64")
+#: within this many dB of the best PSNR counts as "as good" for the summary's fastest setting
+NEAR_BEST_DB = 0.5
+
+
+@dataclass
+class ParetoOptions:
+    """What `python -m bench.pareto` measures (flags via `x2video.cli.fields`)."""
+
+    data: str = ""
+    """Data set folder(s), comma-separated, each DATA/<split>/<shot>/ of path-traced shots with rgb ground truth;
+    the shots of each size come from the folders that have shots of that size."""
+    split: str = "test"
+    """Split folder inside each data set ('' for a folder of shots)."""
+    sizes: str = "160x112,320x224"
+    """Sizes WxH to measure, comma-separated; each needs shots of that size in --data."""
+    rooms: tuple[int, ...] = (2,)
+    """First K finished shots per size: one K for every size, or one per --sizes entry (e.g. 2,1)."""
+    frames: tuple[int, ...] = (4,)
+    """First T frames of each shot (at least 2 for TC): one T for every size, or one per --sizes entry."""
+    methods: str = ",".join(METHODS)
+    """Rows, comma-separated: formula, residual, ddim-S, lcm-S (add -seq for sequential sampling), cycles-S."""
+    reference_samples: int = 128
+    """Cycles samples of the bench's own ground truth (denoised, another noise seed); 0: the data set's frames."""
+    threads: int = 2
+    """torch CPU threads and Cycles threads (the same for both, so that the seconds compare)."""
+    clock: Literal["cpu", "wall"] = "cpu"
+    """The seconds the chart, the summary and the editor use (each row's seconds_per_frame): 'cpu' = CPU seconds per
+    frame of the rendering process, all its threads (steady when other jobs share the machine); 'wall' = wall
+    seconds per frame (what a user waits, on an otherwise idle machine). Both are in the JSON."""
+    weights: str = ""
+    """Model folder (default: the shipped weights)."""
+    out: str = ""
+    """Result JSON (default docs/pareto.json; the PNG beside it, the Markdown in bench/results/pareto/)."""
+    png: bool = True
+    """Draw the PNG (needs matplotlib: pip install 'x2video-studio[bench]')."""
+    replot: str = ""
+    """Measure nothing: redraw the PNG and the Markdown from this result JSON (e.g. docs/pareto.json)."""
+
+
+@dataclass(frozen=True)
+class Method:
+    key: str  # as given: "ddim-20-seq"
+    kind: str  # formula | residual | diffusion | cycles
+    sampler: str = ""
+    steps: int = 0
+    scheme: str = "recursive"
+    samples: int = 0
+
+    @property
+    def label(self) -> str:
+        if self.kind == "formula":
+            return "formula (tier 0)"
+        if self.kind == "residual":
+            return "tier 1 (residual net)"
+        if self.kind == "cycles":
+            return f"Cycles {self.samples} spp + OIDN"
+        return f"{self.sampler.upper()}-{self.steps}" + (" sequential" if self.scheme == "sequential" else "")
+
+    @property
+    def family(self) -> str:
+        """Points joined by a line in the chart: the DDIM steps, the LCM steps, the Cycles samples."""
+        if self.kind == "diffusion":
+            return f"{self.sampler}-{self.scheme}"
+        return self.kind
+
+
+def parse_method(text: str) -> Method:
+    """'formula', 'residual', 'ddim-20', 'lcm-2-seq', 'cycles-64' -> Method; a clear error otherwise."""
+    t = text.strip().lower()
+    if t in ("formula", "residual"):
+        return Method(t, t)
+    m = re.fullmatch(r"(ddim|lcm)-(\d+)(-seq)?", t)
+    if m:
+        return Method(t, "diffusion", m.group(1), int(m.group(2)), "sequential" if m.group(3) else "recursive")
+    m = re.fullmatch(r"cycles-(\d+)", t)
+    if m:
+        return Method(t, "cycles", samples=int(m.group(1)))
+    raise ValueError(f"--methods: unknown method {text!r} (formula, residual, ddim-S, lcm-S, ddim-S-seq, lcm-S-seq, cycles-S)")
+
+
+def per_size(values: tuple[int, ...], sizes: list, flag: str) -> list[int]:
+    """One value per size from a flag holding one value or one per size."""
+    vals = list(values) * len(sizes) if len(values) == 1 else list(values)
+    if len(vals) != len(sizes) or min(vals, default=0) < 1:
+        raise SystemExit(f"{flag}: one value of at least 1, or one per --sizes entry ({len(sizes)}); got {','.join(map(str, values))}")
+    return vals
+
+
+def parse_sizes(text: str) -> list[tuple[int, int]]:
+    from x2video.cli.args import size_arg
+
+    return [tuple(size_arg(s)) for s in text.split(",") if s.strip()]  # (W, H)
+
+
+# --------------------------------------------------------------------------------------------- data
+def shots_by_size(folders: list[Path], split: str) -> dict[tuple[int, int], list[Path]]:
+    """(W, H) -> finished shot folders of that size (sorted), over every data set folder."""
+    out: dict[tuple[int, int], list[Path]] = {}
+    for f in folders:
+        root = f / split if split else f
+        if not root.is_dir():
+            raise SystemExit(f"--data {f}: no folder {root}")
+        for d in shot_dirs(root):
+            info = json.loads((d / "shot.json").read_text())
+            out.setdefault((int(info["width"]), int(info["height"])), []).append(d)
+    return {k: sorted(v, key=lambda p: (p.name, str(p))) for k, v in out.items()}
+
+
+def cycles_job(shot_dir: Path, frames: int) -> dict | None:
+    """What a Cycles process needs to rebuild this room (None: not a procedural room of `x2video.cycles`)."""
+    from x2video.io.shotdir import parse_cameras_json
+
+    info = json.loads((shot_dir / "shot.json").read_text())
+    extra = info.get("extra", {})
+    if "room_seed" not in extra or "light_gain" not in extra or not (shot_dir / "cameras.json").is_file():
+        return None
+    poses = parse_cameras_json(shot_dir / "cameras.json", int(info["num_frames"]))
+    return {"dir": str(shot_dir), "seed": int(extra["room_seed"]), "gain": float(extra["light_gain"]),
+            "poses": [(np.asarray(p.cam_to_world, float).tolist(), p.fov_y_deg) for p in poses[:frames]],
+            "width": int(info["width"]), "height": int(info["height"]), "samples": extra.get("samples")}
+
+
+# --------------------------------------------------------------------------------------------- Cycles (own process)
+def _quiet() -> None:
+    """Blender prints a line per tile and pass to the C stdout: send it to /dev/null in the worker."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 1)
+
+
+def _cycles_worker(jobs: list[dict], samples: list[int], reference: int, threads: int) -> list[dict]:
+    """In a Blender process: per job, {samples: (frames, wall seconds, CPU seconds of the process)} for each count
+    (seed 0, as the data sets), the reference frames (seed 1) when `reference`, and the scene's build seconds."""
+    from x2video.cycles.shot import beauty_scene, render_beauty
+    from x2video.shot import CameraPose
+
+    out = []
+    warm = False
+    for job in jobs:
+        poses = [CameraPose(np.array(m, float), fov) for m, fov in job["poses"]]
+        t0 = time.perf_counter()
+        scene = beauty_scene(job["seed"], poses, job["width"], job["height"], job["gain"], threads=threads)
+        build = time.perf_counter() - t0
+        if not warm:  # kernels and OIDN load on the first render of the process: untimed
+            render_beauty(scene, 0, 1)
+            warm = True
+        res: dict[str, Any] = {"build_seconds": build, "rows": {}}
+        for s in samples:
+            frames, secs = [], []
+            c0 = time.process_time()
+            for t in range(len(poses)):
+                img, sec = render_beauty(scene, t, s, seed=0)
+                frames.append(img)
+                secs.append(sec)
+            res["rows"][s] = (frames, sum(secs), time.process_time() - c0)
+        if reference:
+            res["reference"] = [render_beauty(scene, t, reference, seed=1)[0] for t in range(len(poses))]
+        out.append(res)
+    return out
+
+
+def run_cycles(jobs: list[dict], samples: list[int], reference: int, threads: int) -> list[dict]:
+    """`_cycles_worker` in a spawned process (bpy wants a process of its own)."""
+    with mp.get_context("spawn").Pool(1, initializer=_quiet) as pool:
+        return pool.apply(_cycles_worker, (jobs, samples, reference, threads))
+
+
+def bpy_available() -> str | None:
+    """None when Blender's Python module can be imported, else why not."""
+    import importlib.util
+
+    try:
+        return None if importlib.util.find_spec("bpy") is not None else "bpy is not installed (pip install 'x2video-studio[cycles]')"
+    except (ImportError, ValueError) as exc:
+        return f"bpy: {exc}"
+
+
+# --------------------------------------------------------------------------------------------- the model's rows
+def diffusion_settings(m: Method, frames: int):
+    from x2video.sampling.events import RenderSettings
+
+    if m.kind == "diffusion":
+        return RenderSettings(quality="diffusion", sampler=m.sampler, steps=m.steps, scheme=m.scheme, frames=(0, frames))
+    return RenderSettings(quality=m.kind, frames=(0, frames))
+
+
+def same_plan(model: Any, shot: Any, m: Method, frames: int) -> bool:
+    """Whether sequential sampling of `m` runs exactly the windows recursive sampling does (short shots)."""
+    import dataclasses
+
+    from x2video.sampling.renderer import Renderer
+
+    r = Renderer(model)
+    s = diffusion_settings(m, frames)
+    key = lambda plan: [(w.frames, w.generate, w.refs) for w in plan]  # noqa: E731 - 'key' and 'seq' windows sample alike
+    return key(r.plan(shot, s)) == key(r.plan(shot, dataclasses.replace(s, scheme="recursive")))
+
+
+def warm_up(model: Any, shot: Any, methods: list[Method]) -> None:
+    """One untimed render per network the methods use (first-call costs stay out of the first row)."""
+    from x2video.sampling.renderer import Renderer
+
+    kinds = {(m.kind, m.sampler) for m in methods if m.kind in ("residual", "diffusion")}
+    for kind, sampler in sorted(kinds):
+        m = Method("warm", kind, sampler, 1) if kind == "diffusion" else Method("warm", kind)
+        render_timed(Renderer(model), shot, diffusion_settings(m, min(2, shot.num_frames)))
+
+
+# --------------------------------------------------------------------------------------------- the bench
+def measure(opts: ParetoOptions, argv: list[str] | None, on_partial: Any = None) -> dict:
+    """The result (see the module docstring); `on_partial(result)` after each size, with "complete": False."""
+    import torch
+
+    from x2video.io import load_shot
+    from x2video.sampling.renderer import Renderer
+
+    if not opts.data:
+        raise SystemExit("--data: give the path-traced data set folder(s)")
+    torch.set_num_threads(opts.threads)
+    methods = [parse_method(t) for t in opts.methods.split(",") if t.strip()]
+    if not methods:
+        raise SystemExit("--methods: none given")
+    folders = [Path(p) for p in opts.data.split(",") if p.strip()]
+    found = shots_by_size(folders, opts.split)
+    sizes = parse_sizes(opts.sizes)
+    rooms, frames = per_size(opts.rooms, sizes, "--rooms"), per_size(opts.frames, sizes, "--frames")
+    missing = [s for s in sizes if not found.get(s)]
+    if missing:
+        have = ", ".join(f"{w}x{h} ({len(v)})" for (w, h), v in sorted(found.items())) or "none"
+        raise SystemExit(f"--sizes: no finished shot of {', '.join(f'{w}x{h}' for w, h in missing)} in --data {opts.data}"
+                         f" (split {opts.split!r}); sizes there: {have}")
+    model = None
+    if any(m.kind in ("residual", "diffusion") for m in methods):
+        from x2video.weights import load_model
+
+        model = load_model(opts.weights or None)
+        model.encode_prompts([""])  # the text encoder loads before any clock runs
+    cyc = [m for m in methods if m.kind == "cycles"]
+    no_bpy = bpy_available() if (cyc or opts.reference_samples) else None
+    load0 = os.getloadavg()
+    t_all = time.perf_counter()
+    rows: list[dict] = []
+    unavailable: list[dict] = []
+    ground_truth: dict[str, Any] = {}
+
+    def result(complete: bool) -> dict:
+        return _result(opts, argv, model, folders, sizes, rooms, frames, ground_truth, rows, unavailable, load0, t_all, complete)
+    for (w, h), n_rooms, n_frames in zip(sizes, rooms, frames):
+        dirs = found[(w, h)][:n_rooms]
+        shots = [load_shot(d) for d in dirs]
+        nframes = [min(n_frames, s.num_frames) for s in shots]
+        print(f"{w}x{h}: {len(shots)} shot(s) ({', '.join(d.name for d in dirs)}), {nframes} frames", file=sys.stderr, flush=True)
+        gts = [truth(s, n) for s, n in zip(shots, nframes)]
+        # Cycles first (its process is gone before the model's clocks run)
+        jobs = [cycles_job(d, n) for d, n in zip(dirs, nframes)]
+        cycles_res: list[dict | None] = [None] * len(shots)
+        why_no_cycles = no_bpy or (None if all(jobs) else
+                                   f"{dirs[jobs.index(None)]} is not a procedural Cycles room (no room_seed/light_gain in shot.json)")
+        want_ref = opts.reference_samples if not why_no_cycles else 0
+        if (cyc or want_ref) and not why_no_cycles:
+            t0 = time.perf_counter()
+            cycles_res = run_cycles(jobs, [m.samples for m in cyc], want_ref, opts.threads)  # type: ignore[assignment]
+            print(f"{w}x{h}: Cycles done in {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+        samples_gt = sorted({j["samples"] for j in jobs if j and j.get("samples")}) if any(jobs) else []
+        if want_ref:
+            refs = [display(r["reference"]) for r in cycles_res]  # type: ignore[index]
+            ground_truth[f"{w}x{h}"] = {"kind": "bench reference", "samples": want_ref, "denoise": "OpenImageDenoise", "seed": 1,
+                                        "note": f"Cycles at {want_ref} spp, denoised, rendered by this run with another noise seed than "
+                                                "the Cycles rows; the data set's frames "
+                                                f"({'/'.join(map(str, samples_gt)) or '?'} spp, denoised) give psnr_dataset"}
+        else:
+            refs = gts
+            why = "--reference-samples 0" if not opts.reference_samples else f"no bench reference: {why_no_cycles}"
+            ground_truth[f"{w}x{h}"] = {"kind": "data set frames", "samples": samples_gt, "denoise": "OpenImageDenoise",
+                                        "note": f"the data set's frames at {'/'.join(map(str, samples_gt)) or '?'} spp, denoised ({why})"
+                                                + ("; Cycles rows at more samples than these are scored against a noisier reference"
+                                                   if any(m.samples > max(samples_gt or [0]) for m in cyc) else "")}
+        if cyc and why_no_cycles:
+            unavailable += [{"method": m.key, "size": [w, h], "reason": why_no_cycles} for m in cyc]
+        if model is not None:
+            warm_up(model, shots[0], methods)
+        for m in methods:
+            per_shot, secs_total, cpu_total, frames_total = [], 0.0, 0.0, 0
+            if m.kind == "cycles":
+                if why_no_cycles:
+                    continue
+                outs = [(*r["rows"][m.samples], 1.0) for r in cycles_res]  # type: ignore[index]
+            else:
+                if m.scheme == "sequential" and all(same_plan(model, s, m, n) for s, n in zip(shots, nframes)):
+                    unavailable.append({"method": m.key, "size": [w, h], "reason": f"the same windows as recursive sampling at "
+                                        f"{max(nframes)} frames (a shot no longer than one window)"})
+                    continue
+                outs = []
+                for s, n in zip(shots, nframes):
+                    if m.kind == "formula":
+                        from x2video.sampling.formula import formula_frames
+
+                        class _R:  # formula_frames behind render_timed's interface
+                            def render(self, shot, edits, settings, on_event):
+                                formula_frames(shot, edits, settings, on_event)
+                        c0 = time.process_time()
+                        fr, sec = render_timed(_R(), s, diffusion_settings(m, n))
+                    else:
+                        renderer = Renderer(model)
+                        c0 = time.process_time()
+                        fr, sec = render_timed(renderer, s, diffusion_settings(m, n))
+                    outs.append((fr, sec, time.process_time() - c0, float(s.info.irradiance_scale)))
+            for (fr, sec, cpu, scale), s, n, ref, gt in zip(outs, shots, nframes, refs, gts):
+                disp = display(fr, scale)
+                sc, sc_ds = score(disp, ref), score(disp, gt)
+                per_shot.append({"shot": Path(str(s.info.source)).name, "frames": n, "seconds": sec, "cpu_seconds": cpu, **sc,
+                                 "psnr_dataset": sc_ds["psnr"], "tc_dataset": sc_ds["tc"]})
+                secs_total += sec
+                cpu_total += cpu
+                frames_total += n
+            row = {"name": f"{m.label} {w}x{h}", "method": m.key, "label": m.label, "kind": m.kind, "family": m.family, "size": [w, h],
+                   "sampler": m.sampler or None, "steps": m.steps or None, "scheme": m.scheme if m.kind == "diffusion" else None,
+                   "samples": m.samples or None, "wall_seconds_per_frame": secs_total / max(frames_total, 1),
+                   "cpu_seconds_per_frame": cpu_total / max(frames_total, 1), "frames": frames_total,
+                   **{k: _mean([p[k] for p in per_shot]) for k in ("psnr", "ssim", "tc", "psnr_dataset", "tc_dataset")},
+                   "per_shot": per_shot}
+            row["seconds_per_frame"] = row[f"{opts.clock}_seconds_per_frame"]
+            rows.append(row)
+            print(f"{row['name']:>36}: {row['wall_seconds_per_frame']:8.3f} s/frame ({row['cpu_seconds_per_frame']:8.3f} CPU s)  "
+                  f"PSNR {row['psnr']:6.2f}  TC {row['tc']}", file=sys.stderr, flush=True)
+        if on_partial is not None and (w, h) != sizes[-1]:
+            on_partial(result(False))
+    return result(True)
+
+
+def _result(opts: ParetoOptions, argv: list[str] | None, model: Any, folders: list[Path], sizes: list, rooms: list[int], frames: list[int],
+            ground_truth: dict, rows: list[dict], unavailable: list[dict], load0: tuple, t_all: float, complete: bool) -> dict:
+    from x2video.eval.machine import machine_info
+    from x2video.io.paths import portable_path
+    from x2video.weights import shipped_weights
+
+    weights = portable_path(opts.weights) if opts.weights else f"shipped ({portable_path(shipped_weights() or '?')})"
+    return {"format": "x2video-pareto", "complete": complete, "command": command("pareto", argv),
+            "machine": machine_info(model.device if model is not None else "cpu"),
+            "threads": opts.threads, "clock": opts.clock, "load_average_start": [round(v, 2) for v in load0],
+            "load_average_end": [round(v, 2) for v in os.getloadavg()], "weights": weights,
+            "residual_net": bool(model is not None and model.residual_net is not None), "has_lcm": bool(model is not None and model.has_lcm),
+            "data": [portable_path(f) for f in folders], "split": opts.split,
+            "rooms": {f"{w}x{h}": k for (w, h), k in zip(sizes, rooms)}, "frames": {f"{w}x{h}": t for (w, h), t in zip(sizes, frames)},
+            "ground_truth": ground_truth,
+            "note": "PSNR/SSIM on tonemap (clip, sRGB) in the shot's units against ground_truth; psnr_dataset against the data set's "
+                    "frames; TC = warping error / ground truth's (DIS flow); wall_seconds_per_frame = wall time of the render over its "
+                    "frames, cpu_seconds_per_frame = the rendering process's CPU seconds (all threads) over its frames "
+                    f"({opts.threads} threads for torch and Cycles), model loaded and warmed up, each row paying its own conditioning "
+                    f"encoding; seconds_per_frame = the {opts.clock} figure (the chart's x)",
+            "rows": rows, "unavailable": unavailable, "summary": summarise(rows), "wall_seconds": time.perf_counter() - t_all}
+
+
+def _mean(vals: list) -> float | None:
+    v = [x for x in vals if x is not None and math.isfinite(x)]
+    return float(np.mean(v)) if v else None
+
+
+def summarise(rows: list[dict]) -> dict:
+    """Per size: the best PSNR among the model's settings (formula, tier 1, sampler), the fastest setting within
+    NEAR_BEST_DB of it, and its speed-up over DDIM-20 (recursive) and over Cycles at 64 samples, in wall seconds
+    and in CPU seconds (`_cpu`: less sensitive to other jobs on a shared machine)."""
+    out: dict[str, Any] = {}
+    for size in sorted({tuple(r["size"]) for r in rows}):
+        rs = [r for r in rows if tuple(r["size"]) == size]
+        ours = [r for r in rs if r["kind"] != "cycles" and r["psnr"] is not None]
+        if not ours:
+            continue
+        best = max(ours, key=lambda r: r["psnr"])
+        fast = min((r for r in ours if r["psnr"] >= best["psnr"] - NEAR_BEST_DB), key=lambda r: r["seconds_per_frame"])
+        ddim20 = next((r for r in rs if r["method"] == "ddim-20"), None)
+        c64 = next((r for r in rs if r["method"] == "cycles-64"), None)
+        s = {"best": best["label"], "best_psnr": best["psnr"], "fastest_near_best": fast["label"], "fastest_method": fast["method"],
+             "fastest_psnr": fast["psnr"], "fastest_wall_seconds_per_frame": fast["wall_seconds_per_frame"],
+             "fastest_cpu_seconds_per_frame": fast["cpu_seconds_per_frame"], "near_best_db": NEAR_BEST_DB,
+             "fastest_by": "seconds_per_frame (the run's clock)"}
+        for key, ref in (("speedup_over_ddim20", ddim20), ("speedup_over_cycles64", c64)):
+            for clock in ("wall", "cpu"):
+                a, b = (ref or {}).get(f"{clock}_seconds_per_frame"), fast.get(f"{clock}_seconds_per_frame")
+                s[f"{key}_{clock}"] = a / b if a and b else None
+        if c64 is not None:
+            s["cycles64_psnr"] = c64["psnr"]
+        out[f"{size[0]}x{size[1]}"] = s
+    return out
+
+
+# --------------------------------------------------------------------------------------------- outputs
+FAMILY_STYLE = {"formula": ("s", "black"), "residual": ("D", "tab:green"), "ddim-recursive": ("o", "tab:blue"),
+                "ddim-sequential": ("o", "tab:cyan"), "lcm-recursive": ("^", "tab:orange"), "lcm-sequential": ("^", "gold"),
+                "cycles": ("*", "tab:red")}
+
+
+FAMILY_NAMES = {"formula": "formula (tier 0)", "residual": "tier 1 (residual net)", "ddim-recursive": "DDIM, recursive",
+                "ddim-sequential": "DDIM, sequential", "lcm-recursive": "LCM, recursive", "lcm-sequential": "LCM, sequential",
+                "cycles": "Cycles + OIDN"}
+
+
+def draw(result: dict, path: Path) -> Path:
+    """Two panels, PSNR and TC against seconds per frame (log): one line per family and size (solid 160-ish, dashed
+    the larger sizes), the formula a dotted horizontal line per size."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from x2video.eval.machine import machine_label
+    from x2video.io.atomic import atomic_path
+
+    rows = [r for r in result["rows"] if r.get("psnr") is not None and r["seconds_per_frame"] > 0]
+    if not rows:
+        raise ValueError("pareto chart: no row with PSNR and seconds per frame")
+    sizes = sorted({tuple(r["size"]) for r in rows}, key=lambda s: s[0] * s[1])
+    dashes = {s: ("-" if i == 0 else "--" if i == 1 else ":") for i, s in enumerate(sizes)}
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5), dpi=110)
+    for ax, key, ylabel in ((axes[0], "psnr", "PSNR (dB) ↑"), (axes[1], "tc", "TC (warping error / ground truth's) ↓")):
+        for size in sizes:
+            rs = [r for r in rows if tuple(r["size"]) == size and r.get(key) is not None]
+            form = next((r for r in rs if r["kind"] == "formula"), None)
+            if form is not None:
+                ax.axhline(form[key], color="black", lw=0.8, ls=dashes[size], alpha=0.5)
+            for fam in dict.fromkeys(r["family"] for r in rs):
+                pts = sorted((r for r in rs if r["family"] == fam), key=lambda r: r["seconds_per_frame"])
+                marker, colour = FAMILY_STYLE.get(fam, ("x", "grey"))
+                ax.plot([r["seconds_per_frame"] for r in pts], [r[key] for r in pts], ls=dashes[size], marker=marker, color=colour,
+                        ms=7 if marker != "*" else 11, label=f"{FAMILY_NAMES.get(fam, fam)} {size[0]}x{size[1]}")
+                for r in pts:
+                    tag = r["label"].replace(" + OIDN", "").replace("tier 1 (residual net)", "tier 1").replace("formula (tier 0)", "formula")
+                    ax.annotate(tag.replace(" sequential", " seq"), (r["seconds_per_frame"], r[key]), textcoords="offset points",
+                                xytext=(4, 3), fontsize=6, color=colour)
+        ax.set_xscale("log")
+        ax.set_xlabel(("CPU seconds per frame, all threads" if result.get("clock") == "cpu" else "wall seconds per frame") + " (log) ↓")
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3, which="both")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=7, frameon=False)
+    gts = {(v["kind"], str(v["samples"])) for v in result["ground_truth"].values()}
+    gt = "; ".join(f"{k}: {'Cycles' if v['kind'] == 'bench reference' else 'the data set'} at {v['samples']} spp + OIDN"
+                   + (" (own noise seed)" if v["kind"] == "bench reference" else "") for k, v in result["ground_truth"].items())
+    if len(gts) == 1 and len(result["ground_truth"]) > 1:
+        v = next(iter(result["ground_truth"].values()))
+        gt = f"{'Cycles' if v['kind'] == 'bench reference' else 'the data set'} at {v['samples']} spp + OIDN, every size"
+    fig.suptitle(f"speed vs accuracy on path-traced test rooms ({machine_label(result['machine'])}, {result['threads']} threads, load "
+                 f"{result['load_average_start'][0]:.1f})\nground truth: {gt}\nformula: horizontal line; solid = "
+                 f"{sizes[0][0]}x{sizes[0][1]}" + (f", dashed = {sizes[1][0]}x{sizes[1][1]}" if len(sizes) > 1 else ""), fontsize=8)
+    fig.tight_layout(rect=(0, 0.1 if len(labels) > 6 else 0.06, 1, 0.9))
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+    return path
+
+
+def markdown(result: dict) -> str:
+    lines = ["# Speed vs accuracy (bench.pareto)", "", f"*Generated by `{result['command']}`; do not edit by hand.*", "",
+             f"Machine: {result['machine'].get('cpu', '?')}, {result['threads']} threads; load average "
+             f"{result['load_average_start'][0]:.1f} at the start, {result['load_average_end'][0]:.1f} at the end (a shared 2-core VM: seconds "
+             f"compare within this run only). Weights: {result['weights']}. Data: {', '.join(result['data'])} ({result['split']}): "
+             + ", ".join(f"at {k} the first {v} room(s), first {result['frames'][k]} frames" for k, v in result["rooms"].items())
+             + f". {result['wall_seconds'] / 60:.1f} min in all.", ""]
+    for size, g in result["ground_truth"].items():
+        lines.append(f"Ground truth at {size}: {g['note']}.")
+    lines += ["", f"The chart's x and 'fastest' below use the {result['clock']} seconds.", "",
+              "| size | setting | wall s/frame ↓ | CPU s/frame ↓ | PSNR ↑ | SSIM ↑ | TC ↓ | PSNR vs data set frames |",
+              "|---|---|---|---|---|---|---|---|"]
+    f = lambda v, d: "—" if v is None else f"{v:.{d}f}"  # noqa: E731
+    for r in result["rows"]:
+        lines.append(f"| {r['size'][0]}x{r['size'][1]} | {r['label']} | {r['wall_seconds_per_frame']:.3f} | {f(r['cpu_seconds_per_frame'], 3)} | "
+                     f"{f(r['psnr'], 2)} | {f(r['ssim'], 4)} | "
+                     f"{f(r['tc'], 3)} | {f(r['psnr_dataset'], 2)} |")
+    if result["unavailable"]:
+        lines += ["", "Not measured: " + "; ".join(f"{u['method']} at {u['size'][0]}x{u['size'][1]} ({u['reason']})"
+                                                   for u in result["unavailable"]) + "."]
+    lines += ["", "## The shipped model's fastest setting within 0.5 dB of its best", ""]
+    for size, s in result["summary"].items():
+        sp = lambda v: "—" if v is None else f"{v:.1f}×"  # noqa: E731
+        lines.append(f"- {size}: best PSNR {s['best_psnr']:.2f} dB ({s['best']}); fastest within {s['near_best_db']} dB: **{s['fastest_near_best']}**"
+                     f" ({s['fastest_psnr']:.2f} dB, {s['fastest_cpu_seconds_per_frame']:.3f} CPU s/frame, {s['fastest_wall_seconds_per_frame']:.3f} "
+                     f"wall s/frame): {sp(s['speedup_over_ddim20_cpu'])} faster than DDIM-20 and {sp(s['speedup_over_cycles64_cpu'])} faster "
+                     f"than Cycles at 64 samples in CPU time ({sp(s['speedup_over_ddim20_wall'])} and {sp(s['speedup_over_cycles64_wall'])} "
+                     "in wall time)"
+                     + (f"; Cycles at 64 samples scores {s['cycles64_psnr']:.2f} dB" if s.get("cycles64_psnr") is not None else "") + ".")
+    return "\n".join(lines) + "\n"
+
+
+def _clean(x: Any) -> Any:
+    if isinstance(x, float):
+        return None if not math.isfinite(x) else round(x, 5)
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    return x
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_fields(ap, ParetoOptions)
+    opts = from_args(ParetoOptions, ap.parse_args(argv))
+    from x2video.io.atomic import write_json_atomic, write_text_atomic
+
+    if opts.replot:
+        src = Path(opts.replot)
+        result = json.loads(src.read_text())
+        md = results_path("pareto", src.stem, ".md") if not opts.out else Path(opts.out).with_suffix(".md")
+        write_text_atomic(md, markdown(result))
+        print(f"wrote {md}, {draw(result, src.with_suffix('.png')) if opts.png else ''}")
+        return 0
+
+    out = Path(opts.out) if opts.out else DOCS / "pareto.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    result = _clean(measure(opts, argv, lambda partial: write_json_atomic(out, _clean(partial))))
+    write_json_atomic(out, result)
+    md = results_path("pareto", out.stem, ".md") if not opts.out else out.with_suffix(".md")
+    md.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(md, markdown(result))
+    wrote = [out, md]
+    if opts.png:
+        try:
+            wrote.append(draw(result, out.with_suffix(".png")))
+        except ImportError:
+            print("no PNG: matplotlib is not installed (pip install 'x2video-studio[bench]')", file=sys.stderr)
+    for size, s in result["summary"].items():
+        print(f"{size}: fastest within {NEAR_BEST_DB} dB of the best ({s['best']}, {s['best_psnr']:.2f} dB): {s['fastest_near_best']} "
+              f"{s['fastest_cpu_seconds_per_frame']:.3f} CPU s/frame; CPU-time speed-up x{s['speedup_over_ddim20_cpu'] or float('nan'):.1f} "
+              f"over DDIM-20, x{s['speedup_over_cycles64_cpu'] or float('nan'):.1f} over Cycles-64 "
+              f"(wall x{s['speedup_over_ddim20_wall'] or float('nan'):.1f}, x{s['speedup_over_cycles64_wall'] or float('nan'):.1f})")
+    print("wrote " + ", ".join(str(p) for p in wrote))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,107 @@
+"""bench.pareto on a one-shot data set: every row measured with finite numbers, the formula among them, what could not be
+measured said, the summary and the Markdown written (a fake model: no weights); the Cycles rows on a tiny path-traced
+room where bpy is installed (slow)."""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from test_tiers import with_net
+
+from bench import pareto as P
+from bench.stability import SyntheticShot
+from x2video.channels import tonemap
+from x2video.io.shotdir import write_shot_folder
+from x2video.metrics.image import psnr
+
+
+def fake_data(root, frames: int = 3):
+    shot = SyntheticShot(frames, (32, 48))
+    write_shot_folder(shot, root / "test" / "shot_000")
+    return shot
+
+
+def test_parse_method_and_round_trip_with_the_editor_key():
+    from x2video.sampling.events import RenderSettings
+    from x2video_app.charts import pareto_key
+
+    assert P.parse_method("lcm-2-seq") == P.Method("lcm-2-seq", "diffusion", "lcm", 2, "sequential")
+    assert P.parse_method("cycles-64").label == "Cycles 64 spp + OIDN"
+    for key in ("formula", "residual", "ddim-20", "lcm-2-seq"):
+        m = P.parse_method(key)
+        tier = m.kind
+        s = RenderSettings(sampler=m.sampler or "ddim", steps=m.steps or 20, scheme=m.scheme)
+        assert pareto_key(tier, s) == key
+    with pytest.raises(ValueError, match="unknown method"):
+        P.parse_method("euler-3")
+
+
+def test_pareto_rows_summary_and_markdown(tmp_path, monkeypatch):
+    model = with_net()
+    model.has_lcm = True
+    monkeypatch.setattr("x2video.weights.load_model", lambda *a, **k: model)
+    shot = fake_data(tmp_path / "data")
+    out = tmp_path / "pareto.json"
+    methods = "formula,residual,ddim-1,ddim-2,lcm-1,ddim-1-seq,cycles-4"
+    assert P.main(["--data", str(tmp_path / "data"), "--sizes", "48x32", "--rooms", "1", "--frames", "3", "--methods", methods,
+                   "--reference-samples", "0", "--threads", "1", "--out", str(out), "--no-png"]) == 0
+    res = json.loads(out.read_text())
+    rows = {r["method"]: r for r in res["rows"]}
+    assert set(rows) == {"formula", "residual", "ddim-1", "ddim-2", "lcm-1"}
+    for r in rows.values():
+        assert r["size"] == [48, 32] and r["frames"] == 3
+        for k in ("psnr", "ssim", "tc", "psnr_dataset", "seconds_per_frame", "cpu_seconds_per_frame", "wall_seconds_per_frame"):
+            assert isinstance(r[k], float) and math.isfinite(r[k]), (r["method"], k)
+        assert r["seconds_per_frame"] == r["cpu_seconds_per_frame"] > 0  # the default clock
+    # the formula row is albedo x irradiance scored against the shot's rgb (no bench reference here)
+    want = np.mean([psnr(tonemap(shot.channel("albedo", t) * shot.channel("irradiance", t)), tonemap(shot.channel("rgb", t))) for t in range(3)])
+    assert rows["formula"]["psnr"] == pytest.approx(want, abs=0.05)
+    assert rows["formula"]["psnr"] == pytest.approx(rows["formula"]["psnr_dataset"])
+    assert rows["residual"]["psnr"] != pytest.approx(rows["formula"]["psnr"], abs=1e-3)  # the net changed the frames
+    skipped = {u["method"]: u["reason"] for u in res["unavailable"]}
+    assert "same windows" in skipped["ddim-1-seq"] and "not a procedural Cycles room" in skipped["cycles-4"]
+    assert res["ground_truth"]["48x32"]["kind"] == "data set frames"
+    s = res["summary"]["48x32"]
+    assert s["fastest_near_best"] in {r["label"] for r in rows.values()} and s["speedup_over_ddim20_cpu"] is None and s["speedup_over_cycles64_wall"] is None
+    assert s["fastest_psnr"] >= s["best_psnr"] - P.NEAR_BEST_DB
+    md = out.with_suffix(".md").read_text()
+    assert "formula (tier 0)" in md and "Ground truth at 48x32" in md
+    pytest.importorskip("matplotlib")
+    png = P.draw(res, tmp_path / "pareto.png")
+    assert png.stat().st_size > 10_000
+
+
+def test_missing_size_names_what_is_there(tmp_path):
+    fake_data(tmp_path / "data", 2)
+    with pytest.raises(SystemExit, match="no finished shot of 160x112.*48x32 \\(1\\)"):
+        P.main(["--data", str(tmp_path / "data"), "--sizes", "160x112", "--methods", "formula", "--reference-samples", "0",
+                "--out", str(tmp_path / "p.json")])
+
+
+bpy_missing = subprocess.run([sys.executable, "-c", "import importlib.util,sys; sys.exit(importlib.util.find_spec('bpy') is None)"]).returncode
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(bool(bpy_missing), reason="bpy is not installed: `pip install -e '.[cycles]'` (scripts/setup.sh does)")
+def test_cycles_rows_rebuild_the_same_room(tmp_path):
+    data = tmp_path / "pt"
+    cmd = [sys.executable, "-m", "x2video", "dataset", "make", "--renderer", "cycles", "--rooms", "1", "--frames", "2", "--size", "48x32",
+           "--samples", "4", "--workers", "1", "--test-every", "1", "--seed", "3", "--splits", "test", "--out", str(data)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = tmp_path / "p.json"
+    assert P.main(["--data", str(data), "--sizes", "48x32", "--rooms", "1", "--frames", "2", "--methods", "formula,cycles-1,cycles-4",
+                   "--reference-samples", "16", "--threads", "1", "--out", str(out), "--no-png"]) == 0
+    res = json.loads(out.read_text())
+    rows = {r["method"]: r for r in res["rows"]}
+    assert set(rows) == {"formula", "cycles-1", "cycles-4"} and not res["unavailable"]
+    assert res["ground_truth"]["48x32"]["kind"] == "bench reference" and res["ground_truth"]["48x32"]["samples"] == 16
+    for r in rows.values():
+        assert all(math.isfinite(r[k]) for k in ("psnr", "tc", "psnr_dataset", "seconds_per_frame"))
+    # 4 samples with the data set's seed rebuild its frames (same room, cameras, light gain): identical up to half floats
+    assert rows["cycles-4"]["psnr_dataset"] > 50
+    assert rows["cycles-4"]["psnr"] > rows["cycles-1"]["psnr"] - 1.0
