@@ -117,6 +117,14 @@ def test_masked_region_is_generated_and_the_rest_is_tier_1():
     far[16 - 12:28 + 12, 24 - 12:40 + 12] = False  # beyond grow + blur (2 x 6 px)
     np.testing.assert_allclose(frames[1][far], tier1[1][far], atol=1e-5)
     assert not np.allclose(frames[1][16:28, 24:40], tier1[1][16:28, 24:40], atol=1e-3)
+    # a net auto does not trust: the formula around the generated region, not the sampler on the whole frame
+    model.residual_auto = False
+    events, frames = render(model, shot, RenderSettings(steps=2), e)
+    started = next(x for x in events if isinstance(x, RenderStarted))
+    assert started.tier == "diffusion" and "formula around it" in started.reason
+    _, tier0 = render(model, shot, RenderSettings(quality="formula"), e)
+    np.testing.assert_allclose(frames[1][far], tier0[1][far], atol=1e-5)
+    assert not np.allclose(frames[1][16:28, 24:40], tier0[1][16:28, 24:40], atol=1e-3)
 
 
 def test_residual_net_any_size_zero_init_and_fp16_round_trip(tmp_path):
@@ -203,6 +211,8 @@ def test_auto_keeps_the_formula_when_the_net_is_not_trusted():
     c = tiers.choose_tier("auto", [], False, True, residual_trusted=False)
     assert c.tier == "formula" and "outside" in c.reason
     c = tiers.choose_tier("auto", ["albedo/material masked out (A|M|R) inside mask(s) m"], True, True, residual_trusted=False)
+    assert c.tier == "diffusion" and c.regions and c.base == "formula"
+    c = tiers.choose_tier("auto", ["irradiance dropped"], False, True, residual_trusted=False)
     assert c.tier == "diffusion" and not c.regions
     shot, model = full_shot(), with_net()
     model.residual_auto = False

@@ -23,6 +23,7 @@ import torch
 from x2video.channels import INTRINSIC
 from x2video.conditioning import FrameConditioning, Prompts
 from x2video.model.api import RenderModel, WindowInputs
+from x2video.model.residual import formula
 from x2video.model.shading import shading_available
 from x2video.sampling import tiers, working
 from x2video.sampling.cache import CacheStats, ConditioningCache, conditioning_key
@@ -327,7 +328,7 @@ class Renderer:
                 reference = (reference[0], pad_image(reference[1], ph, pw))
         settings = self._validate(shot, settings)
         if choice.regions:
-            emit = self._composite(emit, full_conditioning, net, settings.guess_unseen)
+            emit = self._composite(emit, full_conditioning, net if choice.base == "residual" else None, settings.guess_unseen)
         windows = self.plan(shot, settings, None if reference is None else reference[0])
         keep_until = last_use(windows)
 
@@ -395,13 +396,15 @@ class Renderer:
 
     def _composite(self, emit: Callable[[RenderEvent], None], conditioning: Callable[[int], FrameConditioning], net,
                    guess_unseen: bool = False) -> Callable[[RenderEvent], None]:
-        """Wrap `emit` so each generated frame keeps tier 2 only inside its A|M|R regions (feathered), tier 1 elsewhere."""
+        """Wrap `emit` so each generated frame keeps tier 2 only inside its A|M|R regions (feathered), tier 1 elsewhere
+        (the formula where `net` is None: auto's choice when the tier-1 net is not trusted)."""
 
         def wrapped(event: RenderEvent) -> None:
             if isinstance(event, FramesReady):
                 fs = list(event.frames)
                 conds = [conditioning(f) for f in fs]
-                base = tiers.residual_frames(net, conds, self.model.device, guess_unseen=guess_unseen)
+                base = (tiers.residual_frames(net, conds, self.model.device, guess_unseen=guess_unseen) if net is not None
+                        else [formula(c.channels, np.shape(c.amr_mask)[:2] if np.size(c.amr_mask) else None) for c in conds])
                 frames = {}
                 for f, c, b in zip(fs, conds, base):
                     w = tiers.feathered(c.amr_mask)[..., None]  # (H, W, 1)

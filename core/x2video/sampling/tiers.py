@@ -87,8 +87,10 @@ def choose_tier(quality: str, reasons: list[str], only_regions: bool, has_residu
             return TierChoice("formula", f"every channel present, nothing to generate{note}; this tier-1 net measured below the"
                                          " formula on the outside scenes, so auto keeps the formula (force 'residual' to use it)")
         return TierChoice("residual", f"every channel present, nothing to generate{note}")
-    if only_regions and residual_trusted:
-        return TierChoice("diffusion", f"{reasons[0]}: generated there, tier 1 around it", base="residual", regions=True)
+    if only_regions:  # generate only inside the regions; around them what auto would render with nothing to generate
+        if residual_trusted:
+            return TierChoice("diffusion", f"{reasons[0]}: generated there, tier 1 around it", base="residual", regions=True)
+        return TierChoice("diffusion", f"{reasons[0]}: generated there, the formula around it", base="formula", regions=True)
     return TierChoice("diffusion", "; ".join(reasons))
 
 
