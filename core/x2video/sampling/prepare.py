@@ -14,9 +14,8 @@ import functools
 import logging
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
-import numpy as np
 import torch
 
 from x2video.conditioning import FrameConditioning
@@ -61,7 +60,6 @@ def prepare(renderer: "Renderer", shot: "Shot", settings: RenderSettings, edits:
     windows = renderer.plan(shot, settings)
     text = model.encode_prompts([""]) if getattr(model, "text_encoder", None) is not None else None  # loads the text encoder
     model_key = model.content_key()
-    warmed: set[tuple] = set()
     encoded = ready = 0
     with torch.inference_mode():
         for index, window in enumerate(windows):
@@ -76,26 +74,42 @@ def prepare(renderer: "Renderer", shot: "Shot", settings: RenderSettings, edits:
                 gen = list(window.generate_positions)
                 renderer._detail([conds[p] for p in gen], [keys[p] for p in gen], cond[gen])
             encoded += max(0, renderer.cache.stats().entries - before)
-            if text is not None and renderer.engine != "torch":
-                _warm(model, window, cond, text, settings.sampler == "lcm", warmed, decode=index == 0)
+            if index == 0 and text is not None:  # the first keyframe window is encoded: now every graph the render runs
+                warm_engine(renderer, windows, settings, (cond.shape[-2], cond.shape[-1]), text, cancel)
     log.info("prepared %d of %d windows (%d frames encoded now, engine %s) in %.2f s", ready, len(windows),
              encoded, renderer.engine, time.perf_counter() - t0)
     return encoded
 
 
-def _warm(model: Any, window: Any, cond: torch.Tensor, text: torch.Tensor, lcm: bool, warmed: set[tuple], decode: bool) -> None:
-    """Build (export or load, compile) and run once the engine's graph of this window's UNet variant and, with
-    `decode`, the decoder's, so the render's first call is not the one that pays for it."""
+def warm_engine(renderer: "Renderer", windows: Sequence[Any], settings: RenderSettings, latent_size: tuple[int, int],
+                text: torch.Tensor | None = None, cancel: CancelToken | None = None) -> int:
+    """Build (export or read from the disk cache, compile) and run once on zeros the engine's graph of every UNet
+    variant `windows` use, and the decoder's, so no render call pays for them; nothing for PyTorch. Returns the
+    variants built. `settings` must be validated (`Renderer._validate`: the sampler resolved)."""
+    model = renderer.model
+    if renderer.engine == "torch":
+        return 0
     from x2video.model.engine import unet_variant
 
-    n, _, h, w = cond.shape
-    variant = (lcm, unet_variant(window.mode, window.level, window.ref_positions, n, model.config.hybrid.interp_levels), h, w)
-    if variant not in warmed:
-        warmed.add(variant)
-        z = torch.zeros(n, model.latent_channels, h, w, device=model.device, dtype=model.dtype)  # (n, 4, h, w)
-        inputs = WindowInputs(cond=cond, ref=z, ref_positions=window.ref_positions, mode=window.mode, level=window.level,
-                              text_global=text, text_local=text.new_zeros((0, *text.shape[1:])),
-                              local_masks=torch.zeros(n, 0, *np.multiply((h, w), model.downsample)))
-        model.predict_v(z, torch.tensor(999), inputs, lcm=lcm)
-    if decode:
+    lcm = settings.sampler == "lcm"
+    h, w = latent_size
+    if text is None:
+        text = model.encode_prompts([""])  # (1, L, D)
+    seen: set[tuple] = set()
+    with torch.inference_mode():
         model.decode(torch.zeros(1, model.latent_channels, h, w, device=model.device, dtype=model.dtype))
+        for window in windows:
+            n = len(window.frames)
+            variant = unet_variant(window.mode, window.level, window.ref_positions, n, model.config.hybrid.interp_levels)
+            if variant in seen:
+                continue
+            if cancel is not None and cancel.cancelled:
+                break
+            seen.add(variant)
+            z = torch.zeros(n, model.latent_channels, h, w, device=model.device, dtype=model.dtype)  # (n, 4, h, w)
+            inputs = WindowInputs(cond=torch.zeros(n, model.cond_channels, h, w, device=model.device, dtype=model.dtype), ref=z,
+                                  ref_positions=window.ref_positions, mode=window.mode, level=window.level, text_global=text,
+                                  text_local=text.new_zeros((0, *text.shape[1:])),
+                                  local_masks=torch.zeros(n, 0, h * model.downsample, w * model.downsample))
+            model.predict_v(z, torch.tensor(999), inputs, lcm=lcm)
+    return len(seen)
