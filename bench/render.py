@@ -207,8 +207,8 @@ def main() -> None:
         r = renderers[select_steps(s, base).sampler if s.preset else s.sampler]
         if (s.engine, s.sampler, s.preset, s.scheme) not in warmed and s.quality == "diffusion":
             warmed.add((s.engine, s.sampler, s.preset, s.scheme))  # graphs exported/compiled and run once, outside the timing
-            r.render(shot, None, RenderSettings(**{**s.__dict__, "frames": (0, min(args.frames, args.window))}))  # + text encoder, allocator
             valid = r._validate(shot, s)
+            r.render(shot, None, RenderSettings(**{**valid.__dict__, "frames": (0, min(args.frames, args.window)), "steps": 1, "preset": None}))
             warm_engine(r, r.plan(shot, valid), valid, (-(-height // base.downsample), -(-width // base.downsample)))
         keep = args.frames <= 65
         res, frames = time_render(r, shot, s, sink_dir, keep=keep)
