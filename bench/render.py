@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from bench.common import results_path
+from bench.common import command, results_path
 from x2video.channels import SPECS
 from x2video.io.atomic import write_json_atomic
 from x2video.model.pipeline import X2VideoModel
@@ -55,7 +55,6 @@ from x2video.sampling.timing import StageTimes
 from x2video.shot import ArrayShot, Shot, ShotInfo
 
 RESULTS = results_path("render")
-CONFIGS = [("ddim", 20), ("ddim", 4), ("lcm", 2)]
 
 
 class SyntheticShot(Shot):
@@ -141,6 +140,54 @@ def time_render(renderer: Renderer, shot: Shot, settings: RenderSettings, sink_d
     }, frames
 
 
+def time_parts(model: X2VideoModel, shot: Shot, engines: list[str], window: int, repeats: int) -> dict:
+    """Each part on one keyframe window of `shot`, the engines interleaved call by call (a shared machine's load
+    hits them alike) and the fastest of `repeats` kept: the channel encoding of the window, one UNet call
+    (the distilled UNet when the model has it), the VAE decoding of the window's frames; with the max abs
+    difference of each engine's output from PyTorch's."""
+    from x2video.sampling.renderer import plain_conditioning
+
+    conds = [plain_conditioning(shot, t) for t in range(window)]
+    lcm = model.has_lcm
+    parts = {"encode": lambda: model.encode_frames(conds)}
+    with torch.inference_mode():
+        model.set_engine("torch")
+        cond = model.encode_frames(conds)  # (N, C_cond, h, w)
+        n, _, h, w = cond.shape
+        text = model.encode_prompts([""])
+        g = torch.Generator().manual_seed(0)
+        x = torch.randn(n, model.latent_channels, h, w, generator=g)
+        from x2video.model.api import WindowInputs
+
+        inputs = WindowInputs(cond=cond, ref=torch.randn(n, model.latent_channels, h, w, generator=g), ref_positions=(0, n - 1), mode="interp",
+                              level=1, text_global=text, text_local=text.new_zeros((0, *text.shape[1:])),
+                              local_masks=torch.zeros(n, 0, *shot.size))
+        parts["unet"] = lambda: model.predict_v(x, torch.tensor(749), inputs, lcm=lcm)
+        parts["decode"] = lambda: torch.from_numpy(model.decode(x))
+        outputs: dict[str, dict[str, torch.Tensor]] = {}
+        best: dict[str, dict[str, float]] = {e: {} for e in engines}
+        for e in engines:  # build and warm every graph before timing
+            model.set_engine(e)
+            outputs[e] = {k: f() for k, f in parts.items()}
+        for _ in range(repeats):
+            for k, f in parts.items():
+                for e in engines:
+                    model.set_engine(e)
+                    t0 = time.perf_counter()
+                    f()
+                    dt = time.perf_counter() - t0
+                    best[e][k] = min(best[e].get(k, dt), dt)
+        model.set_engine("torch")
+    rows = {}
+    for e in engines:
+        rows[e] = {"runtime": model.set_engine(e), "seconds_min": {k: round(v, 4) for k, v in best[e].items()}}
+        if "torch" in outputs and e != "torch":
+            rows[e]["max_abs_diff_vs_torch"] = {k: float((outputs[e][k].float() - outputs["torch"][k].float()).abs().max()) for k in parts}
+            rows[e]["speedup_vs_torch"] = {k: round(best["torch"][k] / best[e][k], 2) for k in parts}
+    model.set_engine("torch")
+    return {"window_frames": n, "latent_size": [h, w], "unet": "lcm_unet" if lcm else "unet", "repeats": repeats, "engines": rows}
+
+
 def print_breakdown(res: dict) -> None:
     b = res["breakdown"]["seconds_per_frame"]
     parts = "  ".join(f"{k} {v:.3f}" for k, v in b.items() if k != "total" and (v or k in ("unet", "decode")))
@@ -159,6 +206,9 @@ def main() -> None:
     ap.add_argument("--preset", choices=("fast", "quality"), help="render only this preset, recursive, once (the RSS check)")
     ap.add_argument("--quality", default="diffusion", choices=("diffusion", "residual", "formula"), help="the tier rendered (default diffusion)")
     ap.add_argument("--schemes", default="recursive,sequential", help="comma-separated schemes (without --preset)")
+    ap.add_argument("--samplers", default="ddim-20,ddim-4,lcm-2", help="comma-separated SAMPLER-STEPS (without --preset)")
+    ap.add_argument("--parts", type=int, default=0, metavar="REPEATS",
+                    help="also time encode/UNet/decode of one window per engine, interleaved, fastest of REPEATS (0: off)")
     ap.add_argument("--disk", action="store_true", help="render from an EXR shot folder written first (real reads)")
     ap.add_argument("--weights", type=Path, default=None, help="model folder (default: the shipped weights in resources/, else untrained tiny)")
     ap.add_argument("--untrained", action="store_true", help="untrained tiny weights even when shipped ones exist")
@@ -200,7 +250,14 @@ def main() -> None:
         configs = [RenderSettings(preset=args.preset, window=args.window, quality=args.quality, engine=e) for e in engines]
     else:
         configs = [RenderSettings(sampler=sampler, steps=steps, window=args.window, scheme=scheme, engine=e, quality=args.quality)
-                   for e in engines for scheme in args.schemes.split(",") for sampler, steps in CONFIGS]
+                   for e in engines for scheme in args.schemes.split(",") for sampler, steps in
+                   [(c.split("-")[0], int(c.split("-")[1])) for c in args.samplers.split(",") if c]]
+    parts = None
+    if args.parts:
+        parts = time_parts(lcm, shot, engines, args.window, args.parts)
+        for e, row in parts["engines"].items():
+            print(f"parts {e} ({row['runtime']}): " + "  ".join(f"{k} {v:.3f} s" for k, v in row["seconds_min"].items())
+                  + (f"; speed-up {row['speedup_vs_torch']}, max |diff| {row['max_abs_diff_vs_torch']}" if "speedup_vs_torch" in row else ""), flush=True)
     reference: dict[tuple, dict[int, np.ndarray]] = {}
     warmed: set[tuple] = set()
     for s in configs:
@@ -228,7 +285,9 @@ def main() -> None:
     label = device_label(device) + ("" if weights is None else " shipped")
     out = args.out or (results_path("render", f"render_{args.preset}_{args.quality}_{args.frames}f") if args.preset else RESULTS)
     data = json.loads(out.read_text()) if out.is_file() else {"runs": {}}
+    data["format"], data["command"] = "x2video-render-speed", command("render")
     data.setdefault("runs", {})[label] = {
+        "command": command("render"),
         "device": label,
         "dtype": str(dtype).replace("torch.", ""),
         "torch": torch.__version__,
@@ -241,6 +300,7 @@ def main() -> None:
         "and detail stages (what a re-render with the cache warm costs); breakdown: Renderer.timing per stage",
         "load_average_before_after": [round(load_before[0], 2), round(os.getloadavg()[0], 2)],
         "peak_rss_mb": peak_rss_mb(),
+        "parts": parts,
         "results": results,
     }
     write_json_atomic(out, data)
