@@ -125,7 +125,7 @@ def time_render(renderer: Renderer, shot: Shot, settings: RenderSettings, sink_d
     cached = renderer.timing.seconds["encode"] + renderer.timing.seconds["detail"]  # what a warm cache saves
     resolved = select_steps(settings, renderer.model) if settings.preset else settings
     return {
-        "engine": renderer.engine,
+        "engine": renderer.engine if settings.quality != "formula" and renderer.last_tier.tier == "diffusion" else None,  # tiers 0/1: no UNet
         "sampler": resolved.sampler,
         "steps": resolved.steps,
         "scheme": settings.scheme,

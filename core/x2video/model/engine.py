@@ -6,9 +6,13 @@ checks each part against it).
       torch                 PyTorch (the reference; the only engine on a GPU or in half precision)
       onnx                  ONNX Runtime's CPU provider
       openvino              OpenVINO's CPU plugin, reading the same ONNX graphs
-      auto                  OpenVINO when installed, else ONNX Runtime, else PyTorch (untrained weights: PyTorch;
-                            measured on the 2-core
-                            development machine, `python -m bench.render --engines`: see that bench's JSON)
+      auto                  OpenVINO when installed, else ONNX Runtime, else PyTorch; untrained weights: PyTorch
+                            (fastest first as measured on the 2-core development machine, `python -m bench.render
+                            --engines torch,onnx,openvino --parts 3`: bench/results/render/)
+
+bfloat16 (the CPU here has AVX512-BF16, no AMX): OpenVINO's bf16 precision hint ran the UNet about 1.9x faster
+than its f32 but moved v by up to 0.09 (f32: 3e-6), so it is not used; the decoder stays fp32 (bf16 decoding cost
+temporal consistency before, docs/evaluations/).
 
 Export (`torch.onnx.export`, the TorchScript tracer, opset 17): the UNet's Hybrid Self-Attention and Masked
 Cross-Attention choose branches in Python from the per-call `AttnContext` (mode, LoRA branch of the level,
