@@ -485,16 +485,18 @@ class Renderer:
             return self._cached(keys, lambda idx: self.model.encode_frames([conds[i] for i in idx]))
 
     def _detail(self, conds: list[FrameConditioning], keys: list[str], cond: torch.Tensor) -> np.ndarray | None:
-        """(G, H, W, 3) `model.detail` of the generated frames, cached beside their conditioning latents."""
+        """(G, H, W, 3) `model.detail` of the generated frames, cached beside their conditioning latents in half
+        precision (a full-resolution image per frame, twice its latents in float32: 1,000 frames at 320x224 hold
+        0.4 GB instead of 0.8; EXR output is half float anyway), used in that precision on every render alike."""
         if not self.model.residual_prior:
             return None
 
         def compute(idx: list[int]) -> torch.Tensor:
             d = self.model.detail([conds[i] for i in idx], cond[idx])
             assert d is not None  # residual models always have a detail
-            return torch.from_numpy(d)
+            return torch.from_numpy(d).half()
 
-        return self._cached([k + "#detail" for k in keys], compute).numpy()
+        return self._cached([k + "#detail" for k in keys], compute).float().numpy()
 
     def _run_window(
         self,
