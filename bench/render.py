@@ -277,7 +277,7 @@ def main() -> None:
         res["peak_rss_mb_so_far"] = peak_rss_mb()
         results.append(res)
         diff = f", max |diff| vs torch {res['max_abs_diff_vs_torch']:.2e}" if "max_abs_diff_vs_torch" in res else ""
-        print(f"{res['engine']:8s} {res['scheme']:10s} {res['sampler']}-{res['steps']:<3d} {res['quality']}: {res['seconds_per_frame']:.3f} s/frame warm, "
+        print(f"{str(res['engine']):8s} {res['scheme']:10s} {res['sampler']}-{res['steps']:<3d} {res['quality']}: {res['seconds_per_frame']:.3f} s/frame warm, "
               f"{res['seconds_per_frame_cold']:.3f} cold ({res['seconds']:.1f} s, {res['windows']} windows, first frames after "
               f"{res['first_frames_seconds']} s{diff}); peak RSS {res['peak_rss_mb_so_far']:.0f} MB", flush=True)
         print_breakdown(res)
