@@ -82,6 +82,7 @@ class RenderController(QObject):
         self.preview_worker: Any = None  # the formula's preview of the render in progress
         self.prepare_worker: Any = None  # `Renderer.prepare` of the open shot, before Render is pressed
         self._prepare_token: CancelToken | None = None
+        self._prepare_pending: RenderSettings | None = None  # asked for before the model was built: run after it
         #: preview every frame (False: only the frame on screen, so the rest does not share the CPU with the render)
         self.preview_all = True
         self._render_id = 0  # which render a preview belongs to (a late one from an earlier render is dropped)
@@ -136,6 +137,11 @@ class RenderController(QObject):
         reuses what it finished. Nothing happens without a shot or a model, and nothing is encoded for tiers 0/1."""
         if self.doc.shot is None or self.choice is None:
             return
+        if self.renderer is None or self._renderer_for != self.choice:  # after the model build, never instead of it:
+            self._prepare_pending = settings  # at start-up the window paints first, then the model builds, then this
+            self.preload()
+            return
+        self._prepare_pending = None
         self._quit_prepare()
         shot, edits = self.doc.shot, copy.deepcopy(self.doc.edits)
         base_dir = self.doc.project_path.parent if self.doc.project_path is not None else None
@@ -166,6 +172,9 @@ class RenderController(QObject):
     def _preload_done(self) -> None:
         self.preload_worker = None
         self.sigPreload.emit(False)
+        pending, self._prepare_pending = self._prepare_pending, None
+        if pending is not None and self.renderer is not None and self.worker is None:
+            self.prepare(pending)
 
     def residual_available(self) -> bool | None:
         """Whether the current model has the tier-1 network (quality 'residual'): the built model says;
