@@ -4,7 +4,8 @@ every Hybrid Self-Attention branch active, the VAE decoder, the channel encoders
 
 Measured differences (untrained tiny weights, alphas and LoRA perturbed so the reference and temporal branches
 count): UNet max |diff| ~3e-6 on outputs of magnitude ~1-3 (ONNX Runtime and OpenVINO), decoder ~2e-5,
-encoder ~3e-6; a whole LCM-2 render with the shipped weights ~3e-4 in linear RGB (bench/render.py --engines).
+encoder ~3e-6; with the shipped weights (bench/render.py --parts): UNet 2.7e-6 (ORT) / 3.6e-6 (OpenVINO), decoder 2.4e-4,
+encoder 1e-5, a whole LCM-2 render 2.6e-4 in linear RGB.
 The bounds below leave a decade of room for other CPUs' kernels and no more."""
 from __future__ import annotations
 
