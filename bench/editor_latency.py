@@ -7,6 +7,10 @@ the shipped weights built in the background) and measures, on the wall clock:
 
   startup_to_demo_visible_s   process start -> the viewer painted the shot (the demo by default)
   model_ready_s               process start -> the background model build finished
+  prepare_s                   the Render panel set -> the background `Renderer.prepare` of the shot finished (the
+                              editor starts it when a shot opens or the settings change: conditioning encoded,
+                              the engine's graphs built; nothing for tiers 0/1); presses wait for it, as a person
+                              looking at the shot before pressing Render would (--no-wait-prepare: they do not)
   then, with the model built, per press of the Render button (mouse click):
   press_to_frame_on_screen_s  -> the viewer painted a frame (the formula's preview of the frame on screen)
   press_to_first_network_s    -> the viewer painted the render's first frame (a keyframe; tier 1: the first batch)
@@ -78,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tier1-standin", action="store_true", help="add an untrained tier-1 net beside the shipped weights")
     ap.add_argument("--full", action="store_true", help="let each render finish (default: cancel once its first frame shows)")
     ap.add_argument("--preview-frame-only", action="store_true", help="preview only the frame on screen (RenderController.preview_all off)")
+    ap.add_argument("--no-wait-prepare", action="store_true", help="press Render without waiting for the shot's background preparation")
     ap.add_argument("--timeout", type=float, default=600.0, help="seconds to wait for any one stage")
     ap.add_argument("--out", type=Path, help="default bench/results/editor_latency/editor_latency[_tier1_standin].json")
     args = ap.parse_args(argv)
@@ -133,7 +138,12 @@ def main(argv: list[str] | None = None) -> int:
 
     win.render_ctl.preview_all = not args.preview_frame_only
     i = win.render_panel.quality.findData(args.quality)
+    t_prepare = time.perf_counter()
     win.render_panel.quality.setCurrentIndex(i)
+    win._prepare_render()  # as a changed setting does (also when the quality was already the chosen one)
+    if not args.no_wait_prepare:
+        pump_until(lambda: win.render_ctl.prepare_worker is None, "the shot's preparation")
+    prepare_s = round(time.perf_counter() - t_prepare, 3)
     renders = []
     for k in range(args.renders):
         if args.cold:
@@ -168,6 +178,7 @@ def main(argv: list[str] | None = None) -> int:
             "press_to_first_network_event_s": round(marks["network"] - t_click, 3) if "network" in marks else None,
             "render_s": round(st.finished_at - st.started_at, 2) if st.finished_at and st.status == "finished" else None,
             "conditioning_cache": str(win.render_ctl.renderer.cache_stats()),
+            "engine": getattr(win.render_ctl.renderer, "engine", None),
             "load_average_at_press": load,
         }
         renders.append(row)
@@ -181,6 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     summary = {
         "startup_to_demo_visible_s": round(demo_visible, 3),
         "model_ready_s": round(model_ready, 3),
+        "prepare_s": None if args.no_wait_prepare else prepare_s,
         "press_to_frame_on_screen_s": first.get("press_to_frame_on_screen_s"),
         "press_to_first_network_s": first.get("press_to_first_network_s"),
     }

@@ -208,3 +208,18 @@ def test_weights_in_the_default_place_are_loaded(qtbot, tmp_path, monkeypatch, t
     assert w.render_ctl.renderer is not None
     model = w.render_ctl.renderer.model
     assert not model.is_untrained and tiny_model.content_key().endswith(model.content_key())  # same weights, loaded from disk
+
+
+def test_shot_is_prepared_before_render_is_pressed(win, qtbot):
+    """With a model, the open shot's conditioning is encoded in a worker (Renderer.prepare) when the shot or the
+    settings change; the render that follows encodes nothing."""
+    win.act_untrained.setChecked(True)
+    assert win.render_ctl.wait(RENDER_TIMEOUT_MS)
+    win.render_panel.quality.setCurrentIndex(win.render_panel.quality.findData("diffusion"))  # sigSettingsChanged
+    assert win.render_ctl.prepare_worker is not None
+    assert win.render_ctl.wait(RENDER_TIMEOUT_MS)
+    r = win.render_ctl.renderer
+    assert r.cache_stats().entries == win.doc.num_frames
+    assert win.start_render()
+    wait_idle(qtbot, win)
+    assert win.doc.render.status == "finished" and r.encode_seconds == 0.0

@@ -236,7 +236,7 @@ def test_residual_model_with_zero_residual_renders_the_classical_shading(monkeyp
 
     got = render(RenderSettings(steps=3, window=3))
     want = np.stack([classical_shading(plain_conditioning(shot, t).channels) for t in range(5)])
-    np.testing.assert_allclose(got, want, atol=1e-4)
+    np.testing.assert_allclose(got, want, atol=2e-3)  # the Renderer caches the detail in half precision (|detail| <= ~2 here)
     # without the detail: the VAE's reconstruction of the shading, which loses detail
     cond = model.encode_frames([plain_conditioning(shot, t) for t in range(5)])
     smooth = model.decode(cond[:, -4:])
@@ -267,7 +267,7 @@ def test_zero_x0_head_renders_the_classical_shading():
         out = {}
         Renderer(model).render(shot, None, RenderSettings(sampler=sampler, steps=steps, window=3),
                                on_event=lambda e: out.update(e.frames) if isinstance(e, FramesReady) else None)
-        np.testing.assert_allclose(np.stack([out[t] for t in range(3)]), want, atol=1e-4)
+        np.testing.assert_allclose(np.stack([out[t] for t in range(3)]), want, atol=2e-3)  # detail cached in half precision
 
 
 def test_x0_prediction_is_converted_to_v():

@@ -197,6 +197,7 @@ class MainWindow(QMainWindow):
         self.render_panel.sigRender.connect(self.start_render)
         self.render_panel.sigCancel.connect(self.render_ctl.cancel)
         self.render_panel.sigDevice.connect(self._device_changed)
+        self.render_panel.sigSettingsChanged.connect(self._prepare_render)
         self.render_ctl.sigEvent.connect(self._render_event)
         self.render_ctl.sigRunning.connect(self._running)
         self.render_ctl.sigError.connect(self._render_error)
@@ -413,6 +414,12 @@ class MainWindow(QMainWindow):
         self.timeline.set_num_frames(n, fps)
         self.charts.reset(1)
         self.refresh_all()
+        self._prepare_render()
+
+    def _prepare_render(self) -> None:
+        """Encode the shot's conditioning in the background for a render with the panel's settings (issue 31)."""
+        if self.doc.shot is not None and not self.render_ctl.running:
+            self.render_ctl.prepare(self.render_ctl.settings(**self.render_panel.values()))
 
     def _view_changed(self, view: str) -> None:
         self.view_box.blockSignals(True)
@@ -501,7 +508,8 @@ class MainWindow(QMainWindow):
             ev.ignore()
             return
         self.edits.cancel_propagation()
-        if self.render_ctl.running or self.render_ctl.preload_worker is not None or self.render_ctl.preview_worker is not None:
+        if (self.render_ctl.running or self.render_ctl.preload_worker is not None or self.render_ctl.preview_worker is not None
+                or self.render_ctl.prepare_worker is not None):
             self.render_ctl.cancel()
             self.render_ctl.wait(120000)
         self.project.shutdown()

@@ -1,5 +1,6 @@
 """Starts, feeds and cancels renders: keeps one long-lived Renderer (its latent cache survives between
-renders), builds the model off the GUI thread, shows the formula's preview of a render at once (the frame
+renders), builds the model off the GUI thread, prepares the open shot's conditioning there before Render is
+pressed (`Renderer.prepare`), shows the formula's preview of a render at once (the frame
 on screen on the GUI thread, the rest in a worker beside the render), and applies the workers' events to
 the Document.
 
@@ -16,7 +17,7 @@ from typing import Any, Callable
 from PySide6.QtCore import QObject, Signal
 from superqt.utils import create_worker
 
-from x2video.sampling.events import FramesReady, RenderEvent, RenderSettings, RenderStarted
+from x2video.sampling.events import CancelToken, FramesReady, RenderEvent, RenderSettings, RenderStarted
 from x2video_app.document import Document
 from x2video_app.model_source import ModelChoice, load_model
 from x2video_app.preview import PreviewReady, preview_frame, preview_frames, preview_order
@@ -79,6 +80,9 @@ class RenderController(QObject):
         self.pressed_at: float | None = None
         self.preload_worker: Any = None
         self.preview_worker: Any = None  # the formula's preview of the render in progress
+        self.prepare_worker: Any = None  # `Renderer.prepare` of the open shot, before Render is pressed
+        self._prepare_token: CancelToken | None = None
+        self._prepare_pending: RenderSettings | None = None  # asked for before the model was built: run after it
         #: preview every frame (False: only the frame on screen, so the rest does not share the CPU with the render)
         self.preview_all = True
         self._render_id = 0  # which render a preview belongs to (a late one from an earlier render is dropped)
@@ -126,9 +130,51 @@ class RenderController(QObject):
         self.sigPreload.emit(True)
         w.start()
 
+    def prepare(self, settings: RenderSettings) -> None:
+        """Encode the open shot's conditioning and build the engine's graphs in a worker (`Renderer.prepare`, after
+        the model is built), so that the first network keyframe after Render costs only its denoising steps and
+        decoding. A new call (another shot, other settings) replaces a running one; a render cancels it and
+        reuses what it finished. Nothing happens without a shot or a model, and nothing is encoded for tiers 0/1."""
+        if self.doc.shot is None or self.choice is None:
+            return
+        if self.renderer is None or self._renderer_for != self.choice:  # after the model build, never instead of it:
+            self._prepare_pending = settings  # at start-up the window paints first, then the model builds, then this
+            self.preload()
+            return
+        self._prepare_pending = None
+        self._quit_prepare()
+        shot, edits = self.doc.shot, copy.deepcopy(self.doc.edits)
+        base_dir = self.doc.project_path.parent if self.doc.project_path is not None else None
+        token = self._prepare_token = CancelToken()
+
+        def work() -> int:
+            renderer = self._get_renderer()
+            if token.cancelled or self.worker is not None:  # a render started meanwhile: it encodes what it needs
+                return 0
+            return renderer.prepare(shot, settings, edits, token, base_dir=base_dir)
+
+        w = create_worker(work)
+        w.errored.connect(lambda e: log.warning("preparing the shot failed (the render will say why): %s", e))
+        w.finished.connect(lambda: self._prepare_done(w))
+        self.prepare_worker = w
+        w.start()
+
+    def _quit_prepare(self) -> None:
+        if self._prepare_token is not None:
+            self._prepare_token.cancel()
+        if self.prepare_worker is not None:
+            self.prepare_worker.quit()
+
+    def _prepare_done(self, w: Any) -> None:
+        if self.prepare_worker is w:
+            self.prepare_worker = None
+
     def _preload_done(self) -> None:
         self.preload_worker = None
         self.sigPreload.emit(False)
+        pending, self._prepare_pending = self._prepare_pending, None
+        if pending is not None and self.renderer is not None and self.worker is None:
+            self.prepare(pending)
 
     def residual_available(self) -> bool | None:
         """Whether the current model has the tier-1 network (quality 'residual'): the built model says;
@@ -235,6 +281,7 @@ class RenderController(QObject):
 
     def cancel(self) -> None:
         self._quit_preview()
+        self._quit_prepare()
         if self.worker is not None:
             self.worker.quit()
 
@@ -243,7 +290,8 @@ class RenderController(QObject):
         from PySide6.QtCore import QCoreApplication, QDeadlineTimer
 
         def busy() -> bool:
-            return self.worker is not None or self.preload_worker is not None or self.preview_worker is not None
+            return (self.worker is not None or self.preload_worker is not None or self.preview_worker is not None
+                    or self.prepare_worker is not None)
 
         deadline = QDeadlineTimer(timeout_ms)
         while busy() and not deadline.hasExpired():

@@ -43,6 +43,10 @@ def mhf_gather(kv: torch.Tensor, num_frames: int, heads: int) -> torch.Tensor:
     bn, length, c = kv.shape
     b, n, d = bn // num_frames, num_frames, c // heads
     src = kv.view(b, n, length, heads, d)  # (B, N, L, H, d)
+    if torch.onnx.is_in_onnx_export():  # ONNX has no Unfold of a traced size: one frame gather per head instead
+        order = torch.arange(n, device=kv.device)
+        per_head = [src[:, (order + h) % n, :, h] for h in range(heads)]  # H x (B, N, L, d): frame i + h, head h
+        return torch.stack(per_head, dim=2).reshape(bn, heads, length, d)  # (B*N, H, L, d)
     total = n + heads - 1
     parts = [src] * (total // n) + ([src[:, : total % n]] if total % n else [])
     tiled = torch.cat(parts, dim=1) if len(parts) > 1 else src  # (B, N+H-1, L, H, d): frame j holds j mod N

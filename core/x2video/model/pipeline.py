@@ -97,6 +97,10 @@ class X2VideoModel:
         #: the tier-1 network (`x2video.model.residual`), or None; `from_pretrained` loads the folder's
         #: residual.safetensors. The Renderer runs it for frames with nothing to generate (`x2video.sampling.tiers`).
         self.residual_net = None
+        #: what runs the UNet, the decoder and the channel encoder: 'torch', or an exported graph's runtime
+        #: ('onnx', 'openvino'); see `set_engine` and `x2video.model.engine`
+        self.engine = "torch"
+        self._parts: dict[str, object] = {}  # runtime -> x2video.model.engine.CompiledParts, built on first use
         if is_video_unet(unet) != config.video:
             raise ValueError(f"config says video={config.video} but the UNet has {unet.config.in_channels} input channels")
 
@@ -182,6 +186,30 @@ class X2VideoModel:
         unet = convert_image_to_video(self.unet, cfg.hybrid, sp)
         return X2VideoModel(cfg, unet, self.vae, self.text_encoder, device=self.device, dtype=self.dtype, untrained=self.is_untrained,
                             encoder_dtype=self.encoder_dtype, channel_encoder=self.channel_encoder)
+
+    # -- engine --------------------------------------------------------------------
+    def set_engine(self, engine: str) -> str:
+        """Choose what runs the UNet, the VAE decoder and the channel encoder (`RenderSettings.engine`:
+        'torch', 'onnx', 'openvino' or 'auto'; `x2video.model.engine`) and return the runtime chosen.
+        Graphs are exported on first use per window and frame size; PyTorch stays the reference."""
+        from x2video.model.engine import resolve
+
+        runtime = resolve(engine, self.device, self.dtype, untrained=self.is_untrained)
+        if runtime != self.engine:
+            log.info("engine %s: UNet, VAE decoder and channel encoder run on %s", engine, runtime)
+        self.engine = runtime
+        return runtime
+
+    def _compiled(self):
+        """The `CompiledParts` of the current engine, or None for PyTorch."""
+        if self.engine == "torch":
+            return None
+        parts = self._parts.get(self.engine)
+        if parts is None:
+            from x2video.model.engine import CompiledParts
+
+            parts = self._parts[self.engine] = CompiledParts(self, self.engine)
+        return parts
 
     # -- RenderModel ---------------------------------------------------------------
     @property
@@ -277,6 +305,11 @@ class X2VideoModel:
             if self.lcm_unet is None:
                 raise ValueError("sampler 'lcm' needs distilled weights; this model has no lcm_unet.safetensors")
             unet = self.lcm_unet
+        parts = self._compiled()
+        if parts is not None:
+            v = parts.unet(x_t, t, window, lcm=lcm)
+            if v is not None:
+                return v.to(self.device, self.dtype)
         n = x_t.shape[0]
         dev, dt = self.device, self.dtype
         has_local = window.text_local.shape[0] > 0
@@ -325,7 +358,12 @@ class X2VideoModel:
     @torch.no_grad()
     def decode(self, latents: torch.Tensor) -> np.ndarray:
         z = latents.to(self.device, self.dtype) / self.config.latent_scales["rgb"]  # (N, 4, h, w)
-        out = [from_vae_range_rgb(self.vae.decode(z[i : i + self.encode_batch]).sample) for i in range(0, z.shape[0], self.encode_batch)]
+        parts = self._compiled()
+
+        def decoded(zi: torch.Tensor) -> torch.Tensor:  # (n, 3, H, W) in the VAE's range
+            return self.vae.decode(zi).sample if parts is None else parts.decode(zi)
+
+        out = [from_vae_range_rgb(decoded(z[i : i + self.encode_batch])) for i in range(0, z.shape[0], self.encode_batch)]
         return torch.cat(out).cpu().numpy().astype(np.float32)  # (N, H, W, 3) linear
 
     # -- helpers ------------------------------------------------------------------------
@@ -336,7 +374,14 @@ class X2VideoModel:
 
     @torch.no_grad()
     def _encode_channels(self, images: list[np.ndarray]) -> torch.Tensor:
-        """Like `_encode`, through the distilled channel encoder when the model has one."""
+        """Like `_encode`, through the distilled channel encoder when the model has one (on the engine's graph
+        when it runs one)."""
+        parts = self._compiled()
+        if parts is not None:
+            x = images_to_tensor(images, self.device, torch.float32)
+            zs = [parts.encode(x[i : i + self.encode_batch]) for i in range(0, x.shape[0], self.encode_batch)]
+            if all(z is not None for z in zs):
+                return torch.cat(zs).to(self.device, self.dtype)  # type: ignore[arg-type]
         if self.channel_encoder is None:
             return self._encode(images)
         x = images_to_tensor(images, self.device, self.encoder_dtype)

@@ -69,6 +69,11 @@ class RenderSettings:
     """MP4 exposure in stops on the input's radiometric units, or 'auto': the shot's own irradiance
     normalisation, i.e. what the model saw (`x2video.io.units.OutputUnits`). EXR output is always in the
     input's units."""
+    engine: Literal["auto", "torch", "onnx", "openvino"] = "auto"
+    """What runs the diffusion tier's UNet, VAE decoder and channel encoder (`x2video.model.engine`): 'torch'
+    (PyTorch, the reference), 'onnx' (ONNX Runtime) or 'openvino' (OpenVINO) on graphs exported once per
+    window and frame size and cached under the user's cache folder; 'auto': the fastest installed on a CPU
+    (OpenVINO, then ONNX Runtime), PyTorch on a GPU or in half precision."""
     preset: Literal["fast", "quality"] | None = None
     """Overrides sampler and steps when set: 'fast' = LCM-2 if distilled weights are loaded, else DDIM-4;
     'quality' = DDIM-20 (`x2video.sampling.renderer.select_steps`)."""

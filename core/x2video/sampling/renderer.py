@@ -43,6 +43,7 @@ from x2video.sampling.events import (
 )
 from x2video.sampling.planner import Window, last_use, plan, shift
 from x2video.sampling.samplers import Known, alphas_cumprod, mix_noise, sample_ddim, sample_lcm
+from x2video.sampling.timing import NoTimes, StageTimes
 from x2video.shot import Shot
 
 log = logging.getLogger(__name__)
@@ -183,6 +184,9 @@ def mean_anchor(window: Window, strength: float, ref: torch.Tensor, offset: torc
     return anchor
 
 
+_NO_TIMES = NoTimes()
+
+
 class Renderer:
     """Drives a `RenderModel` over a shot; see the module docstring."""
 
@@ -194,6 +198,12 @@ class Renderer:
         self.encode_seconds = 0.0
         #: most reference latents held at once during the last render (they are dropped after their last use)
         self.peak_latents = 0
+        #: set to a `StageTimes` to have each render split its wall time into stages (read, encode, unet, decode,
+        #: detail, residual, write; bench/render.py); None (the default) times nothing
+        self.timing: StageTimes | None = None
+        #: what ran the UNet, VAE decoder and channel encoder in the last diffusion render (`RenderSettings.engine`)
+        self.engine = "torch"
+        self._preparing: CancelToken | None = None  # the token of a `prepare` in progress; a render cancels it
         ours, theirs = alphas_cumprod(), model.alphas_cumprod().to(torch.float64).cpu()
         if ours.shape != theirs.shape or not torch.allclose(ours, theirs, atol=1e-6):
             raise ValueError(
@@ -201,7 +211,31 @@ class Renderer:
                 f"({theirs.shape[0]} steps, alpha_cumprod[0]={float(theirs[0]):.6f})"
             )
 
+    @property
+    def _clock(self) -> StageTimes | NoTimes:
+        return self.timing if self.timing is not None else _NO_TIMES
+
+    def _use_engine(self, settings: RenderSettings) -> None:
+        """Point the model at `settings.engine` (models without engines, e.g. test fakes, run as they are)."""
+        set_engine = getattr(self.model, "set_engine", None)
+        self.engine = set_engine(settings.engine) if set_engine is not None else "torch"
+
     # -- for the editor and tests --------------------------------------------------
+    def prepare(self, shot: Shot, settings: RenderSettings, edits: Any = None, cancel: CancelToken | None = None, *,
+                base_dir: str | Path | None = None) -> int:
+        """Encode ahead what a diffusion render of `shot` would encode first, into this Renderer's cache, and
+        build the engine's graphs (`x2video.sampling.prepare`); returns the frames encoded. For a worker
+        thread: a `render` started meanwhile cancels it and reuses what it finished."""
+        from x2video.sampling.prepare import prepare
+
+        token = cancel if cancel is not None else CancelToken()
+        self._preparing = token
+        try:
+            return prepare(self, shot, settings, edits, token, base_dir=base_dir)
+        finally:
+            if self._preparing is token:
+                self._preparing = None
+
     def cache_stats(self) -> CacheStats:
         return self.cache.stats()
 
@@ -230,21 +264,46 @@ class Renderer:
         frames and returns. Any error emits RenderFailed and is re-raised. `base_dir` resolves
         relative paths of a reference image in the edits (the project file's folder).
         """
-        if settings.quality == "formula":  # tier 0: no network, albedo x irradiance frame by frame
-            from x2video.sampling.formula import formula_frames
-
-            return formula_frames(shot, edits, settings, on_event, cancel, base_dir=base_dir)
+        t0 = time.perf_counter()
+        preparing = self._preparing
+        if preparing is not None:  # the render computes what is left; two would share the cores
+            preparing.cancel()
+        if self.timing is not None:
+            self.timing.reset()
         emit: Callable[[RenderEvent], None] = on_event if on_event is not None else (lambda e: None)
-        done: set[int] = set()  # frames delivered so far
-        self.encode_seconds = 0.0
+        if self.timing is not None:
+            emit = self._timed_emit(emit, self.timing)
         try:
-            self._render(shot, edits, settings, emit, cancel, base_dir, done)
-        except Cancelled:
-            log.info("render cancelled after %d frames", len(done))
-            emit(RenderCancelled(frames_done=sorted(done)))
-        except Exception as exc:
-            emit(RenderFailed(error=f"{type(exc).__name__}: {exc}"))
-            raise
+            if settings.quality == "formula":  # tier 0: no network, albedo x irradiance frame by frame
+                from x2video.sampling.formula import formula_frames
+
+                return formula_frames(shot, edits, settings, emit, cancel, base_dir=base_dir)
+            done: set[int] = set()  # frames delivered so far
+            self.encode_seconds = 0.0
+            try:
+                self._render(shot, edits, settings, emit, cancel, base_dir, done)
+            except Cancelled:
+                log.info("render cancelled after %d frames", len(done))
+                emit(RenderCancelled(frames_done=sorted(done)))
+            except Exception as exc:
+                emit(RenderFailed(error=f"{type(exc).__name__}: {exc}"))
+                raise
+        finally:
+            if self.timing is not None:
+                self.timing.total = time.perf_counter() - t0
+
+    @staticmethod
+    def _timed_emit(emit: Callable[[RenderEvent], None], timing: StageTimes) -> Callable[[RenderEvent], None]:
+        """`emit` with the `FramesReady` callbacks timed as stage 'write' (a sink writing the frames)."""
+
+        def timed(event: RenderEvent) -> None:
+            if isinstance(event, FramesReady):
+                with timing.stage("write"):
+                    emit(event)
+            else:
+                emit(event)
+
+        return timed
 
     def _range(self, shot: Shot, settings: RenderSettings) -> tuple[int, int]:
         start, stop = settings.frames if settings.frames is not None else (0, shot.num_frames)
@@ -299,6 +358,7 @@ class Renderer:
             prompts = edits.prompts()
             reference = resolve_reference(shot, edits, base_dir) if choice.tier == "diffusion" else None
             conditioning = functools.partial(apply_edits, shot, edits)
+        conditioning = self._clock.wrap("read", conditioning)
         if choice.tier == "formula":  # auto chose tier 0
             from x2video.sampling.formula import formula_frames
 
@@ -327,6 +387,7 @@ class Renderer:
             if reference is not None:
                 reference = (reference[0], pad_image(reference[1], ph, pw))
         settings = self._validate(shot, settings)
+        self._use_engine(settings)
         if choice.regions:
             emit = self._composite(emit, full_conditioning, net if choice.base == "residual" else None, settings.guess_unseen)
         windows = self.plan(shot, settings, None if reference is None else reference[0])
@@ -349,9 +410,11 @@ class Renderer:
                 x0, conds, keys, cond = self._run_window(index, window, settings, conditioning, latents, ref_latent, text_global, text_local, emit, cancel)
                 x0 = model.sample_to_latents(x0, cond)  # RGB latents: later windows read them as references
                 gen_pos = list(window.generate_positions)
-                images = model.decode(x0[gen_pos])  # (G, H, W, 3)
+                with self._clock.stage("decode"):
+                    images = model.decode(x0[gen_pos])  # (G, H, W, 3)
                 if settings.detail:
-                    detail = self._detail([conds[p] for p in gen_pos], [keys[p] for p in gen_pos], cond[gen_pos])
+                    with self._clock.stage("detail"):
+                        detail = self._detail([conds[p] for p in gen_pos], [keys[p] for p in gen_pos], cond[gen_pos])
                     if detail is not None:
                         images = np.maximum(images + detail, 0)
                 for pos, f in zip(gen_pos, window.generate):
@@ -387,7 +450,8 @@ class Renderer:
             fs = order[i:i + batch] if i else order[:1]
             conds = [conditioning(f) for f in fs]
             if choice.tier == "residual":
-                images = tiers.residual_frames(net, conds, self.model.device, batch, settings.guess_unseen)
+                with self._clock.stage("residual"):
+                    images = tiers.residual_frames(net, conds, self.model.device, batch, settings.guess_unseen)
             else:
                 images = [tiers.formula_frame(c) for c in conds]
             done.update(fs)
@@ -403,8 +467,9 @@ class Renderer:
             if isinstance(event, FramesReady):
                 fs = list(event.frames)
                 conds = [conditioning(f) for f in fs]
-                base = (tiers.residual_frames(net, conds, self.model.device, guess_unseen=guess_unseen) if net is not None
-                        else [formula(c.channels, np.shape(c.amr_mask)[:2] if np.size(c.amr_mask) else None) for c in conds])
+                with self._clock.stage("residual"):
+                    base = (tiers.residual_frames(net, conds, self.model.device, guess_unseen=guess_unseen) if net is not None
+                            else [formula(c.channels, np.shape(c.amr_mask)[:2] if np.size(c.amr_mask) else None) for c in conds])
                 frames = {}
                 for f, c, b in zip(fs, conds, base):
                     w = tiers.feathered(c.amr_mask)[..., None]  # (H, W, 1)
@@ -434,19 +499,22 @@ class Renderer:
 
     def _encode(self, conds: list[FrameConditioning], keys: list[str]) -> torch.Tensor:
         """(n, C_cond, h, w) conditioning latents, encoding only frames the cache lacks (one batch)."""
-        return self._cached(keys, lambda idx: self.model.encode_frames([conds[i] for i in idx]))
+        with self._clock.stage("encode"):
+            return self._cached(keys, lambda idx: self.model.encode_frames([conds[i] for i in idx]))
 
     def _detail(self, conds: list[FrameConditioning], keys: list[str], cond: torch.Tensor) -> np.ndarray | None:
-        """(G, H, W, 3) `model.detail` of the generated frames, cached beside their conditioning latents."""
+        """(G, H, W, 3) `model.detail` of the generated frames, cached beside their conditioning latents in half
+        precision (a full-resolution image per frame, twice its latents in float32: 1,000 frames at 320x224 hold
+        0.4 GB instead of 0.8; EXR output is half float anyway), used in that precision on every render alike."""
         if not self.model.residual_prior:
             return None
 
         def compute(idx: list[int]) -> torch.Tensor:
             d = self.model.detail([conds[i] for i in idx], cond[idx])
             assert d is not None  # residual models always have a detail
-            return torch.from_numpy(d)
+            return torch.from_numpy(d).half()
 
-        return self._cached([k + "#detail" for k in keys], compute).numpy()
+        return self._cached([k + "#detail" for k in keys], compute).float().numpy()
 
     def _run_window(
         self,
@@ -507,7 +575,10 @@ class Renderer:
             known = Known(pos, rgb - offset, x_T[list(pos)])
 
         def model_fn(x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
-            return model.predict_v(x, t, inputs, lcm=lcm)
+            with clock.stage("unet"):
+                return model.predict_v(x, t, inputs, lcm=lcm)
+
+        clock = self._clock
 
         denoised_fn = mean_anchor(window, settings.ref_dc, ref, model.sample_to_latents(torch.zeros_like(x_T), cond),
                                   [inferred_region(c, (h, w)) for c in conds])

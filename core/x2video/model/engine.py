@@ -1,0 +1,307 @@
+"""CPU inference engine for the diffusion tier (issue 31): the video UNet, the VAE decoder and the channel encoder
+exported to ONNX and run by OpenVINO or ONNX Runtime; PyTorch stays the reference (`tests/test_engine.py`
+checks each part against it).
+
+    RenderSettings.engine   what runs the three parts
+      torch                 PyTorch (the reference; the only engine on a GPU or in half precision)
+      onnx                  ONNX Runtime's CPU provider
+      openvino              OpenVINO's CPU plugin, reading the same ONNX graphs
+      auto                  OpenVINO when installed, else ONNX Runtime, else PyTorch; untrained weights: PyTorch
+                            (fastest first as measured on the 2-core development machine, `python -m bench.render
+                            --engines torch,onnx,openvino --parts 3`: bench/results/render/)
+
+bfloat16 (the CPU here has AVX512-BF16, no AMX): OpenVINO's bf16 precision hint ran the UNet about 1.9x faster
+than its f32 but moved v by up to 0.09 (f32: 3e-6), so it is not used; the decoder stays fp32 (bf16 decoding cost
+temporal consistency before, docs/evaluations/).
+
+Export (`torch.onnx.export`, the TorchScript tracer, opset 17): the UNet's Hybrid Self-Attention and Masked
+Cross-Attention choose branches in Python from the per-call `AttnContext` (mode, LoRA branch of the level,
+reference positions, whether alpha is non-zero), so one graph holds one such choice at one window size N and
+latent size (h, w): a *variant*. `unet_variant` names it, collapsing what does not change the graph (the level
+outside interpolation windows, the level beyond the model's LoRA branches, reference positions that select
+the same frames). The decoder and the channel encoder have a dynamic batch and a static frame size. Where
+a call cannot use a graph the part runs in PyTorch for that call, and the log says so once:
+  * local prompts (Masked Cross-Attention's local branch: their count P and masks vary per edit; PyTorch);
+  * per-frame timesteps (the samplers pass one scalar per call; training passes vectors and never comes here);
+  * an encoder in bfloat16 (`--bf16-encoder` gives other latents than an fp32 graph would).
+
+Exported graphs are cached on disk under $XDG_CACHE_HOME/x2video/engine (default ~/.cache), keyed by a
+digest of the weights, the variant and the shapes, so each variant is exported once per machine (seconds
+on 2 cores); OpenVINO keeps its compiled blobs beside them. Sessions stay in memory per model.
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import logging
+import os
+import threading
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import torch
+from torch import nn
+
+log = logging.getLogger(__name__)
+
+#: the values of `RenderSettings.engine`
+ENGINES = ("auto", "torch", "onnx", "openvino")
+#: ONNX opset of the exported graphs (scaled_dot_product_attention and GroupNorm export at 17)
+OPSET = 17
+#: bumped when what is exported changes, so old cached graphs are not reused
+FORMAT = 1
+
+
+class EngineError(RuntimeError):
+    """A part could not be exported or compiled for the chosen engine (the message says which and why)."""
+
+
+def cache_dir() -> Path:
+    """Where exported graphs and compiled blobs live: $XDG_CACHE_HOME/x2video/engine (default ~/.cache)."""
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "x2video" / "engine"
+
+
+def available(runtime: str) -> bool:
+    """Whether `runtime` ('onnx' or 'openvino') can be imported here."""
+    import importlib.util
+
+    name = {"onnx": "onnxruntime", "openvino": "openvino"}[runtime]
+    return importlib.util.find_spec(name) is not None
+
+
+def resolve(engine: str, device: torch.device | str = "cpu", dtype: torch.dtype = torch.float32, untrained: bool = False) -> str:
+    """The runtime `engine` means for a model on `device` in `dtype`: 'torch', 'onnx' or 'openvino'.
+    'auto' takes the fastest one installed (OpenVINO, then ONNX Runtime) for trained float32 weights on a CPU,
+    else PyTorch: UNTRAINED weights (tests, smoke renders) render a few frames once, for which exporting the
+    graphs costs more than it saves. Asking for a runtime that is missing or cannot apply is an error naming
+    the setting."""
+    if engine not in ENGINES:
+        raise ValueError(f"RenderSettings.engine must be one of {', '.join(ENGINES)}, got {engine!r}")
+    cpu32 = torch.device(device).type == "cpu" and dtype == torch.float32
+    if engine == "auto":
+        if not cpu32 or untrained:
+            return "torch"
+        return next((r for r in ("openvino", "onnx") if available(r)), "torch")
+    if engine != "torch":
+        if not cpu32:
+            raise ValueError(f"engine {engine!r} runs float32 models on the CPU; this model is {dtype} on {device} (use engine 'torch')")
+        if not available(engine):
+            pkg = {"onnx": "onnxruntime", "openvino": "openvino"}[engine]
+            raise ValueError(f"engine {engine!r} needs the {pkg} package, which is not installed (pip install {pkg}, or engine 'auto')")
+    return engine
+
+
+def module_digest(module: nn.Module) -> str:
+    """sha256 of a module's tensors (names, dtypes, shapes, values): what an exported graph bakes in."""
+    h = hashlib.sha256()
+    for k, v in sorted(module.state_dict().items()):
+        t = v.detach().to("cpu").contiguous()
+        h.update(f"{k}{t.dtype}{tuple(t.shape)}".encode())
+        h.update(t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+    return h.hexdigest()
+
+
+def unet_variant(mode: str, level: int, ref_positions: Sequence[int], num_frames: int, interp_levels: int) -> tuple:
+    """What of one UNet call's `AttnContext` shapes the traced graph, with equivalent calls made equal."""
+    from x2video.model.context import AttnContext
+
+    ctx = AttnContext(num_frames=num_frames, latent_size=(1, 1), ref_positions=tuple(ref_positions), mode=mode, level=level)
+    return (mode if mode == "interp" else "key", ctx.temporal_branch(interp_levels), ctx.source_positions(), num_frames)
+
+
+class _Graph:
+    """One compiled graph: feeds by input name -> first output."""
+
+    def __init__(self, runtime: str, path: Path, threads: int) -> None:
+        self.runtime = runtime
+        if runtime == "onnx":
+            import onnxruntime as ort
+
+            so = ort.SessionOptions()
+            so.intra_op_num_threads = threads
+            so.inter_op_num_threads = 1
+            so.log_severity_level = 3
+            self._sess = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+            self.inputs = [i.name for i in self._sess.get_inputs()]
+        else:
+            import openvino as ov
+
+            core = ov.Core()
+            core.set_property({"CACHE_DIR": str(path.parent / "openvino")})
+            compiled = core.compile_model(core.read_model(str(path)), "CPU",
+                                          {"INFERENCE_NUM_THREADS": threads, "INFERENCE_PRECISION_HINT": "f32"})
+            self._req = compiled.create_infer_request()
+            self._lock = threading.Lock()  # one infer request: one call at a time
+            self.inputs = [sorted(p.get_names())[0] for p in compiled.inputs]
+            self._ports = {n: i for i, p in enumerate(compiled.inputs) for n in p.get_names()}
+
+    def __call__(self, feeds: dict[str, np.ndarray]) -> np.ndarray:
+        if self.runtime == "onnx":
+            return self._sess.run(None, {k: feeds[k] for k in self.inputs})[0]
+        args = {self._ports[k]: np.require(v, requirements="C") for k, v in feeds.items() if k in self._ports}
+        with self._lock:
+            return np.array(self._req.infer(args)[0], copy=True)
+
+
+class _UNetCall(nn.Module):
+    """One UNet call with the `AttnContext` choices fixed (the variant); what is exported."""
+
+    def __init__(self, unet: nn.Module, prediction: str, num_frames: int, ref_positions: tuple, mode: str, level: int) -> None:
+        super().__init__()
+        self.unet, self.prediction = unet, prediction
+        self.kw = dict(num_frames=num_frames, ref_positions=ref_positions, mode=mode, level=level)
+
+    def forward(self, x: torch.Tensor, t: torch.Tensor, cond: torch.Tensor, ref: torch.Tensor, text: torch.Tensor) -> torch.Tensor:
+        from x2video.model.inputs import run_unet
+
+        return run_unet(self.unet, x, t, cond, ref, text_global=text, prediction=self.prediction, **self.kw)
+
+
+class _Decode(nn.Module):
+    def __init__(self, vae: nn.Module) -> None:
+        super().__init__()
+        self.vae = vae
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        return self.vae.decode(z).sample  # (N, 3, H, W) in the VAE's range
+
+
+class _EncodeMode(nn.Module):
+    """The VAE encoder's posterior mode (what `encode_mode` returns), for models without a distilled channel encoder."""
+
+    def __init__(self, vae: nn.Module) -> None:
+        super().__init__()
+        self.vae = vae
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.vae.encode(x).latent_dist.mode()
+
+
+class CompiledParts:
+    """One model's UNets, VAE decoder and channel encoder as graphs for one runtime ('onnx' or 'openvino'),
+    exported on first use per variant and shape, cached on disk (`cache_dir`) and in memory. Each method
+    returns None where a call cannot use a graph (see the module docstring); the model then runs PyTorch."""
+
+    def __init__(self, model: Any, runtime: str, threads: int | None = None, folder: Path | None = None) -> None:
+        if runtime not in ("onnx", "openvino"):
+            raise ValueError(f"CompiledParts runs 'onnx' or 'openvino', not {runtime!r}")
+        self.model, self.runtime = model, runtime
+        self.threads = int(threads or torch.get_num_threads())
+        self.folder = folder or cache_dir()
+        self._graphs: dict[tuple, _Graph] = {}
+        self._digests: dict[int, str] = {}
+        self._lock = threading.Lock()
+        self._said: set[str] = set()
+        #: wall seconds spent exporting and compiling graphs (a cold cache's one-time cost)
+        self.build_seconds = 0.0
+
+    # -- the parts --------------------------------------------------------------------
+    def unet(self, x_t: torch.Tensor, t: torch.Tensor, window: Any, *, lcm: bool) -> torch.Tensor | None:
+        """v-prediction (N, 4, h, w) of one window (`WindowInputs`), or None where the graph cannot apply."""
+        if window.text_local.shape[0] > 0:
+            self._once("local", "local prompts: the UNet runs in PyTorch for this render (their count and masks are not in the graph)")
+            return None
+        t = torch.as_tensor(t)
+        if t.ndim != 0:
+            return None
+        model = self.model
+        unet = model.lcm_unet if lcm else model.unet
+        n, _, h, w = x_t.shape
+        variant = unet_variant(window.mode, window.level, window.ref_positions, n, model.config.hybrid.interp_levels)
+        mode, branch, sources, _ = variant
+        level = int(branch[6:]) if branch.startswith("interp") else 1
+        ref_positions = tuple(sources) if mode == "interp" else ()
+        feeds = {"x": x_t, "t": t.to(torch.int64), "cond": window.cond, "ref": window.ref, "text": window.text_global}
+
+        def make() -> tuple[nn.Module, tuple, dict]:
+            from x2video.model.inputs import sd_alphas_cumprod
+
+            sd_alphas_cumprod()  # computed (and cached) eagerly: the tracer cannot export its cumprod
+            wrapper = _UNetCall(unet, model.config.prediction, n, ref_positions, mode, level)
+            return wrapper, tuple(feeds[k] for k in ("x", "t", "cond", "ref", "text")), {}
+
+        shapes = tuple((k, tuple(v.shape)) for k, v in feeds.items())
+        key = ("lcm_unet" if lcm else "unet", id(unet), variant, shapes)
+        graph = self._graph(key, unet, make, list(feeds))
+        arrays = {k: v.detach().cpu().numpy() if k == "t" else v.detach().float().cpu().numpy() for k, v in feeds.items()}
+        return torch.from_numpy(graph(arrays))
+
+    def decode(self, z: torch.Tensor) -> torch.Tensor:
+        """The VAE decoder's raw output (N, 3, H, W) for latents z (N, 4, h, w) already divided by the scale."""
+        vae = self.model.vae
+
+        def make() -> tuple[nn.Module, tuple, dict]:
+            return _Decode(vae), (z,), {"z": {0: "n"}, "out": {0: "n"}}
+
+        graph = self._graph(("decode", id(vae), tuple(z.shape[1:])), vae, make, ["z"])
+        return torch.from_numpy(graph({"z": z.detach().float().cpu().numpy()}))
+
+    def encode(self, x: torch.Tensor) -> torch.Tensor | None:
+        """(N, 4, h, w) unscaled latents of images x (N, 3, H, W) in [-1, 1] by the channel encoder (the
+        distilled one when the model has it, else the VAE encoder's mode); None for a bfloat16 encoder."""
+        model = self.model
+        if model.encoder_dtype != torch.float32:
+            self._once("bf16", "a bfloat16 encoder runs in PyTorch (an fp32 graph would give other latents)")
+            return None
+        module = model.channel_encoder if model.channel_encoder is not None else _EncodeMode(model.vae)
+        owner = model.channel_encoder if model.channel_encoder is not None else model.vae
+
+        def make() -> tuple[nn.Module, tuple, dict]:
+            return module, (x.float(),), {"x": {0: "n"}, "out": {0: "n"}}
+
+        graph = self._graph(("encode", id(owner), tuple(x.shape[1:])), owner, make, ["x"])
+        return torch.from_numpy(graph({"x": x.detach().float().cpu().numpy()}))
+
+    # -- graphs -------------------------------------------------------------------------
+    def _graph(self, key: tuple, owner: nn.Module, make: Callable[[], tuple[nn.Module, tuple, dict]], names: list[str]) -> _Graph:
+        graph = self._graphs.get(key)
+        if graph is not None:
+            return graph
+        with self._lock:
+            graph = self._graphs.get(key)
+            if graph is None:
+                import time
+
+                t0 = time.perf_counter()
+                path = self._exported(key, owner, make, names)
+                try:
+                    graph = _Graph(self.runtime, path, self.threads)
+                except Exception as e:  # noqa: BLE001 - re-raised with the part and the file named
+                    raise EngineError(f"{self.runtime} could not compile {path} ({key[0]}): {type(e).__name__}: {e}") from e
+                self.build_seconds += time.perf_counter() - t0
+                self._graphs[key] = graph
+        return graph
+
+    def _digest(self, module: nn.Module) -> str:
+        d = self._digests.get(id(module))
+        if d is None:
+            d = self._digests[id(module)] = module_digest(module)
+        return d
+
+    def _exported(self, key: tuple, owner: nn.Module, make: Callable[[], tuple[nn.Module, tuple, dict]], names: list[str]) -> Path:
+        """The ONNX file of `key`, exported now unless the cache has it."""
+        tag = repr((FORMAT, OPSET, torch.__version__, key[0], key[2:], self._digest(owner)))
+        path = self.folder / f"{key[0]}-{hashlib.sha256(tag.encode()).hexdigest()[:24]}.onnx"
+        if path.is_file():
+            return path
+        from x2video.io.atomic import write_bytes_atomic
+
+        module, args, axes = make()
+        buf = io.BytesIO()
+        log.info("engine: exporting %s %s to %s (once per weights, variant and size)", key[0], key[2:], path)
+        try:
+            with torch.no_grad():
+                torch.onnx.export(module.eval(), args, buf, input_names=names, output_names=["out"], dynamic_axes=axes or None,
+                                  opset_version=OPSET, dynamo=False)
+        except Exception as e:  # noqa: BLE001 - re-raised with the part named
+            raise EngineError(f"could not export {key[0]} {key[2:]} to ONNX: {type(e).__name__}: {e}") from e
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_bytes_atomic(path, buf.getvalue())
+        return path
+
+    def _once(self, what: str, message: str) -> None:
+        if what not in self._said:
+            self._said.add(what)
+            log.info("engine %s: %s", self.runtime, message)
