@@ -163,7 +163,7 @@ def shots_by_size(folders: list[Path], split: str) -> dict[tuple[int, int], list
 
 def cycles_job(shot_dir: Path, frames: int) -> dict | None:
     """What a Cycles process needs to rebuild this room (None: not a procedural room of `x2video.cycles`)."""
-    from x2video.io.shotdir import parse_cameras_json
+    from x2video.io.metadata import parse_cameras_json
 
     info = json.loads((shot_dir / "shot.json").read_text())
     extra = info.get("extra", {})

@@ -179,7 +179,7 @@ def test_a_large_shot_renders_through_tiles_in_bounded_passes(monkeypatch):
     model = FakeModel()
     model.residual_net = Spy(deep_net())
     got = {}
-    Renderer(model).render(shot, None, RenderSettings(quality="residual"), lambda e: got.update(e.frames) if isinstance(e, FramesReady) else None)
+    Renderer(model).render(shot, None, RenderSettings(quality="residual", guess_unseen=True), lambda e: got.update(e.frames) if isinstance(e, FramesReady) else None)
     assert sorted(got) == [0, 1, 2]
     assert max(model.residual_net.pixels) <= R.MAX_PIXELS
     for t in range(3):
@@ -188,7 +188,7 @@ def test_a_large_shot_renders_through_tiles_in_bounded_passes(monkeypatch):
     small = [FrameConditioning(channels={k: v[:40, :48] for k, v in f.items()}, amr_mask=np.zeros((40, 48), np.float32),
                                local_masks=np.zeros((0, 40, 48), np.float32), frame_index=i) for i, f in enumerate(frames)]
     model.residual_net.pixels.clear()
-    out = tiers.residual_frames(model.residual_net, small, batch=16)
+    out = tiers.residual_frames(model.residual_net, small, batch=16, guess_unseen=True)
     assert model.residual_net.pixels == [3 * 40 * 48] and len(out) == 3  # MAX_PIXELS // (40 * 48) = 4 frames a pass: one
 
 
