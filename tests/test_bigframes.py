@@ -179,7 +179,8 @@ def test_a_large_shot_renders_through_tiles_in_bounded_passes(monkeypatch):
     model = FakeModel()
     model.residual_net = Spy(deep_net())
     got = {}
-    Renderer(model).render(shot, None, RenderSettings(quality="residual", guess_unseen=True), lambda e: got.update(e.frames) if isinstance(e, FramesReady) else None)
+    settings = RenderSettings(quality="residual", guess_unseen=True)  # the net's own output, compared with the whole-frame pass
+    Renderer(model).render(shot, None, settings, lambda e: got.update(e.frames) if isinstance(e, FramesReady) else None)
     assert sorted(got) == [0, 1, 2]
     assert max(model.residual_net.pixels) <= R.MAX_PIXELS
     for t in range(3):
