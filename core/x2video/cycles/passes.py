@@ -17,6 +17,17 @@ from __future__ import annotations
 
 import bpy
 
+
+def set_input(node, names: tuple[str, ...], value) -> None:
+    """Set the first input of `names` this Blender has (4.x renamed Emission, Transmission, Specular)."""
+    for n in names:
+        sock = node.inputs.get(n)
+        if sock is not None:
+            sock.default_value = value
+            return
+    raise KeyError(f"{node.name}: none of the inputs {names}")
+
+
 #: (AOV name, kind, Principled BSDF input it copies)
 AOVS = (("basecolor", "COLOR", "Base Color"), ("roughness", "VALUE", "Roughness"), ("metallic", "VALUE", "Metallic"))
 #: view-layer flags of the passes we write (attribute names on `bpy.types.ViewLayer`)

@@ -15,6 +15,7 @@ import bmesh
 import bpy
 import numpy as np
 
+from x2video.cycles.passes import set_input
 from x2video.procedural.geometry import Part, SceneObject
 from x2video.procedural.materials import Material
 from x2video.procedural.room import WALL_T, wall_box, wall_frame
@@ -81,15 +82,6 @@ def _principled(name: str) -> tuple["bpy.types.Material", "bpy.types.ShaderNode"
     return mat, bsdf
 
 
-def _set(bsdf, names: tuple[str, ...], value) -> None:
-    """Set the first input of `names` that this Blender version has (4.x renamed several inputs)."""
-    for n in names:
-        sock = bsdf.inputs.get(n)
-        if sock is not None:
-            sock.default_value = value
-            return
-
-
 def _pattern(mat, bsdf, m: Material) -> None:
     """Drive Base Color by a texture standing in for the rasterizer's pattern (same period and contrast)."""
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
@@ -142,15 +134,15 @@ def make_material(m: Material, name: str, *, roughness: float | None = None, met
     bsdf.inputs["Roughness"].default_value = float(m.roughness if roughness is None else roughness)
     bsdf.inputs["Metallic"].default_value = float(m.metallic)
     if glass:
-        _set(bsdf, ("Transmission Weight", "Transmission"), 1.0)
+        set_input(bsdf, ("Transmission Weight", "Transmission"), 1.0)
         bsdf.inputs["Roughness"].default_value = 0.0
         bsdf.inputs["Base Color"].default_value = (0.95, 0.97, 0.96, 1.0)
         return mat
     if m.pattern != "flat" and m.contrast > 0:
         _pattern(mat, bsdf, m)
     if float(np.max(m.emission)) > 0:
-        _set(bsdf, ("Emission Color", "Emission"), (*map(float, m.emission / max(float(np.max(m.emission)), 1e-6)), 1.0))
-        _set(bsdf, ("Emission Strength",), float(np.max(m.emission)) * float(emit_gain))
+        set_input(bsdf, ("Emission Color", "Emission"), (*map(float, m.emission / max(float(np.max(m.emission)), 1e-6)), 1.0))
+        set_input(bsdf, ("Emission Strength",), float(np.max(m.emission)) * float(emit_gain))
     return mat
 
 

@@ -12,6 +12,7 @@ import numpy as np
 from mathutils import Matrix
 
 from x2video.cycles.classes import classify
+from x2video.cycles.passes import set_input
 from x2video.procedural.camera import look_along
 
 Vec = tuple[float, float, float]
@@ -113,16 +114,6 @@ class Builder:
 
 def principled(mat: "bpy.types.Material"):
     return next(n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled")
-
-
-def set_input(node, names: tuple[str, ...], value) -> None:
-    """Set the first input of `names` this Blender has (4.x renamed Emission, Transmission, Specular)."""
-    for n in names:
-        sock = node.inputs.get(n)
-        if sock is not None:
-            sock.default_value = value
-            return
-    raise KeyError(f"{node.name}: none of the inputs {names}")
 
 
 # ----------------------------------------------------------------------------------------- meshes
