@@ -49,3 +49,15 @@ def _no_dangling_qt_threads(request):
         problems.append(f"non-daemon threads left running: {[t.name for t in extra]}")
     if problems:
         _pytest.fail("test left threads running: " + "; ".join(problems))
+
+
+@_pytest.fixture
+def torch_one_thread():
+    """One torch thread for the test, restored after: many small passes on 2 shared cores run several times
+    faster on one thread than on two fighting. Modules opt in with `pytestmark = pytest.mark.usefixtures(...)`."""
+    import torch
+
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)

@@ -16,14 +16,7 @@ from x2video.sampling.events import FramesReady, RenderSettings
 from x2video.sampling.renderer import Renderer
 from x2video.shot import ArrayShot
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Many small passes: one torch thread each (two threads' barriers cost more than the work on a busy machine)."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 def room_channels(h: int, w: int, seed: int = 0) -> dict[str, np.ndarray]:

@@ -32,29 +32,38 @@ def classify(*, roughness: float, metallic: float = 0.0, transmission: float = 0
     return "glossy" if roughness < GLOSSY_BELOW else "diffuse"
 
 
-def _room_classes(extra: dict[str, Any]) -> dict[int, str]:
+def object_class(scene: Any, obj: Any, *, metal: set[int] | frozenset[int] = frozenset(), glossy_floor: float | None = None,
+                 glass: set[int] | frozenset[int] = frozenset(), lacquer: dict[int, float] | None = None) -> str:
+    """The class of procedural object `obj` of `scene` as `x2video.cycles.room.build_room` builds it: `metal` / `glass`
+    object ids, the glossy floor's roughness, `lacquer` {id: roughness}. The one rule for rooms built (room.py, v2)
+    and rooms read back from their shot.json (`_room_classes`, v1)."""
     import numpy as np
 
+    if obj.category == "mirror":
+        return "metal"
+    parts = [p for p in obj.parts if not scene.materials[p.material].sky]
+    if any(float(np.max(scene.materials[p.material].emission)) > 0 for p in parts):
+        return "emitter"
+    if obj.id in metal:
+        return "metal"
+    if obj.id in glass:
+        return "glass"
+    if lacquer and obj.id in lacquer:
+        return classify(roughness=lacquer[obj.id])
+    if obj.category == "floor" and glossy_floor is not None:
+        return classify(roughness=float(glossy_floor))
+    main = scene.materials[parts[0].material]
+    return classify(roughness=float(main.roughness), metallic=float(main.metallic))
+
+
+def _room_classes(extra: dict[str, Any]) -> dict[int, str]:
     from x2video.procedural.scene import generate_scene
 
     scene = generate_scene(int(extra["room_seed"]))
     traced = extra.get("path_traced", {}) or {}
-    metal_ids = {int(i) for i, _ in traced.get("metal", [])}
-    glossy_floor = traced.get("glossy_floor")
-    out: dict[int, str] = {}
-    for obj in scene.objects:
-        parts = [p for p in obj.parts if not scene.materials[p.material].sky]
-        if not parts:
-            continue
-        main = scene.materials[parts[0].material]
-        if any(float(np.max(scene.materials[p.material].emission)) > 0 for p in parts):
-            out[obj.id] = "emitter"
-        elif obj.id in metal_ids:
-            out[obj.id] = "metal"
-        elif obj.category == "floor" and glossy_floor is not None:
-            out[obj.id] = classify(roughness=float(glossy_floor))
-        else:
-            out[obj.id] = classify(roughness=float(main.roughness), metallic=float(main.metallic))
+    kw = {"metal": {int(i) for i, _ in traced.get("metal", [])}, "glossy_floor": traced.get("glossy_floor")}
+    out = {obj.id: object_class(scene, obj, **kw) for obj in scene.objects
+           if any(not scene.materials[p.material].sky for p in obj.parts)}
     if traced.get("mirror"):
         out[max(o.id for o in scene.objects) + 1] = "metal"  # room.mirror_object's id
     return out

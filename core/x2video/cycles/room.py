@@ -294,24 +294,10 @@ def mirror_object(scene: Scene, seed: int, next_id: int, frame_mat: int) -> Scen
 
 def _class_of(scene: Scene, obj: SceneObject, extras: Extras) -> str:
     """The material class (`x2video.cycles.classes`) of `obj` as `build_room` builds it."""
-    from x2video.cycles.classes import classify
+    from x2video.cycles.classes import object_class
 
-    if obj.category == "mirror":
-        return "metal"
-    parts = [p for p in obj.parts if not scene.materials[p.material].sky]
-    if any(float(np.max(scene.materials[p.material].emission)) > 0 for p in parts):
-        return "emitter"
-    if obj.id in dict(extras.metal_objects):
-        return "metal"
-    if obj.id in extras.glass_objects:
-        return "glass"
-    lacquer = {i: r for i, _, r in extras.lacquer}
-    if obj.id in lacquer:
-        return classify(roughness=lacquer[obj.id])
-    if obj.category == "floor" and extras.glossy_floor is not None:
-        return classify(roughness=float(extras.glossy_floor))
-    main = scene.materials[parts[0].material]
-    return classify(roughness=float(main.roughness), metallic=float(main.metallic))
+    return object_class(scene, obj, metal={i for i, _ in extras.metal_objects}, glossy_floor=extras.glossy_floor,
+                        glass=set(extras.glass_objects), lacquer={i: r for i, _, r in extras.lacquer})
 
 
 def build_room(scene: Scene, extras: Extras) -> dict:

@@ -112,12 +112,14 @@ def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.devic
     `residual.MAX_PIXELS` pixels in one: a frame larger than that runs in overlapping tiles (`residual.apply_tiled`,
     equal to the whole-frame pass to float precision), so the net's working memory does not grow with the frame.
     Unless `guess_unseen`, pixels whose channels say nothing of their light (`residual.unseen_light`: sky, clear
-    glass) keep the formula instead of the net's guess."""
-    from x2video.model.residual import MAX_PIXELS, apply, apply_tiled, features, needs_tiles
+    glass, mirrors) keep the formula instead of the net's guess."""
+    frames = _net_frames(net, conds, device, batch)
+    return frames if guess_unseen else [keep_formula_where_unseen(f, c.channels) for f, c in zip(frames, conds)]
 
-    if not guess_unseen:
-        frames = residual_frames(net, conds, device, batch, guess_unseen=True)
-        return [keep_formula_where_unseen(f, c.channels) for f, c in zip(frames, conds)]
+
+def _net_frames(net, conds: Sequence[FrameConditioning], device: torch.device | str, batch: int) -> list[np.ndarray]:
+    """The net's own output for each frame (`residual_frames` without the unseen-light rule)."""
+    from x2video.model.residual import MAX_PIXELS, apply, apply_tiled, features, needs_tiles
 
     def shape(c: FrameConditioning) -> tuple[int, int] | None:
         return tuple(np.shape(c.amr_mask)[:2]) if np.size(c.amr_mask) else None  # type: ignore[return-value]
