@@ -79,7 +79,7 @@ def test_render_keyframes_first_reuse_cache_reference_and_export(win, qtbot, tmp
     st = win.doc.render
     assert st.status == "finished", (st.status, st.error, win.errors_shown)
     modes = [m for m, *_ in shown]
-    assert modes == ["key", "interp", "interp"]
+    assert modes == ["key", "key", "interp", "interp"]  # the first keyframe alone, then the rest of its window
     assert all(showed for *_, showed, _ in shown) and shown[0][4] == "rendered"  # the viewer followed each batch
     arrivals = [a for a in st.arrivals if a[2] != "preview"]  # the render's own; the formula's preview came first
     assert [a[0] for a in arrivals[:3]] == [0, 2, 4] and {a[2] for a in arrivals[3:]} == {"interp"}

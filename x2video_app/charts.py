@@ -131,6 +131,7 @@ class Charts(QWidget):
         lay.setContentsMargins(0, 0, 0, 0)
         lay.addWidget(self.tabs)
         self.windows: list[tuple[int, int, float]] = []  # (window index, level, seconds)
+        self._bars: list[pg.BarGraphItem] = []  # the plot's bar of each entry of `windows`
         self.top_level = 1
         self.reset(1)
         self.pareto = load_pareto(pareto) if pareto is not None else None
@@ -143,6 +144,7 @@ class Charts(QWidget):
     # -- this render -----------------------------------------------------------
     def reset(self, top_level: int, num_windows: int = 0) -> None:
         self.windows.clear()
+        self._bars.clear()
         self.top_level = top_level
         self.num_windows = num_windows
         self.window_plot.clear()
@@ -153,9 +155,16 @@ class Charts(QWidget):
             self.window_plot.setXRange(-0.6, num_windows - 0.4, padding=0)
 
     def add_window(self, index: int, level: int, seconds: float) -> None:
-        self.windows.append((index, level, seconds))
+        """One bar per window; a window that delivers its frames in parts (the first keyframe alone) updates its
+        bar to the window's time so far."""
         c = level_colour(level, self.top_level)
         bar = pg.BarGraphItem(x=[index], height=[seconds], width=0.8, brush=c, pen=c.darker(150))
+        if self.windows and self.windows[-1][0] == index:
+            self.windows[-1] = (index, level, seconds)
+            self.window_plot.removeItem(self._bars.pop())
+        else:
+            self.windows.append((index, level, seconds))
+        self._bars.append(bar)
         self.window_plot.addItem(bar)
         if self.num_windows:
             self.window_plot.setXRange(-0.6, max(self.num_windows, index + 1) - 0.4, padding=0)

@@ -137,7 +137,8 @@ class RenderState:
             rec = self.windows.get(ev.window)
             if rec is not None:
                 rec.seconds = ev.seconds
-            self.windows_done[ev.level] += 1
+            if ev.window_done:
+                self.windows_done[ev.level] += 1
             level = 0 if self.per_frame else ev.level
             for t, img in ev.frames.items():
                 self.frames[t] = np.asarray(img, dtype=np.float16)
@@ -152,7 +153,8 @@ class RenderState:
                 self.first_frame_at = now
             if self.first_keyframe_at is None:
                 self.first_keyframe_at = now
-            self.in_flight = []
+            if ev.window_done:
+                self.in_flight = []
         elif isinstance(ev, RenderFinished):
             self.status, self.finished_at, self.in_flight = "finished", now, []
         elif isinstance(ev, RenderCancelled):

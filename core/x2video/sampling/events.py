@@ -142,6 +142,9 @@ class FramesReady:
     seconds: float  # wall time of the window that produced them
     replaces: tuple[int, ...] = ()
     """Frames among `frames` that an earlier event already delivered and these replace (the seam pass)."""
+    window_done: bool = True
+    """False when more frames of this window follow in another event (the first window delivers its first
+    keyframe alone, so an editor can show it while the rest decode)."""
 
 
 @dataclass

@@ -410,13 +410,6 @@ class Renderer:
                 x0, conds, keys, cond = self._run_window(index, window, settings, conditioning, latents, ref_latent, text_global, text_local, emit, cancel)
                 x0 = model.sample_to_latents(x0, cond)  # RGB latents: later windows read them as references
                 gen_pos = list(window.generate_positions)
-                with self._clock.stage("decode"):
-                    images = model.decode(x0[gen_pos])  # (G, H, W, 3)
-                if settings.detail:
-                    with self._clock.stage("detail"):
-                        detail = self._detail([conds[p] for p in gen_pos], [keys[p] for p in gen_pos], cond[gen_pos])
-                    if detail is not None:
-                        images = np.maximum(images + detail, 0)
                 for pos, f in zip(gen_pos, window.generate):
                     if keep_until.get(f, -1) > index:
                         latents[f] = x0[pos].clone()
@@ -424,14 +417,26 @@ class Renderer:
                 for f in window.refs:
                     if keep_until.get(f) == index:
                         latents.pop(f, None)
-                if work is not None:
-                    frames = {f: working.to_full(images[i], full_conditioning(f)) for i, f in enumerate(window.generate)}
-                else:
-                    frames = {f: np.ascontiguousarray(images[i][:height, :width], dtype=np.float32) for i, f in enumerate(window.generate)}
-                again = tuple(f for f in window.generate if f in done)  # the seam pass makes frames a second time
-                done.update(window.generate)
-                emit(FramesReady(window=index, frames=frames, level=window.level, mode=window.mode, seconds=time.perf_counter() - tw,
-                                 replaces=again))
+                # the first window's first frame is decoded and delivered on its own: an editor shows it while the
+                # rest of the window decodes (the decoder's batch is free; the frames are the same either way)
+                chunks = [gen_pos[:1], gen_pos[1:]] if index == 0 and len(gen_pos) > 1 else [gen_pos]
+                for part, chunk in enumerate(chunks):
+                    with self._clock.stage("decode"):
+                        images = model.decode(x0[chunk])  # (G, H, W, 3)
+                    if settings.detail:
+                        with self._clock.stage("detail"):
+                            detail = self._detail([conds[p] for p in chunk], [keys[p] for p in chunk], cond[chunk])
+                        if detail is not None:
+                            images = np.maximum(images + detail, 0)
+                    made = [window.frames[p] for p in chunk]
+                    if work is not None:
+                        frames = {f: working.to_full(images[i], full_conditioning(f)) for i, f in enumerate(made)}
+                    else:
+                        frames = {f: np.ascontiguousarray(images[i][:height, :width], dtype=np.float32) for i, f in enumerate(made)}
+                    again = tuple(f for f in made if f in done)  # the seam pass makes frames a second time
+                    done.update(made)
+                    emit(FramesReady(window=index, frames=frames, level=window.level, mode=window.mode, seconds=time.perf_counter() - tw,
+                                     replaces=again, window_done=part == len(chunks) - 1))
         emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))
 
     def _render_direct(self, shot: Shot, settings: RenderSettings, choice: tiers.TierChoice, conditioning: Callable[[int], FrameConditioning],
