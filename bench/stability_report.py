@@ -176,14 +176,15 @@ def product_note(f: dict) -> str:
         fam = "length"  # every channel kept: the plain case
     if fam == "channels" and method == "residual":
         return ("tier 1 forced with a channel missing: the net reads the missing channel as zeros and was never trained so; "
-                "'auto' never does this (any dropped channel sends it to the sampler), only quality 'residual' forced by hand")
+                "'auto' never does this (missing normal, roughness or metallic alone: the formula; anything else missing: the sampler), "
+                "only quality 'residual' forced by hand")
     if fam == "channels" and method == "formula":
-        return ("the formula needs albedo and irradiance; without either it is black. 'auto' never runs the formula here: any "
-                "dropped channel sends it to the diffusion sampler (x2video.sampling.tiers.generation_reasons; the log says which)")
+        return ("the formula needs albedo and irradiance; without either it is black. 'auto' runs the formula only where both "
+                "are present; a missing albedo or irradiance sends it to the diffusion sampler (x2video.sampling.tiers.choose_tier; the log says which)")
     if fam == "channels" and "alb" in name.split("+") and "irr" in name.split("+"):
-        return ("'auto' runs the sampler for any dropped channel, here with albedo and irradiance both present, where the "
-                "formula (or tier 1) does better: falling back to tier 0/1 when only normal, roughness or metallic are missing "
-                "would avoid the loss (x2video.sampling.tiers.generation_reasons)")
+        return ("the sampler, given albedo and irradiance but not every other channel, renders below the formula on all 7 such "
+                "subsets; so 'auto' renders the formula when only normal, roughness or metallic are missing "
+                "(x2video.sampling.tiers.FORMULA_IGNORES), and the sampler runs there only when forced")
     if fam == "channels":
         return "'auto' runs the sampler for a dropped channel; what it generates is the model's guess, scored against one truth"
     if fam == "masks" and method == "formula":

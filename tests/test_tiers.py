@@ -10,6 +10,7 @@ from sampling_fake import FakeModel, make_shot
 
 from x2video.edits import Edits
 from x2video.edits.masks import Mask
+from x2video.edits.model import Reference
 from x2video.edits.ops import MaskOut
 from x2video.model import residual as R
 from x2video.sampling import tiers
@@ -89,6 +90,27 @@ def test_auto_runs_the_residual_net_per_frame_deterministically():
     assert not np.allclose(frames[2], R.formula(ch), atol=1e-3)
     _, again = render(model, shot, RenderSettings())
     np.testing.assert_array_equal(again[2], frames[2])
+
+
+def test_auto_renders_the_formula_when_only_channels_it_ignores_are_missing():
+    shot, model = full_shot(), with_net()
+    for dropped in ({"roughness"}, {"normal", "metallic"}):
+        e = Edits()
+        e.dropped = set(dropped)
+        events, frames = render(model, shot, RenderSettings(), e)
+        started = next(ev for ev in events if isinstance(ev, RenderStarted))
+        assert started.tier == "formula" and "needs neither" in started.reason
+        ch = shot.frame(1)
+        np.testing.assert_allclose(frames[1], ch["albedo"] * ch["irradiance"], atol=1e-6)
+        e.dropped |= {"irradiance"}  # the formula needs irradiance: generated
+        assert next(ev for ev in render(model, shot, RenderSettings(steps=2), e)[0] if isinstance(ev, RenderStarted)).tier == "diffusion"
+    e = Edits()
+    e.dropped = {"roughness"}
+    e.reference = Reference(frame=0)  # anything else that asks for generation still sends it to the sampler
+    assert tiers.choose_tier("auto", tiers.generation_reasons(shot, e)[0], False, True, dropped=["roughness"]).tier == "diffusion"
+    # forcing still works
+    assert next(ev for ev in render(model, shot, RenderSettings(quality="diffusion", steps=2), Edits(dropped={"roughness"}))[0]
+                if isinstance(ev, RenderStarted)).tier == "diffusion"
 
 
 def test_forced_formula_and_diffusion():
@@ -190,6 +212,28 @@ def test_exposure_augmentation_scales_light_and_target_together(tmp_path):
     assert torch.allclose(xs[:, :3] * torch.expm1(xs[:, NOISY_PLANES][:, :3]), form, rtol=0.03, atol=2e-3)
     with pytest.raises(ValueError, match="exposure_aug"):
         Frames([f], exposure_aug=0.5)
+
+
+def test_irradiance_dropout_gives_the_features_of_a_shot_without_irradiance(tmp_path):
+    from x2video.train.residual_stage import Frames, drop_irradiance
+
+    rng = np.random.default_rng(0)
+    ch = {"albedo": rng.uniform(0.1, 0.9, (16, 16, 3)), "irradiance": rng.uniform(0.2, 2.0, (16, 16, 3)),
+          "normal": np.dstack([np.zeros((16, 16, 2)), np.ones((16, 16))]), "roughness": rng.uniform(0, 1, (16, 16, 1)),
+          "metallic": np.zeros((16, 16, 1))}
+    ch = {k: v.astype(np.float32) for k, v in ch.items()}
+    x, shading = R.features(ch)
+    without, zero = R.features({**ch, "irradiance": None})
+    assert not np.array_equal(x, without) and not zero.any()
+    dropped = x.copy()
+    drop_irradiance(dropped)
+    np.testing.assert_array_equal(dropped, without)  # what the loaders give a shot with no irradiance pass
+    f = tmp_path / "s.npz"
+    np.savez(f, x=x[None].astype(np.float16), y=shading[None].astype(np.float16), scale=np.float32(1))
+    xs, _ = Frames([f], irradiance_dropout=1.0).crops(np.random.default_rng(1), 4, 16)
+    assert not xs[:, R.PRESENT_PLANES][:, 4].any() and not xs[:, 8:14].any() and xs[:, :3].any()
+    xs, _ = Frames([f], irradiance_dropout=0.0).crops(np.random.default_rng(1), 4, 16)
+    assert xs[:, R.PRESENT_PLANES][:, 4].all()
 
 
 def test_onnx_engine_matches_pytorch():

@@ -31,6 +31,8 @@ from torch.nn import functional as F
 FEATURES = ("albedo3", "normal3", "roughness", "metallic", "log_irradiance3", "log_formula3", "present5", "geometry")
 #: where log1p(formula) sits among the input planes (`features`); `apply`'s base
 FORMULA_PLANES = slice(11, 14)
+#: the present flags of the five channels (`x2video.channels.INTRINSIC` order) among the input planes
+PRESENT_PLANES = slice(14, 19)
 
 
 @dataclass

@@ -38,10 +38,7 @@ def prepare(renderer: "Renderer", shot: "Shot", settings: RenderSettings, edits:
     from x2video.sampling.renderer import pad_amounts, pad_conditioning, plain_conditioning
 
     model = renderer.model
-    net = getattr(model, "residual_net", None)
-    reasons, only_regions = tiers.generation_reasons(shot, edits)
-    choice = tiers.choose_tier(settings.quality, reasons, only_regions, net is not None, "" if edits is None else edits.global_prompt,
-                               residual_trusted=bool(getattr(model, "residual_auto", True)))
+    choice = tiers.decide(settings.quality, shot, edits, model)
     if choice.tier != "diffusion":
         return 0
     t0 = time.perf_counter()

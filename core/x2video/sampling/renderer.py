@@ -344,9 +344,7 @@ class Renderer:
         t0 = time.perf_counter()
         model = self.model
         net = getattr(model, "residual_net", None)
-        reasons, only_regions = tiers.generation_reasons(shot, edits)
-        choice = tiers.choose_tier(settings.quality, reasons, only_regions, net is not None, "" if edits is None else edits.global_prompt,
-                                   residual_trusted=bool(getattr(model, "residual_auto", True)))
+        choice = tiers.decide(settings.quality, shot, edits, model)
         self.last_tier = choice
         log.info("quality %s: tier %s (%s)", settings.quality, choice.tier, choice.reason)
         if edits is None:

@@ -54,6 +54,10 @@ class ResidualTrainConfig:
     exposure_aug: float = 2.0
     """Each crop's light is scaled by a random gain in [1/a, a] (irradiance and target alike), so the net does
     not key on the level the exposure normaliser happened to choose for a shot (1: off)."""
+    irradiance_dropout: float = 0.0
+    """Probability that a crop's irradiance is dropped (its planes and the formula's zeroed, its present flag 0).
+    1 trains a net for shots without an irradiance pass, validated so (`residual_noirr`); between 0 and 1, one
+    net for both, validated with every channel."""
     val_every: int = 250
     """Validate on the held-out shots (full frames) every this many steps."""
     ckpt_every: int = 250
@@ -133,9 +137,10 @@ class Frames:
     `noisy_p` > 0 a crop takes the frame's sampled (noisy) irradiance instead of the denoised one with
     that probability, where the shot has it (noise augmentation: users' passes are often not denoised)."""
 
-    def __init__(self, files: list[Path], noisy_p: float = 0.0, exposure_aug: float = 1.0):
+    def __init__(self, files: list[Path], noisy_p: float = 0.0, exposure_aug: float = 1.0, irradiance_dropout: float = 0.0):
         self.x, self.y, self.scale, self.shot, self.noisy = [], [], [], [], []
         self.noisy_p = noisy_p
+        self.irradiance_dropout = irradiance_dropout
         if exposure_aug < 1:
             raise ValueError(f"exposure_aug must be >= 1 (a gain range [1/a, a]), got {exposure_aug}")
         self.exposure_aug = exposure_aug
@@ -168,6 +173,8 @@ class Frames:
                 g = float(np.exp(rng.uniform(-1, 1) * np.log(self.exposure_aug)))
                 x[NOISY_PLANES] = np.log1p(g * np.expm1(x[NOISY_PLANES]))
                 y = y * g
+            if self.irradiance_dropout > 0 and rng.random() < self.irradiance_dropout:
+                drop_irradiance(x)
             if rng.random() < 0.5:  # mirror left-right: the camera-space normal's x changes sign
                 x, y = x[:, :, ::-1].copy(), y[:, :, ::-1].copy()
                 x[3] = -x[3]
@@ -176,20 +183,30 @@ class Frames:
         return torch.from_numpy(np.stack(xs)), torch.from_numpy(np.stack(ys))
 
 
+def drop_irradiance(x: np.ndarray | torch.Tensor) -> None:
+    """In place: features (C, H, W) or (N, C, H, W) as `residual.features` makes them with irradiance dropped."""
+    x[..., NOISY_PLANES, :, :] = 0  # log irradiance and log formula (albedo x 0)
+    x[..., R.PRESENT_PLANES.start + INTRINSIC.index("irradiance"), :, :] = 0
+
+
 def loss_fn(pred: torch.Tensor, y: torch.Tensor, log_weight: float) -> torch.Tensor:
     return F.l1_loss(_tonemap_t(pred), _tonemap_t(y)) + log_weight * F.l1_loss(torch.log1p(pred), torch.log1p(y.clamp_min(0)))
 
 
 @torch.no_grad()
-def validate(net: R.ResidualNet, frames: Frames) -> dict[str, float]:
+def validate(net: R.ResidualNet, frames: Frames, without_irradiance: bool = False) -> dict[str, float]:
     """Mean PSNR (display, in the input's units: prediction and target divided by the shot's scale)
-    of the net and of the formula (albedo x irradiance) over every held-out frame."""
+    of the net (given every channel, or all but irradiance) and of the formula (albedo x irradiance,
+    every channel) over every held-out frame."""
     net.eval()
     ps_net, ps_form = [], []
     for x, y, s in zip(frames.x, frames.y, frames.scale):
         xt = torch.from_numpy(x.astype(np.float32))[None]
         shading = torch.expm1(xt[:, R.FORMULA_PLANES])
-        pred = R.apply(net, xt, shading)
+        if without_irradiance:
+            xt = xt.clone()
+            drop_irradiance(xt)
+        pred = R.apply(net, xt, torch.expm1(xt[:, R.FORMULA_PLANES]))
         gt = _tonemap_t(torch.from_numpy(y.astype(np.float32))[None] / s)
         for v, acc in ((pred, ps_net), (shading, ps_form)):
             mse = float(F.mse_loss(_tonemap_t(v / s), gt))
@@ -207,7 +224,10 @@ def train(data: Path, out: Path, cfg: ResidualTrainConfig, *, threads: int = 2, 
     val_files = [cache_shot(p, cache) for p in shot_dirs(data, val_split)]
     if not train_files:
         raise ValueError(f"{data}: no finished shots in train/ (make them with `x2video dataset make --renderer cycles`)")
-    tr, va = Frames(train_files, cfg.noisy_p, cfg.exposure_aug), (Frames(val_files) if val_files else None)
+    if not 0 <= cfg.irradiance_dropout <= 1:
+        raise ValueError(f"irradiance_dropout must lie in [0, 1], got {cfg.irradiance_dropout}")
+    tr = Frames(train_files, cfg.noisy_p, cfg.exposure_aug, cfg.irradiance_dropout)
+    va = Frames(val_files) if val_files else None
     torch.manual_seed(cfg.seed)
     net = R.ResidualNet(R.ResidualConfig(widths=tuple(cfg.widths)))
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=1e-4)
@@ -243,7 +263,7 @@ def train(data: Path, out: Path, cfg: ResidualTrainConfig, *, threads: int = 2, 
         step += 1
         over = cfg.minutes > 0 and (time.perf_counter() - t0) > cfg.minutes * 60
         if va is not None and (step % cfg.val_every == 0 or step == cfg.steps or over):
-            v = validate(net, va)
+            v = validate(net, va, without_irradiance=cfg.irradiance_dropout >= 1)
             v.update(step=step, loss=float(loss.detach()), seconds=round(time.perf_counter() - t0, 1))
             history.append(v)
             if progress is not None:
