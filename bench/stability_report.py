@@ -194,15 +194,15 @@ def product_note(f: dict) -> str:
         return ("clamped to [0, 1] (the loaders; `to_vae_range` and tier 1's features in memory): roughness -0.5 is roughness 0, "
                 "a mirror-like scene that tier 1 and the sampler render as such; the formula ignores roughness, so only their scores move")
     if fam == "hostile" and name == "zero_normals" and method == "residual":
-        return ("zero normals mean 'no geometry here' (a window) to tier 1, so it paints the frame as a window; a normal pass of "
-                "zeros from a file reaches it the same way. 'auto' keeps the shipped net off (its record), and the formula ignores normals")
+        return ("zero normals mean 'no geometry here' (a window) to tier 1; it keeps the formula wherever the channels say "
+                "nothing of the light (x2video.model.residual.unseen_light), so zero normals give the formula's frames")
     if fam == "hostile" and name.startswith("albedo_"):
         return f"rendered as given: albedo {name[-1]} everywhere is a different scene from the truth it is scored on. {files}"
     if fam == "hostile":
         return f"{files}. In memory: tiers 0/1 and the sampler count NaN/Inf as 0 (core fixes); out-of-range values go through as given"
     if below and method == "diffusion" and fam in ("channels", "masks", "length", "size", "noise", "limits"):
-        return ("'auto' does not run the sampler when every channel is present (tier 1 renders, or the formula where the net's "
-                "record does not trust it, as for the shipped net); the sampler is there only when "
+        return ("'auto' does not run the sampler when every channel is present (tier 1 renders, or the formula where a net's "
+                "record does not trust it); the sampler is there only when "
                 "forced (quality 'diffusion') or for what must be generated. Its gap to the formula here is the tiny shipped "
                 "model at preset fast (LCM-2), largest at sizes whose latent is a few pixels")
     if fam == "noise":
@@ -235,16 +235,18 @@ def observations(cells: list[dict]) -> list[str]:
     part = [(c, f) for c, f in part if f and c.get("psnr") is not None and f.get("psnr") is not None]
     if part:
         lo, hi = min(c["psnr"] for c, _ in part), max(c["psnr"] for c, _ in part)
+        tiers_run = sorted({str(c.get("tier")) for c, _ in part})
+        diff = [d["psnr"] for c, _ in part if (d := get.get(("channels", c["name"], "diffusion"))) and d.get("psnr") is not None]
         out.append(f"- With albedo and irradiance kept but some of normal/roughness/metallic dropped ({len(part)} subsets), 'auto' "
-                   f"runs the sampler: {lo:.1f} to {hi:.1f} dB, where the formula gives {part[0][1]['psnr']:.1f} dB. A fallback to "
-                   "tier 0/1 for those subsets would never be worse here.")
+                   f"runs {' / '.join(tiers_run)}: {lo:.1f} to {hi:.1f} dB, where the formula gives {part[0][1]['psnr']:.1f} dB"
+                   + (f" and the sampler {min(diff):.1f} to {max(diff):.1f} dB." if diff else "."))
     big = [c for c in cells if c["family"] == "size" and c.get("params", {}).get("size") == [1920, 1080] and not c.get("skipped")
            and not c["crashed"] and (c["method"] == "residual" or (c["method"] == "auto" and c.get("tier") == "residual"))]
     if big:
         c = big[0]
         out.append(f"- Tier 1 at 1920x1080 ({c['frames']} frames, batches of 4): {c['seconds'] / c['frames']:.1f} s a frame and "
                    f"{c['peak_rss_above_start_mb'] / 1024:.1f} GB above the process's start (peak {c['peak_rss_mb'] / 1024:.1f} GB); "
-                   "the net runs on the whole frame at once, so memory grows with the pixels (tiling would bound it).")
+                   "frames above `residual.MAX_PIXELS` run in tiles (`residual.apply_tiled`), so memory stays bounded as frames grow.")
     lens = sorted((c for c in cells if c["family"] == "length" and c["method"] == "formula" and c.get("delta_e") is not None),
                   key=lambda c: c["frames"])
     if lens:
