@@ -194,7 +194,7 @@ def print_breakdown(res: dict) -> None:
     print(f"    s/frame by stage: {parts}  (total {b['total']:.3f})", flush=True)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=17, help="shot length L (17 = one keyframe window + 4 interpolation windows at N=5)")
     ap.add_argument("--size", default="320x224", help="WxH")
@@ -213,7 +213,7 @@ def main() -> None:
     ap.add_argument("--weights", type=Path, default=None, help="model folder (default: the shipped weights in resources/, else untrained tiny)")
     ap.add_argument("--untrained", action="store_true", help="untrained tiny weights even when shipped ones exist")
     ap.add_argument("--out", type=Path, default=None)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     width, height = (int(v) for v in args.size.split("x"))
     device = torch.device(args.device)
     dtype = torch.float16 if args.fp16 else torch.float32
@@ -237,7 +237,8 @@ def main() -> None:
     tmp = tempfile.TemporaryDirectory(prefix="x2video-bench-render-")
     shot: Shot = SyntheticShot(args.frames, width, height)
     if args.disk:
-        from x2video.io.shotdir import load_shot, write_shot_folder
+        from x2video.io import load_shot
+        from x2video.io.shotdir import write_shot_folder
 
         shot = load_shot(write_shot_folder(shot, Path(tmp.name) / "shot"))
     sink_dir = Path(tmp.name) / "out"

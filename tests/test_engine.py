@@ -185,3 +185,17 @@ def test_a_render_cancels_a_prepare_in_progress() -> None:
     r._preparing = token  # as while `prepare` runs in another thread
     r.render(make_shot(6), None, RenderSettings(steps=1, window=5))
     assert token.cancelled
+
+
+def test_render_bench_memory_mode_reads_from_disk(tmp_path) -> None:
+    """bench.render's 1,000-frame memory check (--preset --disk), at a toy size: the shot goes through an EXR folder
+    and the loader, the frames through a sink, and the result records peak RSS."""
+    import json
+
+    from bench import render as bench_render
+
+    out = tmp_path / "r.json"
+    bench_render.main(["--preset", "fast", "--frames", "3", "--size", "32x24", "--disk", "--untrained", "--quality", "formula",
+                       "--threads", "1", "--out", str(out)])
+    run = next(iter(json.loads(out.read_text())["runs"].values()))
+    assert run["frames"] == 3 and run["peak_rss_mb"] > 0 and run["size"] == [32, 24]
