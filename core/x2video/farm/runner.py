@@ -1,11 +1,16 @@
-"""`run_farm`: render many jobs on a Ray cluster, one task per shot, with retries, resume and per-shot progress.
+"""`run_farm`: render many jobs on a Ray cluster, with retries, resume and per-shot progress.
 
-Each job becomes one Ray task (`x2video.farm.task.render_job`) asking for `cpus_per_shot` CPUs. A task whose
-worker dies (killed, out of memory, machine lost) is run again by Ray up to `retries` times; the retry starts the
-shot over (a recursive render keeps its reference latents in memory, so half a shot cannot be kept) after
-removing what the dead attempt left. A Python error in a task is not retried: the shot is reported failed and the
-others go on. Finished shots (output + done marker, `x2video.farm.state`) are skipped, so running the same command
-again resumes a farm that was stopped or that lost shots.
+Each job starts with a small task (`x2video.farm.task.plan_job`) that decides its tier on a worker. A shot whose
+tier is per frame (tier 0, the formula, and tier 1, the residual net: what quality 'auto' renders for a shot with
+every channel and nothing to generate) is split into chunks of `chunk_frames` frames, one task each
+(`render_chunk`), which write their frames into the shot's staging folder (`x2video.farm.chunks`); a last task
+(`finish_job`) puts the output in place and writes the done marker. A diffusion-tier shot is one task
+(`render_job`). Every task asks for `cpus_per_shot` CPUs. A task whose worker dies (killed, out of memory, machine
+lost) is run again by Ray up to `retries` times: a chunk starts over (its finished frames are whole files, written
+again identically), chunks marked done are never run again; a whole-shot task starts the shot over after removing
+what the dead attempt left. A Python error in a task is not retried: the shot is reported failed and the others
+go on. Finished shots (output + done marker, `x2video.farm.state`) are skipped, so running the same command again
+resumes a farm that was stopped or that lost shots (a split shot keeps the chunks it finished).
 """
 from __future__ import annotations
 
@@ -17,7 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
-from x2video.farm import state
+from x2video.farm import chunks, state
+from x2video.farm.chunks import CHUNK_FRAMES
 from x2video.farm.jobs import Job
 
 log = logging.getLogger(__name__)
@@ -80,33 +86,54 @@ class ProgressPrinter:
             s = state.read_status(self.out, job.name)
             if s.get("run") != self.run:
                 continue  # not started in this run yet
-            sig = (s.get("state"), s.get("attempt"), s.get("frames_done"))
+            sig = (s.get("state"), s.get("attempt"), s.get("frames_done"), s.get("chunks_done"), s.get("chunks_running"))
             if sig == self.seen.get(job.name):
                 continue
             self.seen[job.name] = sig
             total = s.get("frames_total")
             frames = f"{s.get('frames_done', 0)}/{total if total is not None else '?'} frames"
             level = f", level {s['level']}" if s.get("level") is not None else ""
-            self.line(job, f"{s.get('state')}: {frames}{level}, attempt {s.get('attempt')} on {s.get('host')}:{s.get('pid')}"
-                           f"{', ' + str(s['seconds']) + ' s' if s.get('seconds') is not None else ''}")
+            where = (f", chunks {s.get('chunks_done')}/{s.get('chunks_total')} done, {s.get('chunks_running')} running, attempt {s.get('attempt')}"
+                     if s.get("chunks_total") else f", attempt {s.get('attempt')} on {s.get('host')}:{s.get('pid')}")
+            self.line(job, f"{s.get('state')}: {frames}{level}{where}{', ' + str(s['seconds']) + ' s' if s.get('seconds') is not None else ''}")
+
+
+@dataclass
+class _Shot:
+    """The driver's view of one job in flight."""
+
+    job: Job
+    key: dict[str, Any]
+    digest: str
+    t0: float
+    plan: dict[str, Any] | None = None
+    chunks: dict[str, tuple[int, int]] = field(default_factory=dict)  # task -> frames [a, b)
+    done: set[str] = field(default_factory=set)
+    attempts: dict[str, int] = field(default_factory=dict)
+    status: tuple = ()
+    finishing: bool = False
 
 
 def run_farm(jobs: list[Job], out: str | Path, settings: Any, options: Any, *, fmt: state.OutputFormat = "exr", fps: float | None = None,
              address: str | None = None, local_cpus: int | None = None, cpus_per_shot: float = 1, retries: int = 3, redo: bool = False,
-             write: Callable[[str], None] = print, poll_seconds: float = 0.5) -> FarmResult:
+             chunk_frames: int = CHUNK_FRAMES, write: Callable[[str], None] = print, poll_seconds: float = 0.5) -> FarmResult:
     """Render `jobs` into the shared folder `out` on Ray (see the module docstring); returns what became of each.
 
     `settings` (`x2video.RenderSettings`) and `options` (`x2video.weights.ModelOptions`) apply to every job. Jobs
     finished before with the same settings are skipped; with other settings it is an error naming the marker, unless
-    `redo` (render everything again)."""
+    `redo` (render everything again). A shot whose tier is per frame (tiers 0 and 1) runs as tasks of `chunk_frames`
+    frames each; `cpus_per_shot` is what each task asks for."""
     t0 = time.perf_counter()
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
+    if chunk_frames < 1:
+        raise ValueError(f"chunk_frames must be at least 1, got {chunk_frames}")
     result = FarmResult()
     todo: list[Job] = []
     for job in jobs:
         if redo:
             state.marker_path(out, job.name).unlink(missing_ok=True)
+            chunks.reset(out, job.name)
         marker = state.finished(out, job, state.job_key(job, settings, options, fmt, fps))
         if marker is not None:
             result.skipped[job.name] = marker
@@ -117,41 +144,111 @@ def run_farm(jobs: list[Job], out: str | Path, settings: Any, options: Any, *, f
         result.seconds = time.perf_counter() - t0
         return result
     ray = _import_ray()
-    from x2video.farm.task import render_job
+    from x2video.farm import task as tasks
 
     started = connect(address, local_cpus)
     run = time.strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:6]
     threads = max(1, int(cpus_per_shot))
-    task = ray.remote(render_job)
-    refs = {task.options(num_cpus=cpus_per_shot, max_retries=retries, retry_exceptions=False, name=f"x2video-farm:{job.name}")
-            .remote(job, out, settings, options, fmt, fps, run, threads): job for job in todo}
+    opts = {"num_cpus": cpus_per_shot, "max_retries": retries, "retry_exceptions": False}
+    remote = {f: ray.remote(getattr(tasks, f)) for f in ("plan_job", "render_chunk", "finish_job", "render_job")}
+    refs: dict[Any, tuple[_Shot, str, str]] = {}  # object ref -> (shot, kind, task name)
+
+    def submit(shot: _Shot, kind: str, name: str, *args: Any) -> None:
+        ref = remote[kind].options(**opts, name=f"x2video-farm:{shot.job.name}:{name}").remote(*args)
+        refs[ref] = (shot, kind, name)
+
+    shots = {}
+    for job in todo:
+        key = state.job_key(job, settings, options, fmt, fps)
+        shot = shots[job.name] = _Shot(job, key, chunks.digest(key), time.perf_counter())
+        submit(shot, "plan_job", "plan", job, settings, options, threads)
     progress = ProgressPrinter(out, todo, run, write)
     write(f"farm: {len(todo)} shot(s) to render ({len(result.skipped)} finished before) on {ray.cluster_resources().get('CPU', 0):g} CPUs, "
           f"run {run}, output {out}")
-    pending = list(refs)
+
+    def fail(shot: _Shot, error: str) -> None:
+        result.failed[shot.job.name] = error
+        for ref, (other, _, _) in list(refs.items()):
+            if other is shot:
+                ray.cancel(ref, force=True)
+                del refs[ref]
+        state.write_status(out, shot.job.name, state="failed", error=error)
+        progress.line(shot.job, f"FAILED: {error}")
+
+    def finish(shot: _Shot, marker: dict[str, Any]) -> None:
+        (result.skipped if marker.get("skipped") else result.done)[shot.job.name] = marker
+        n = len(result.done) + len(result.skipped) + len(result.failed)
+        progress.line(shot.job, f"done: {marker['frames']} frames in {marker['seconds']:.1f} s (attempt {marker['attempt']}"
+                                f"{', ' + str(len(shot.chunks)) + ' chunks' if shot.chunks else ''}) [{n}/{len(jobs)}]")
+
+    def planned(shot: _Shot, plan: dict[str, Any]) -> None:
+        shot.plan = plan
+        job = shot.job
+        if not plan["per_frame"]:  # the diffusion tier: one task renders the shot
+            submit(shot, "render_job", "render", job, out, settings, options, fmt, fps, run, threads)
+            return
+        chunks.begin(out, job.name, shot.digest)
+        shot.chunks = {chunks.chunk_id(a, b): (a, b) for a, b in chunks.chunk_ranges(plan["start"], plan["stop"], chunk_frames)}
+        shot.done = {t for t, (a, b) in shot.chunks.items() if chunks.task_done(out, job.name, t, shot.digest, list(range(a, b)), fmt)}
+        state.write_status(out, job.name, state="running", run=run, attempt=1, host=None, pid=None, frames_total=plan["stop"] - plan["start"],
+                           frames_done=0, level=None, error=None, started=time.time(), tier=plan["tier"], chunks_total=len(shot.chunks),
+                           chunks_done=len(shot.done), chunks_reused=len(shot.done), chunks_running=0)
+        for t, (a, b) in shot.chunks.items():
+            if t not in shot.done:
+                submit(shot, "render_chunk", t, job, out, settings, options, fmt, (a, b), shot.digest, run, threads)
+        chunked_progress(shot)
+
+    def chunked_progress(shot: _Shot) -> None:
+        """Sum the chunk records into the shot's status (the driver is its only writer while chunks run); finish when all are done."""
+        job = shot.job
+        frames_done, running, attempt = 0, 0, 1
+        for t, (a, b) in shot.chunks.items():
+            if t in shot.done:
+                frames_done += b - a
+                continue
+            rec = chunks.read_task(out, job.name, t)
+            if rec.get("starts") and any(s.get("run") == run for s in rec["starts"]):
+                running += 1
+                frames_done += int(rec.get("frames_done") or 0)
+                attempt = max(attempt, int(rec.get("attempt") or 1))
+        sig = (frames_done, running, len(shot.done), attempt)
+        if sig != shot.status:
+            shot.status = sig
+            state.write_status(out, job.name, frames_done=frames_done, chunks_done=len(shot.done), chunks_running=running, attempt=attempt,
+                               seconds=round(time.perf_counter() - shot.t0, 2))
+        if len(shot.done) == len(shot.chunks) and not shot.finishing:
+            shot.finishing = True
+            plan = shot.plan or {}
+            attempts = [a for a in shot.attempts.values()] or [1]
+            submit(shot, "finish_job", "finish", job, out, shot.key, settings.exposure, fmt, fps or plan["fps"], (plan["start"], plan["stop"]),
+                   time.perf_counter() - shot.t0, max(attempts))
+
     try:
-        while pending:
-            ready, pending = ray.wait(pending, num_returns=len(pending), timeout=poll_seconds, fetch_local=True)
-            progress.poll([refs[r] for r in pending])
+        while refs:
+            ready, _ = ray.wait(list(refs), num_returns=len(refs), timeout=poll_seconds, fetch_local=True)
             for ref in ready:
-                job = refs[ref]
+                if ref not in refs:  # cancelled with its shot's failure
+                    continue
+                shot, kind, name = refs.pop(ref)
                 try:
-                    marker = ray.get(ref)
+                    value = ray.get(ref)
                 except Exception as exc:  # RayTaskError (the render raised) or WorkerCrashedError (retries used up)
                     cause = getattr(exc, "cause", None) or exc
-                    result.failed[job.name] = f"{type(cause).__name__}: {cause}".splitlines()[0]
-                    state.write_status(out, job.name, state="failed", error=result.failed[job.name])
-                    progress.line(job, f"FAILED: {result.failed[job.name]}")
+                    fail(shot, f"{type(cause).__name__}: {cause}".splitlines()[0] + ("" if kind in ("plan_job", "render_job") else f" ({name})"))
                     continue
-                if marker.get("skipped"):
-                    result.skipped[job.name] = marker
-                else:
-                    result.done[job.name] = marker
-                n = len(result.done) + len(result.skipped) + len(result.failed)
-                progress.line(job, f"done: {marker['frames']} frames in {marker['seconds']:.1f} s (attempt {marker['attempt']}) "
-                                   f"[{n}/{len(jobs)}]")
+                if kind == "plan_job":
+                    planned(shot, value)
+                elif kind == "render_chunk":
+                    shot.done.add(name)
+                    shot.attempts[name] = value["attempt"]
+                elif kind in ("render_job", "finish_job"):
+                    finish(shot, value)
+            for shot in shots.values():
+                if shot.chunks and not shot.finishing and shot.job.name not in result.failed:
+                    chunked_progress(shot)
+            progress.poll([s.job for s in shots.values() if s.job.name not in result.done and s.job.name not in result.failed])
     except BaseException:
-        for ref in pending:
+        for ref in refs:
             ray.cancel(ref, force=True)
         raise
     finally:

@@ -30,6 +30,105 @@ def _model(options: Any) -> Any:
     return _MODELS[key]
 
 
+def load_job(job: Job) -> tuple[Any, Any, Path | None]:
+    """(shot, edits or None, folder that resolves the edits' relative paths) of a job."""
+    import x2video
+
+    if job.kind == "project":
+        from x2video.edits import load_project
+
+        project = load_project(job.source)
+        return x2video.load_shot(project.shot), project.edits, job.source.parent
+    return x2video.load_shot(job.source), None, None
+
+
+def frame_range(job: Job, shot: Any, settings: Any) -> tuple[int, int]:
+    start, stop = settings.frames or (0, shot.num_frames)
+    if not 0 <= start < stop <= shot.num_frames:
+        raise ValueError(f"{job.source}: frame range [{start}, {stop}) outside the shot's {shot.num_frames} frames")
+    return start, stop
+
+
+def _threads(threads: int | None) -> None:
+    if threads:
+        import torch
+
+        torch.set_num_threads(threads)
+
+
+def plan_job(job: Job, settings: Any, options: Any, threads: int | None = None) -> dict[str, Any]:
+    """What a shot's render needs, decided on a worker (which keeps the model for the shot's tasks): its tier
+    (`Renderer.choose_tier`), frame range and frame rate. Tiers 0 and 1 ('formula', 'residual') are per frame: the
+    farm splits them into frame chunks (`render_chunk`); the diffusion tier renders as one task (`render_job`)."""
+    import x2video
+
+    _threads(threads)
+    shot, edits, _ = load_job(job)
+    start, stop = frame_range(job, shot, settings)
+    if settings.quality == "formula":
+        tier, reason = "formula", "forced by the user"
+    else:
+        choice = x2video.Renderer(_model(options)).choose_tier(shot, edits, settings)
+        tier, reason = choice.tier, choice.reason
+    return {"tier": tier, "reason": reason, "per_frame": tier in ("formula", "residual"), "start": start, "stop": stop,
+            "fps": shot.info.fps}
+
+
+def render_chunk(job: Job, out: Path, settings: Any, options: Any, fmt: state.OutputFormat, frames: tuple[int, int], key_digest: str,
+                 run: str = "", threads: int | None = None) -> dict[str, Any]:
+    """Render frames [a, b) of a per-frame tier's shot into its staging folder (`x2video.farm.chunks`) with the same
+    render call as a single process (`Renderer.render` with `RenderSettings.frames` = (a, b): a tier-0/1 frame depends
+    on its own channels and the shot's exposure only), then mark the chunk done; returns its record."""
+    import x2video
+    from x2video.farm import chunks
+    from x2video.io.units import OutputUnits
+
+    out = Path(out)
+    a, b = frames
+    task = chunks.chunk_id(a, b)
+    attempt = chunks.start_task(out, job.name, task, key_digest, run)
+    t0 = time.perf_counter()
+    _threads(threads)
+    shot, edits, base_dir = load_job(job)
+    last = [0.0]
+
+    def progress(n: int) -> None:
+        now = time.perf_counter()
+        if now - last[0] > 0.25:
+            last[0] = now
+            chunks.update_task(out, job.name, task, frames_done=n)
+
+    staged = chunks.StagedFrames(out, job.name, fmt, OutputUnits.for_shot(shot, settings.exposure), progress=progress)
+    sub = dataclasses.replace(settings, frames=(a, b))
+    if settings.quality == "formula":
+        from x2video.sampling.formula import formula_frames
+
+        formula_frames(shot, edits, sub, on_event=staged, base_dir=base_dir)
+    else:
+        x2video.Renderer(_model(options)).render(shot, edits, sub, on_event=staged, base_dir=base_dir)
+    if staged.written != set(range(a, b)):
+        raise RuntimeError(f"{job.source}: the render of frames [{a}, {b}) made frames {sorted(staged.written)[:10]}...")
+    seconds = time.perf_counter() - t0
+    chunks.update_task(out, job.name, task, done=True, frames_done=b - a, seconds=round(seconds, 3))
+    return {"task": task, "attempt": attempt, "frames": b - a, "seconds": seconds}
+
+
+def finish_job(job: Job, out: Path, key: dict[str, Any], exposure: Any, fmt: state.OutputFormat, fps: float, frames: tuple[int, int],
+               seconds: float, attempt: int) -> dict[str, Any]:
+    """Put a split shot's staged frames in place (`chunks.assemble`: rename the EXR folder, or encode the MP4), write
+    its done marker and remove its task records; returns the marker."""
+    from x2video.farm import chunks
+    from x2video.io.units import OutputUnits
+
+    out = Path(out)
+    units = OutputUnits.for_shot(load_job(job)[0], exposure) if fmt == "mp4" else OutputUnits()  # EXR frames were written in units
+    target = chunks.assemble(out, job.name, fmt, list(range(*frames)), units, fps)
+    marker = state.write_marker(out, job, key, target, frames[1] - frames[0], seconds, attempt)
+    chunks.reset(out, job.name)
+    state.write_status(out, job.name, state="done", frames_done=frames[1] - frames[0], seconds=round(seconds, 2))
+    return {**marker, "skipped": False}
+
+
 def render_job(job: Job, out: Path, settings: Any, options: Any, fmt: state.OutputFormat = "exr", fps: float | None = None,
                run: str = "", threads: int | None = None) -> dict[str, Any]:
     """Render `job` to `out` (see `x2video.farm.state` for the layout) and write its done marker; returns the marker.
@@ -48,22 +147,9 @@ def render_job(job: Job, out: Path, settings: Any, options: Any, fmt: state.Outp
     state.remove_leftovers(out, job.name, fmt)  # a killed attempt's staging folder
     t0 = time.perf_counter()
     try:
-        if threads:
-            import torch
-
-            torch.set_num_threads(threads)
-        edits, base_dir = None, None
-        if job.kind == "project":
-            from x2video.edits import load_project
-
-            project = load_project(job.source)
-            shot = x2video.load_shot(project.shot)
-            edits, base_dir = project.edits, job.source.parent
-        else:
-            shot = x2video.load_shot(job.source)
-        start, stop = settings.frames or (0, shot.num_frames)
-        if not 0 <= start < stop <= shot.num_frames:
-            raise ValueError(f"{job.source}: frame range [{start}, {stop}) outside the shot's {shot.num_frames} frames")
+        _threads(threads)
+        shot, edits, base_dir = load_job(job)
+        start, stop = frame_range(job, shot, settings)
         total = stop - start
         state.write_status(out, job.name, frames_total=total)
         if settings.quality == "formula":  # no network, no weights (as `x2video render --quality formula`)

@@ -246,6 +246,15 @@ class Renderer:
             ref_frame = min(max(ref_frame, start), stop - 1) - start
         return shift(plan(settings.scheme, stop - start, settings.window, ref_frame, settings.seams, settings.max_levels), start)
 
+    def choose_tier(self, shot: Shot, edits: Any, settings: RenderSettings) -> tiers.TierChoice:
+        """The tier a render of `shot` with `edits` (or None) and `settings` runs with this model, and why
+        (`x2video.sampling.tiers.choose_tier`); read from the edits' structure, so it costs nothing. A farm asks
+        it before splitting a shot: tiers 0 and 1 ('formula', 'residual') are per frame."""
+        reasons, only_regions = tiers.generation_reasons(shot, edits)
+        return tiers.choose_tier(settings.quality, reasons, only_regions, getattr(self.model, "residual_net", None) is not None,
+                                 "" if edits is None else edits.global_prompt,
+                                 residual_trusted=bool(getattr(self.model, "residual_auto", True)))
+
     # -- the render ------------------------------------------------------------------
     def render(
         self,
@@ -344,9 +353,7 @@ class Renderer:
         t0 = time.perf_counter()
         model = self.model
         net = getattr(model, "residual_net", None)
-        reasons, only_regions = tiers.generation_reasons(shot, edits)
-        choice = tiers.choose_tier(settings.quality, reasons, only_regions, net is not None, "" if edits is None else edits.global_prompt,
-                                   residual_trusted=bool(getattr(model, "residual_auto", True)))
+        choice = self.choose_tier(shot, edits, settings)
         self.last_tier = choice
         log.info("quality %s: tier %s (%s)", settings.quality, choice.tier, choice.reason)
         if edits is None:
