@@ -29,7 +29,8 @@ from x2video.weights import ModelOptions
 H, W = 32, 48
 
 
-def make_shot(path: Path, frames: int, seed: int) -> Path:
+def make_shot(path: Path, frames: int, seed: int, size: tuple[int, int] = (H, W)) -> Path:
+    H, W = size
     rng = np.random.default_rng(seed)
     n = np.zeros((frames, H, W, 3), np.float32)
     n[..., 2] = 1
@@ -277,3 +278,128 @@ def test_cli_farm_formula_resume_and_status(cluster, tmp_path, capsys):
     assert "rendered with other settings.seed" in capsys.readouterr().err
     assert main(["farm", "--out", str(out), "--status"]) == 0
     assert "a: done, 3 frames" in capsys.readouterr().out
+
+
+# --- one shot split into frame chunks (tiers 0 and 1) --------------------------------------------------------
+
+AUTO = ["--quality", "auto", "--seed", "5"]  # the shipped weights: tier 1 for a shot with every channel
+
+
+def _one_thread_render(shot: Path, out: Path, *flags: str) -> None:
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # as a farm task with 1 CPU
+    try:
+        assert main(["render", str(shot), "--out", str(out), *flags]) == 0
+    finally:
+        torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def long_shot(tmp_path_factory):
+    """A 40-frame shot (5 chunks of 8) and its single-process tier-1 renders, EXR and MP4."""
+    root = tmp_path_factory.mktemp("long")
+    shot = make_shot(root / "shots" / "long", 40, 7)
+    _one_thread_render(shot, root / "ref", *AUTO)
+    _one_thread_render(shot, root / "ref.mp4", *AUTO)
+    return root
+
+
+@pytest.mark.timeout(600)
+def test_tier1_shot_split_into_chunks_equals_a_single_process_render(cluster, long_shot, tmp_path):
+    settings = RenderSettings(quality="auto", seed=5)
+    lines: list[str] = []
+    out = tmp_path / "out"
+    result = run_farm(find_jobs([long_shot / "shots"]), out, settings, ModelOptions(), chunk_frames=8, write=lines.append, poll_seconds=0.05)
+    assert result.ok and sorted(result.done) == ["long"], (result.failed, lines)
+    assert_same_frames(long_shot / "ref", out / "long")
+    status = state.read_status(out, "long")
+    assert status["tier"] == "residual" and status["chunks_total"] == 5 and status["state"] == "done"
+    assert sorted(status["task_starts"]) == ["000000-000008", "000008-000016", "000016-000024", "000024-000032", "000032-000040"]
+    assert all(len(s) == 1 for s in status["task_starts"].values())
+    assert any("chunks" in line and "running" in line for line in lines), lines  # progress: frames and chunks
+    assert "done: 40 frames" in lines[-1] and "5 chunks" in lines[-1]
+    assert not (out / ".farm" / "long.frames").exists() and not (out / ".farm" / "long.chunks").exists()
+
+    # MP4: the chunks' frames staged, then one encode: the same file as the single-process render's
+    mp4 = run_farm(find_jobs([long_shot / "shots"]), tmp_path / "mp4", settings, ModelOptions(), fmt="mp4", chunk_frames=16, write=lambda s: None)
+    assert mp4.ok and (tmp_path / "mp4" / "long.mp4").read_bytes() == (long_shot / "ref.mp4").read_bytes()
+
+
+@pytest.mark.timeout(600)
+def test_chunks_finished_by_an_earlier_run_are_not_rendered_again(cluster, long_shot, tmp_path):
+    """A farm stopped after some chunks: the next run renders only the others, and the frames are the same."""
+    import torch
+
+    from x2video.farm import chunks, task
+
+    settings = RenderSettings(quality="auto", seed=5)
+    job = find_jobs([long_shot / "shots"])[0]
+    out = tmp_path / "out"
+    key = state.job_key(job, settings, ModelOptions(), "exr", None)
+    chunks.begin(out, job.name, chunks.digest(key))
+    threads = torch.get_num_threads()
+    try:
+        task.render_chunk(job, out, settings, ModelOptions(), "exr", (8, 16), chunks.digest(key), run="earlier", threads=1)
+    finally:
+        torch.set_num_threads(threads)
+    before = (out / ".farm" / "long.frames" / "000008.exr").stat().st_mtime_ns
+    result = run_farm([job], out, settings, ModelOptions(), chunk_frames=8, write=lambda s: None)
+    assert result.ok
+    starts = state.read_status(out, "long")["task_starts"]
+    assert [s["run"] for s in starts["000008-000016"]] == ["earlier"]
+    assert all(len(v) == 1 and v[0]["run"] != "earlier" for k, v in starts.items() if k != "000008-000016")
+    assert (out / "long" / "000008.exr").stat().st_mtime_ns == before
+    assert_same_frames(long_shot / "ref", out / "long")
+    # staged frames made with other settings are dropped, not mixed in
+    chunks.begin(out, job.name, chunks.digest(key))
+    task.render_chunk(job, out, settings, ModelOptions(), "exr", (0, 8), chunks.digest(key), run="old")
+    other = RenderSettings(quality="formula", seed=5)
+    chunks.begin(out, job.name, chunks.digest(state.job_key(job, other, ModelOptions(), "exr", None)))
+    assert not list((out / ".farm" / "long.frames").iterdir())
+
+
+@pytest.mark.timeout(600)
+def test_killed_chunk_worker_is_retried_and_finished_chunks_are_not_redone(cluster, tmp_path):
+    from x2video.farm import chunks
+
+    shot = make_shot(tmp_path / "shots" / "big", 48, 11, (112, 160))  # tier 1 at 160x112: a chunk of 12 frames takes about a second
+    _one_thread_render(shot, tmp_path / "ref", *AUTO)
+    out = tmp_path / "out"
+    killed: dict = {}
+    done_at_kill: dict[str, int] = {}
+    stop = threading.Event()
+
+    def killer() -> None:  # kill the worker of a chunk that has written frames but is not done
+        while not stop.is_set():
+            for p in sorted(chunks.tasks_dir(out, "big").glob("0*.json")):
+                rec = chunks.read_task(out, "big", p.stem)
+                if not rec.get("done") and (rec.get("frames_done") or 0) > 0:
+                    for f in (out / ".farm" / "big.frames").glob("*.exr"):
+                        done_at_kill[f.name] = f.stat().st_mtime_ns
+                    done_tasks = [q.stem for q in chunks.tasks_dir(out, "big").glob("0*.json") if chunks.read_task(out, "big", q.stem).get("done")]
+                    killed.update(rec, task=p.stem, done_tasks=done_tasks)
+                    os.kill(rec["pid"], signal.SIGKILL)
+                    return
+            time.sleep(0.01)
+
+    thread = threading.Thread(target=killer, daemon=True)
+    thread.start()
+    try:
+        result = run_farm(find_jobs([tmp_path / "shots"]), out, RenderSettings(quality="auto", seed=5), ModelOptions(), chunk_frames=12,
+                          retries=2, write=lambda s: None, poll_seconds=0.05)
+    finally:
+        stop.set()
+        thread.join(5)
+    assert killed, "the killer never saw a chunk running with frames"
+    assert result.ok and sorted(result.done) == ["big"], result.failed
+    starts = state.read_status(out, "big")["task_starts"]
+    assert [s["attempt"] for s in starts[killed["task"]]] == [1, 2] and starts[killed["task"]][0]["pid"] == killed["pid"]
+    assert all(len(v) == 1 for k, v in starts.items() if k != killed["task"]), starts  # no other chunk ran twice
+    for t in killed["done_tasks"]:  # frames of chunks finished before the kill were not written again
+        c, d = (int(x) for x in t.split("-"))
+        for f in range(c, d):
+            assert (out / "big" / f"{f:06d}.exr").stat().st_mtime_ns == done_at_kill[f"{f:06d}.exr"]
+    assert_same_frames(tmp_path / "ref", out / "big")
+    assert json.loads((out / "big.done.json").read_text())["attempt"] == 2
