@@ -315,7 +315,7 @@ def test_tier1_shot_split_into_chunks_equals_a_single_process_render(cluster, lo
     assert result.ok and sorted(result.done) == ["long"], (result.failed, lines)
     assert_same_frames(long_shot / "ref", out / "long")
     status = state.read_status(out, "long")
-    assert status["tier"] == "residual" and status["chunks_total"] == 5 and status["state"] == "done"
+    assert status["tier"] == "residual" and status["parts_kind"] == "chunks" and status["parts_total"] == 5 and status["state"] == "done"
     assert sorted(status["task_starts"]) == ["000000-000008", "000008-000016", "000016-000024", "000024-000032", "000032-000040"]
     assert all(len(s) == 1 for s in status["task_starts"].values())
     assert any("chunks" in line and "running" in line for line in lines), lines  # progress: frames and chunks

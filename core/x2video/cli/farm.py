@@ -32,6 +32,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--chunk-frames", type=int, default=None, metavar="N",
                    help="frames per task for shots rendered frame by frame (tiers 0 and 1: the formula, the residual net; "
                         "what quality auto renders for a shot with every channel) (default: 64)")
+    p.add_argument("--no-split", dest="split", action="store_false",
+                   help="render each shot as one task (default: frame chunks for tiers 0 and 1, one task per window for diffusion)")
     p.add_argument("--retries", type=int, default=3, help="times a shot is started again when its worker dies (default: 3)")
     p.add_argument("--redo", action="store_true", help="render finished shots again (default: skip them)")
     p.add_argument("--openjd", type=Path, metavar="DIR", help="write an Open Job Description template per shot into DIR and stop (no Ray)")
@@ -88,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
             raise FileNotFoundError(HOW_TO_GET_WEIGHTS.format(where=where_weights_are_looked_for()) + "; or pass --weights DIR")
     result = run_farm(jobs, args.out, settings, options, fmt=args.format, fps=args.fps, address=args.address, local_cpus=args.local_cpus,
                       cpus_per_shot=args.cpus_per_shot, retries=args.retries,
-                      chunk_frames=args.chunk_frames or CHUNK_FRAMES, redo=args.redo, write=lambda s: print(s, flush=True))
+                      chunk_frames=args.chunk_frames or CHUNK_FRAMES, split=args.split, redo=args.redo, write=lambda s: print(s, flush=True))
     print(f"farm: {len(result.done)} rendered, {len(result.skipped)} finished before, {len(result.failed)} failed, {result.seconds:.1f} s")
     for name, error in result.failed.items():
         print(f"farm {name}: {error}", file=sys.stderr)

@@ -1,8 +1,10 @@
-"""One shot split into tasks that write into one staged output: frame chunks (tiers 0 and 1 are per frame).
+"""One shot split into tasks that write into one staged output: frame chunks (tiers 0 and 1 are per frame), or the
+windows of a diffusion render (each window a task once the windows that make its reference frames are done).
 
     OUT/.farm/NAME.frames/            the shot's frames as tasks finish them (EXR: the output's files; MP4: float16 .npy)
     OUT/.farm/NAME.chunks/key.json    what the staged frames were made with (a digest of the job key)
-    OUT/.farm/NAME.chunks/A-B.json    a task's record: starts (attempt, host, pid), frames done, 'done' once finished
+    OUT/.farm/NAME.chunks/A-B.json    a chunk's record: starts (attempt, host, pid), frames done, 'done' once finished
+    OUT/.farm/NAME.chunks/wI.json     window I's record, and wI.npz: the RGB latents it made (what later windows read)
 
 Every frame is written atomically under its final name, so a killed task leaves whole frames or none; a task
 marked done is never run again (a retry or a later run of the farm skips it). `assemble` moves the staged frames
@@ -56,6 +58,30 @@ def task_path(out: Path, name: str, task: str) -> Path:
 
 def chunk_id(a: int, b: int) -> str:
     return f"{a:06d}-{b:06d}"
+
+
+def window_id(index: int) -> str:
+    return f"w{index:04d}"
+
+
+def latents_path(out: Path, name: str, task: str) -> Path:
+    return tasks_dir(out, name) / f"{task}.npz"
+
+
+def save_latents(out: Path, name: str, task: str, latents: dict[int, np.ndarray]) -> None:
+    """A window's RGB latents (frame -> (4, h, w) float32), atomically, so a later run reuses the window."""
+    with atomic_path(latents_path(out, name, task)) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, **{f"f{k:06d}": np.asarray(v, np.float32) for k, v in latents.items()})
+
+
+def load_latents(out: Path, name: str, task: str) -> dict[int, np.ndarray] | None:
+    """What `save_latents` wrote, None when there is nothing (or nothing readable)."""
+    try:
+        with np.load(latents_path(out, name, task)) as z:
+            return {int(k[1:]): z[k] for k in z.files}
+    except (OSError, ValueError):
+        return None
 
 
 def digest(key: dict[str, Any]) -> str:

@@ -86,15 +86,15 @@ class ProgressPrinter:
             s = state.read_status(self.out, job.name)
             if s.get("run") != self.run:
                 continue  # not started in this run yet
-            sig = (s.get("state"), s.get("attempt"), s.get("frames_done"), s.get("chunks_done"), s.get("chunks_running"))
+            sig = (s.get("state"), s.get("attempt"), s.get("frames_done"), s.get("parts_done"), s.get("parts_running"))
             if sig == self.seen.get(job.name):
                 continue
             self.seen[job.name] = sig
             total = s.get("frames_total")
             frames = f"{s.get('frames_done', 0)}/{total if total is not None else '?'} frames"
             level = f", level {s['level']}" if s.get("level") is not None else ""
-            where = (f", chunks {s.get('chunks_done')}/{s.get('chunks_total')} done, {s.get('chunks_running')} running, attempt {s.get('attempt')}"
-                     if s.get("chunks_total") else f", attempt {s.get('attempt')} on {s.get('host')}:{s.get('pid')}")
+            where = (f", {s.get('parts_kind')} {s.get('parts_done')}/{s.get('parts_total')} done, {s.get('parts_running')} running, "
+                     f"attempt {s.get('attempt')}" if s.get("parts_total") else f", attempt {s.get('attempt')} on {s.get('host')}:{s.get('pid')}")
             self.line(job, f"{s.get('state')}: {frames}{level}{where}{', ' + str(s['seconds']) + ' s' if s.get('seconds') is not None else ''}")
 
 
@@ -107,7 +107,8 @@ class _Shot:
     digest: str
     t0: float
     plan: dict[str, Any] | None = None
-    chunks: dict[str, tuple[int, int]] = field(default_factory=dict)  # task -> frames [a, b)
+    parts: dict[str, list[int]] = field(default_factory=dict)  # task (a chunk or a window) -> the frames it stages
+    kind: str = ""  # 'chunks' or 'windows' when split
     done: set[str] = field(default_factory=set)
     attempts: dict[str, int] = field(default_factory=dict)
     status: tuple = ()
@@ -116,13 +117,14 @@ class _Shot:
 
 def run_farm(jobs: list[Job], out: str | Path, settings: Any, options: Any, *, fmt: state.OutputFormat = "exr", fps: float | None = None,
              address: str | None = None, local_cpus: int | None = None, cpus_per_shot: float = 1, retries: int = 3, redo: bool = False,
-             chunk_frames: int = CHUNK_FRAMES, write: Callable[[str], None] = print, poll_seconds: float = 0.5) -> FarmResult:
+             chunk_frames: int = CHUNK_FRAMES, split: bool = True, write: Callable[[str], None] = print, poll_seconds: float = 0.5) -> FarmResult:
     """Render `jobs` into the shared folder `out` on Ray (see the module docstring); returns what became of each.
 
     `settings` (`x2video.RenderSettings`) and `options` (`x2video.weights.ModelOptions`) apply to every job. Jobs
     finished before with the same settings are skipped; with other settings it is an error naming the marker, unless
     `redo` (render everything again). A shot whose tier is per frame (tiers 0 and 1) runs as tasks of `chunk_frames`
-    frames each; `cpus_per_shot` is what each task asks for."""
+    frames each, a diffusion shot as one task per window (each starts once the windows it reads are done); not
+    `split`: one task per shot. `cpus_per_shot` is what each task asks for."""
     t0 = time.perf_counter()
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
@@ -150,12 +152,13 @@ def run_farm(jobs: list[Job], out: str | Path, settings: Any, options: Any, *, f
     run = time.strftime("%Y%m%d-%H%M%S-") + uuid.uuid4().hex[:6]
     threads = max(1, int(cpus_per_shot))
     opts = {"num_cpus": cpus_per_shot, "max_retries": retries, "retry_exceptions": False}
-    remote = {f: ray.remote(getattr(tasks, f)) for f in ("plan_job", "render_chunk", "finish_job", "render_job")}
+    remote = {f: ray.remote(getattr(tasks, f)) for f in ("plan_job", "render_chunk", "render_window", "finish_job", "render_job")}
     refs: dict[Any, tuple[_Shot, str, str]] = {}  # object ref -> (shot, kind, task name)
 
-    def submit(shot: _Shot, kind: str, name: str, *args: Any) -> None:
+    def submit(shot: _Shot, kind: str, name: str, *args: Any) -> Any:
         ref = remote[kind].options(**opts, name=f"x2video-farm:{shot.job.name}:{name}").remote(*args)
         refs[ref] = (shot, kind, name)
+        return ref
 
     shots = {}
     for job in todo:
@@ -179,44 +182,72 @@ def run_farm(jobs: list[Job], out: str | Path, settings: Any, options: Any, *, f
         (result.skipped if marker.get("skipped") else result.done)[shot.job.name] = marker
         n = len(result.done) + len(result.skipped) + len(result.failed)
         progress.line(shot.job, f"done: {marker['frames']} frames in {marker['seconds']:.1f} s (attempt {marker['attempt']}"
-                                f"{', ' + str(len(shot.chunks)) + ' chunks' if shot.chunks else ''}) [{n}/{len(jobs)}]")
+                                f"{', ' + str(len(shot.parts)) + ' ' + shot.kind if shot.parts else ''}) [{n}/{len(jobs)}]")
 
     def planned(shot: _Shot, plan: dict[str, Any]) -> None:
         shot.plan = plan
         job = shot.job
-        if not plan["per_frame"]:  # the diffusion tier: one task renders the shot
+        if not split or not (plan["per_frame"] or plan.get("windows")):  # one task renders the shot
             submit(shot, "render_job", "render", job, out, settings, options, fmt, fps, run, threads)
             return
         chunks.begin(out, job.name, shot.digest)
-        shot.chunks = {chunks.chunk_id(a, b): (a, b) for a, b in chunks.chunk_ranges(plan["start"], plan["stop"], chunk_frames)}
-        shot.done = {t for t, (a, b) in shot.chunks.items() if chunks.task_done(out, job.name, t, shot.digest, list(range(a, b)), fmt)}
+        results: dict[int, Any] = {}  # window -> its task's result (an object ref) or the latents a finished window saved
+        if plan["per_frame"]:
+            shot.kind = "chunks"
+            ranges = chunks.chunk_ranges(plan["start"], plan["stop"], chunk_frames)
+            shot.parts = {chunks.chunk_id(a, b): list(range(a, b)) for a, b in ranges}
+        else:
+            shot.kind = "windows"
+            windows = plan["windows"]
+            final = {f: i for i, w in enumerate(windows) for f in w["generate"]}  # the last window to make each frame
+            shot.parts = {chunks.window_id(i): [f for f in w["generate"] if final[f] == i] for i, w in enumerate(windows)}
+        shot.done = {t for t, frames in shot.parts.items() if chunks.task_done(out, job.name, t, shot.digest, frames, fmt)}
+        if shot.kind == "windows":  # a finished window is reused only with its latents
+            for t in list(shot.done):
+                latents = chunks.load_latents(out, job.name, t)
+                if latents is None:
+                    shot.done.discard(t)
+                else:
+                    results[int(t[1:])] = {"latents": latents}
         state.write_status(out, job.name, state="running", run=run, attempt=1, host=None, pid=None, frames_total=plan["stop"] - plan["start"],
-                           frames_done=0, level=None, error=None, started=time.time(), tier=plan["tier"], chunks_total=len(shot.chunks),
-                           chunks_done=len(shot.done), chunks_reused=len(shot.done), chunks_running=0)
-        for t, (a, b) in shot.chunks.items():
-            if t not in shot.done:
-                submit(shot, "render_chunk", t, job, out, settings, options, fmt, (a, b), shot.digest, run, threads)
-        chunked_progress(shot)
+                           frames_done=0, level=None, error=None, started=time.time(), tier=plan["tier"], parts_kind=shot.kind,
+                           parts_total=len(shot.parts), parts_done=len(shot.done), parts_reused=len(shot.done), parts_running=0)
+        if shot.kind == "chunks":
+            for t, frames in shot.parts.items():
+                if t not in shot.done:
+                    submit(shot, "render_chunk", t, job, out, settings, options, fmt, (frames[0], frames[-1] + 1), shot.digest, run, threads)
+        else:
+            made_by: dict[int, int] = {}  # frame -> the latest window that made it (what a later window reads)
+            for i, w in enumerate(plan["windows"]):
+                t = chunks.window_id(i)
+                if t not in shot.done:
+                    deps = sorted({made_by[f] for f in w["refs"]})
+                    ref_from = {f: deps.index(made_by[f]) for f in w["refs"]}
+                    # Ray starts the window once the results of the windows it reads exist (object refs as arguments)
+                    results[i] = submit(shot, "render_window", t, job, out, settings, options, fmt, i, shot.parts[t], shot.digest, run,
+                                        threads, ref_from, *[results[k] for k in deps])
+                made_by.update({f: i for f in w["generate"]})
+        part_progress(shot)
 
-    def chunked_progress(shot: _Shot) -> None:
-        """Sum the chunk records into the shot's status (the driver is its only writer while chunks run); finish when all are done."""
+    def part_progress(shot: _Shot) -> None:
+        """Sum the part records into the shot's status (the driver is its only writer while parts run); finish when all are done."""
         job = shot.job
         frames_done, running, attempt = 0, 0, 1
-        for t, (a, b) in shot.chunks.items():
+        for t, frames in shot.parts.items():
             if t in shot.done:
-                frames_done += b - a
+                frames_done += len(frames)
                 continue
             rec = chunks.read_task(out, job.name, t)
-            if rec.get("starts") and any(s.get("run") == run for s in rec["starts"]):
+            if not rec.get("done") and any(s.get("run") == run for s in rec.get("starts") or []):
                 running += 1
                 frames_done += int(rec.get("frames_done") or 0)
                 attempt = max(attempt, int(rec.get("attempt") or 1))
         sig = (frames_done, running, len(shot.done), attempt)
         if sig != shot.status:
             shot.status = sig
-            state.write_status(out, job.name, frames_done=frames_done, chunks_done=len(shot.done), chunks_running=running, attempt=attempt,
+            state.write_status(out, job.name, frames_done=frames_done, parts_done=len(shot.done), parts_running=running, attempt=attempt,
                                seconds=round(time.perf_counter() - shot.t0, 2))
-        if len(shot.done) == len(shot.chunks) and not shot.finishing:
+        if len(shot.done) == len(shot.parts) and not shot.finishing:
             shot.finishing = True
             plan = shot.plan or {}
             attempts = [a for a in shot.attempts.values()] or [1]
@@ -238,14 +269,14 @@ def run_farm(jobs: list[Job], out: str | Path, settings: Any, options: Any, *, f
                     continue
                 if kind == "plan_job":
                     planned(shot, value)
-                elif kind == "render_chunk":
+                elif kind in ("render_chunk", "render_window"):
                     shot.done.add(name)
                     shot.attempts[name] = value["attempt"]
                 elif kind in ("render_job", "finish_job"):
                     finish(shot, value)
             for shot in shots.values():
-                if shot.chunks and not shot.finishing and shot.job.name not in result.failed:
-                    chunked_progress(shot)
+                if shot.parts and not shot.finishing and shot.job.name not in result.failed:
+                    part_progress(shot)
             progress.poll([s.job for s in shots.values() if s.job.name not in result.done and s.job.name not in result.failed])
     except BaseException:
         for ref in refs:

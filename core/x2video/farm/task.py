@@ -11,6 +11,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from x2video.farm import state
 from x2video.farm.jobs import Job
 
@@ -58,20 +60,26 @@ def _threads(threads: int | None) -> None:
 
 def plan_job(job: Job, settings: Any, options: Any, threads: int | None = None) -> dict[str, Any]:
     """What a shot's render needs, decided on a worker (which keeps the model for the shot's tasks): its tier
-    (`Renderer.choose_tier`), frame range and frame rate. Tiers 0 and 1 ('formula', 'residual') are per frame: the
-    farm splits them into frame chunks (`render_chunk`); the diffusion tier renders as one task (`render_job`)."""
+    (`Renderer.choose_tier`), frame range, frame rate, and for the diffusion tier its windows (`Renderer.render_plan`).
+    Tiers 0 and 1 ('formula', 'residual') are per frame: the farm splits them into frame chunks (`render_chunk`); a
+    diffusion render into its windows (`render_window`), or one task (`render_job`)."""
     import x2video
 
     _threads(threads)
-    shot, edits, _ = load_job(job)
+    shot, edits, base_dir = load_job(job)
     start, stop = frame_range(job, shot, settings)
+    windows = None
     if settings.quality == "formula":
         tier, reason = "formula", "forced by the user"
     else:
-        choice = x2video.Renderer(_model(options)).choose_tier(shot, edits, settings)
+        renderer = x2video.Renderer(_model(options))
+        choice = renderer.choose_tier(shot, edits, settings)
         tier, reason = choice.tier, choice.reason
+        if tier == "diffusion":
+            windows = [{"frames": list(w.frames), "generate": list(w.generate), "refs": list(w.refs), "level": w.level}
+                       for w in renderer.render_plan(shot, edits, settings, base_dir=base_dir)]
     return {"tier": tier, "reason": reason, "per_frame": tier in ("formula", "residual"), "start": start, "stop": stop,
-            "fps": shot.info.fps}
+            "fps": shot.info.fps, "windows": windows}
 
 
 def render_chunk(job: Job, out: Path, settings: Any, options: Any, fmt: state.OutputFormat, frames: tuple[int, int], key_digest: str,
@@ -111,6 +119,37 @@ def render_chunk(job: Job, out: Path, settings: Any, options: Any, fmt: state.Ou
     seconds = time.perf_counter() - t0
     chunks.update_task(out, job.name, task, done=True, frames_done=b - a, seconds=round(seconds, 3))
     return {"task": task, "attempt": attempt, "frames": b - a, "seconds": seconds}
+
+
+def render_window(job: Job, out: Path, settings: Any, options: Any, fmt: state.OutputFormat, index: int, keep: list[int], key_digest: str,
+                  run: str, threads: int | None, ref_from: dict[int, int], *produced: dict[str, Any]) -> dict[str, Any]:
+    """Render window `index` of a diffusion shot's plan (`Renderer.render_windows`) and stage the frames it is the last
+    to make (`keep`; the seam pass makes some frames again later). Its reference latents come from the results of the
+    windows that made them: frame f from `produced[ref_from[f]]` (Ray passes those results in once they exist).
+    Saves its latents beside its record (a later run reuses a finished window); returns its record with them."""
+    import torch
+
+    import x2video
+    from x2video.farm import chunks
+    from x2video.io.units import OutputUnits
+
+    out = Path(out)
+    task = chunks.window_id(index)
+    attempt = chunks.start_task(out, job.name, task, key_digest, run)
+    t0 = time.perf_counter()
+    _threads(threads)
+    shot, edits, base_dir = load_job(job)
+    refs = {int(f): torch.from_numpy(np.asarray(produced[k]["latents"][f])) for f, k in ref_from.items()}
+    staged = chunks.StagedFrames(out, job.name, fmt, OutputUnits.for_shot(shot, settings.exposure), keep=set(keep),
+                                 progress=lambda n: chunks.update_task(out, job.name, task, frames_done=n))
+    made = x2video.Renderer(_model(options)).render_windows(shot, edits, settings, [index], refs, on_event=staged, base_dir=base_dir)[index]
+    if staged.written != set(keep):
+        raise RuntimeError(f"{job.source}: window {index} made frames {sorted(staged.written)}, expected {sorted(keep)}")
+    latents = {f: v.float().cpu().numpy() for f, v in made.items()}
+    chunks.save_latents(out, job.name, task, latents)
+    seconds = time.perf_counter() - t0
+    chunks.update_task(out, job.name, task, done=True, frames_done=len(keep), seconds=round(seconds, 3))
+    return {"task": task, "attempt": attempt, "latents": latents, "seconds": seconds}
 
 
 def finish_job(job: Job, out: Path, key: dict[str, Any], exposure: Any, fmt: state.OutputFormat, fps: float, frames: tuple[int, int],
