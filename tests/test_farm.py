@@ -215,6 +215,7 @@ def test_farm_frames_equal_a_single_process_render(cluster, shots, tmp_path):
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_killed_worker_is_retried_and_nothing_finished_is_redone(cluster, shots, tmp_path):
+    """One task per shot (--no-split): the shot whose worker is killed starts over, the others are not touched."""
     out = tmp_path / "out"
     killed: dict = {}
     finished_at_kill: dict[str, tuple] = {}
@@ -236,7 +237,8 @@ def test_killed_worker_is_retried_and_nothing_finished_is_redone(cluster, shots,
     thread = threading.Thread(target=killer, daemon=True)
     thread.start()
     try:
-        result = run_farm(find_jobs([shots / "shots"]), out, _settings(), ModelOptions(), retries=2, write=lambda s: None, poll_seconds=0.1)
+        result = run_farm(find_jobs([shots / "shots"]), out, _settings(), ModelOptions(), retries=2, split=False, write=lambda s: None,
+                          poll_seconds=0.1)
     finally:
         stop.set()
         thread.join(5)
@@ -255,7 +257,7 @@ def test_killed_worker_is_retried_and_nothing_finished_is_redone(cluster, shots,
     assert not list(out.glob(".*partial")), "the killed attempt's staging folder was left behind"
 
     # resume: the same command again renders nothing and starts nothing
-    again = run_farm(find_jobs([shots / "shots"]), out, _settings(), ModelOptions(), write=lambda s: None)
+    again = run_farm(find_jobs([shots / "shots"]), out, _settings(), ModelOptions(), split=False, write=lambda s: None)
     assert sorted(again.skipped) == ["a", "b", "c"] and not again.done
     assert {n: state.read_status(out, n)["starts"] for n in "abc"} == starts
 
@@ -403,3 +405,89 @@ def test_killed_chunk_worker_is_retried_and_finished_chunks_are_not_redone(clust
             assert (out / "big" / f"{f:06d}.exr").stat().st_mtime_ns == done_at_kill[f"{f:06d}.exr"]
     assert_same_frames(tmp_path / "ref", out / "big")
     assert json.loads((out / "big.done.json").read_text())["attempt"] == 2
+
+
+# --- one diffusion shot split into its windows ----------------------------------------------------------------
+
+TINY = ["--preset", "fast", "--quality", "diffusion", "--seed", "5", "--untrained"]
+
+
+def _tiny() -> tuple[RenderSettings, ModelOptions]:
+    return RenderSettings(preset="fast", quality="diffusion", seed=5), ModelOptions(untrained=True)
+
+
+@pytest.fixture(scope="module")
+def recursive_shot(tmp_path_factory):
+    """33 frames: 3 recursive levels and the seam pass (14 windows of 5 frames), and its single-process render."""
+    root = tmp_path_factory.mktemp("recursive")
+    shot = make_shot(root / "shots" / "rec", 33, 9)
+    _one_thread_render(shot, root / "ref", *TINY)
+    return root
+
+
+@pytest.mark.timeout(600)
+def test_diffusion_windows_as_tasks_equal_a_single_process_render(cluster, recursive_shot, tmp_path):
+    """Each window a task on 2 workers (a level's windows in parallel once their references exist): the frames equal the
+    single-process render bit for bit; a window finished by an earlier run (frames and latents on disk) is reused."""
+    import torch
+
+    from x2video.farm import chunks, task
+
+    settings, options = _tiny()
+    job = find_jobs([recursive_shot / "shots"])[0]
+    out = tmp_path / "out"
+    digest = chunks.digest(state.job_key(job, settings, options, "exr", None))
+    plan = task.plan_job(job, settings, options)
+    assert len(plan["windows"]) == 14 and {w["level"] for w in plan["windows"]} == {1, 2, 3}
+    final = {f: i for i, w in enumerate(plan["windows"]) for f in w["generate"]}
+    chunks.begin(out, job.name, digest)
+    threads = torch.get_num_threads()
+    try:  # the keyframe window, rendered by an earlier (stopped) run
+        task.render_window(job, out, settings, options, "exr", 0, [f for f in plan["windows"][0]["generate"] if final[f] == 0], digest,
+                           "earlier", 1, {})
+    finally:
+        torch.set_num_threads(threads)
+    lines: list[str] = []
+    result = run_farm([job], out, settings, options, write=lines.append, poll_seconds=0.05)
+    assert result.ok, (result.failed, lines)
+    assert_same_frames(recursive_shot / "ref", out / "rec")
+    status = state.read_status(out, "rec")
+    assert status["parts_kind"] == "windows" and status["parts_total"] == 14 and status["parts_reused"] == 1
+    assert [s["run"] for s in status["task_starts"]["w0000"]] == ["earlier"]
+    assert all(len(v) == 1 for v in status["task_starts"].values())
+    assert any("windows" in line and "running" in line for line in lines), lines
+
+
+@pytest.mark.timeout(600)
+def test_killed_window_worker_is_retried_and_finished_windows_are_not_redone(cluster, recursive_shot, tmp_path):
+    from x2video.farm import chunks
+
+    settings, options = _tiny()
+    out = tmp_path / "out"
+    killed: dict = {}
+    stop = threading.Event()
+
+    def killer() -> None:  # once the keyframe window is done, kill the worker of the next window that starts
+        while not stop.is_set():
+            if chunks.read_task(out, "rec", "w0000").get("done"):
+                for p in sorted(chunks.tasks_dir(out, "rec").glob("w*.json")):
+                    rec = chunks.read_task(out, "rec", p.stem)
+                    if rec.get("starts") and not rec.get("done"):
+                        killed.update(rec, task=p.stem)
+                        os.kill(rec["pid"], signal.SIGKILL)
+                        return
+            time.sleep(0.005)
+
+    thread = threading.Thread(target=killer, daemon=True)
+    thread.start()
+    try:
+        result = run_farm(find_jobs([recursive_shot / "shots"]), out, settings, options, retries=2, write=lambda s: None, poll_seconds=0.05)
+    finally:
+        stop.set()
+        thread.join(5)
+    assert killed, "the killer never saw a window running"
+    assert result.ok, result.failed
+    starts = state.read_status(out, "rec")["task_starts"]
+    assert [s["attempt"] for s in starts[killed["task"]]] == [1, 2] and starts[killed["task"]][0]["pid"] == killed["pid"]
+    assert all(len(v) == 1 for k, v in starts.items() if k != killed["task"]), starts  # no finished window ran again
+    assert_same_frames(recursive_shot / "ref", out / "rec")
