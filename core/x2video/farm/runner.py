@@ -256,7 +256,10 @@ def run_farm(jobs: list[Job], out: str | Path, settings: Any, options: Any, *, f
 
     try:
         while refs:
-            ready, _ = ray.wait(list(refs), num_returns=len(refs), timeout=poll_seconds, fetch_local=True)
+            # back as soon as one task ends (the next stage of its shot starts at once), with every other that ended too
+            ready, rest = ray.wait(list(refs), num_returns=1, timeout=poll_seconds, fetch_local=True)
+            if ready and rest:
+                ready += ray.wait(rest, num_returns=len(rest), timeout=0, fetch_local=True)[0]
             for ref in ready:
                 if ref not in refs:  # cancelled with its shot's failure
                     continue
