@@ -29,6 +29,15 @@ from x2video.cli.fields import add_fields, from_args
 from x2video.sampling.events import RenderSettings
 
 
+def _tasks(out: Path, name: str) -> dict:
+    """A split shot's tasks (chunks or windows): the worker process and seconds of each (its last start)."""
+    from x2video.farm import state
+
+    s = state.read_status(out, name)
+    return {t: {"pid": (starts[-1] if starts else {}).get("pid"), "seconds": (s.get("task_seconds") or {}).get(t)}
+            for t, starts in (s.get("task_starts") or {}).items()}
+
+
 def measure(args: argparse.Namespace) -> dict:
     import ray
 
@@ -61,6 +70,7 @@ def measure(args: argparse.Namespace) -> dict:
                     row = {"workers": workers, "phase": phase, "shots": len(result.done), "frames": frames, "wall_seconds": round(wall, 2),
                            "frames_per_second": round(frames / wall, 3), "shots_per_minute": round(60 * len(result.done) / wall, 3),
                            "shot_seconds": {n: m["seconds"] for n, m in sorted(result.done.items())}, "ray_start_seconds": round(ray_start, 2),
+                           "tasks": {n: _tasks(root / f"out_{workers}_{phase}", n) for n in sorted(result.done)},
                            "load_average": [round(v, 2) for v in os.getloadavg()]}
                     runs.append(row)
                     print(f"{workers} worker(s), {phase}: {len(result.done)} shots, {frames} frames in {wall:.1f} s = "

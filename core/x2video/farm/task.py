@@ -163,11 +163,11 @@ def finish_job(job: Job, out: Path, key: dict[str, Any], exposure: Any, fmt: sta
     units = OutputUnits.for_shot(load_job(job)[0], exposure) if fmt == "mp4" else OutputUnits()  # EXR frames were written in units
     target = chunks.assemble(out, job.name, fmt, list(range(*frames)), units, fps)
     marker = state.write_marker(out, job, key, target, frames[1] - frames[0], seconds, attempt)
-    starts = {p.stem: (chunks.read_task(out, job.name, p.stem).get("starts") or []) for p in sorted(chunks.tasks_dir(out, job.name).glob("*.json"))
-              if p.stem != "key"}
+    records = {p.stem: chunks.read_task(out, job.name, p.stem) for p in sorted(chunks.tasks_dir(out, job.name).glob("*.json")) if p.stem != "key"}
     chunks.reset(out, job.name)
-    # every task's starts stay in the status file: which chunk ran where, and which ran twice
-    state.write_status(out, job.name, state="done", frames_done=frames[1] - frames[0], seconds=round(seconds, 2), task_starts=starts)
+    # every task's starts and seconds stay in the status file: which chunk ran where, which ran twice, how long it took
+    state.write_status(out, job.name, state="done", frames_done=frames[1] - frames[0], seconds=round(seconds, 2),
+                       task_starts={t: r.get("starts") or [] for t, r in records.items()}, task_seconds={t: r.get("seconds") for t, r in records.items()})
     return {**marker, "skipped": False}
 
 
