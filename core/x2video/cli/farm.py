@@ -60,8 +60,10 @@ def print_status(out: Path) -> int:
             print(f"{name}: done, {marker.get('frames')} frames in {marker.get('seconds')} s on {marker.get('host')} ({marker.get('finished')})")
             continue
         failed += s.get("state") == "failed"
-        print(f"{name}: {s.get('state')}, {s.get('frames_done', 0)}/{s.get('frames_total') or '?'} frames, attempt {s.get('attempt')} "
-              f"on {s.get('host')}:{s.get('pid')}" + (f": {s['error']}" if s.get("error") else ""))
+        where = (f"{s.get('parts_kind')} {s.get('parts_done')}/{s.get('parts_total')} done, {s.get('parts_running')} running, attempt {s.get('attempt')}"
+                 if s.get("parts_total") else f"attempt {s.get('attempt')} on {s.get('host')}:{s.get('pid')}")
+        print(f"{name}: {s.get('state')}, {s.get('frames_done', 0)}/{s.get('frames_total') or '?'} frames, {where}"
+              + (f": {s['error']}" if s.get("error") else ""))
     return 1 if failed else 0
 
 

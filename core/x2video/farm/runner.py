@@ -3,14 +3,17 @@
 Each job starts with a small task (`x2video.farm.task.plan_job`) that decides its tier on a worker. A shot whose
 tier is per frame (tier 0, the formula, and tier 1, the residual net: what quality 'auto' renders for a shot with
 every channel and nothing to generate) is split into chunks of `chunk_frames` frames, one task each
-(`render_chunk`), which write their frames into the shot's staging folder (`x2video.farm.chunks`); a last task
-(`finish_job`) puts the output in place and writes the done marker. A diffusion-tier shot is one task
-(`render_job`). Every task asks for `cpus_per_shot` CPUs. A task whose worker dies (killed, out of memory, machine
-lost) is run again by Ray up to `retries` times: a chunk starts over (its finished frames are whole files, written
-again identically), chunks marked done are never run again; a whole-shot task starts the shot over after removing
-what the dead attempt left. A Python error in a task is not retried: the shot is reported failed and the others
+(`render_chunk`); a diffusion-tier shot into its windows (`render_window`, `Renderer.render_windows`), each
+submitted with the results of the windows that made its reference frames as arguments, so Ray starts it once they
+exist (the windows of one recursive level run in parallel). The tasks write their frames into the shot's staging
+folder (`x2video.farm.chunks`); a last task (`finish_job`) puts the output in place and writes the done marker.
+Without `split`, a shot is one task (`render_job`). Every task asks for `cpus_per_shot` CPUs. A task whose worker
+dies (killed, out of memory, machine lost) is run again by Ray up to `retries` times: a chunk or window starts over
+(its finished frames are whole files, written again identically), chunks and windows marked done are never run
+again (a finished window is reused with the latents it saved); a whole-shot task starts the shot over after
+removing what the dead attempt left. A Python error in a task is not retried: the shot is reported failed and the others
 go on. Finished shots (output + done marker, `x2video.farm.state`) are skipped, so running the same command again
-resumes a farm that was stopped or that lost shots (a split shot keeps the chunks it finished).
+resumes a farm that was stopped or that lost shots (a split shot keeps the chunks or windows it finished).
 """
 from __future__ import annotations
 
