@@ -491,3 +491,36 @@ def test_killed_window_worker_is_retried_and_finished_windows_are_not_redone(clu
     assert [s["attempt"] for s in starts[killed["task"]]] == [1, 2] and starts[killed["task"]][0]["pid"] == killed["pid"]
     assert all(len(v) == 1 for k, v in starts.items() if k != killed["task"]), starts  # no finished window ran again
     assert_same_frames(recursive_shot / "ref", out / "rec")
+
+
+def test_render_windows_one_by_one_equals_render_and_refuses_missing_references():
+    """`Renderer.render_windows`, each window in a fresh Renderer given the latents earlier calls returned, gives
+    `render`'s frames (in process, a fake model: 33 frames, 3 levels and the seam pass); misuse is refused."""
+    import x2video
+    from x2video.sampling.events import FramesReady
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from sampling_fake import FakeModel
+    from sampling_fake import make_shot as fake_shot
+
+    shot, settings = fake_shot(33), RenderSettings(preset="fast", seed=5)
+    whole: dict[int, np.ndarray] = {}
+    x2video.Renderer(FakeModel(has_lcm=True)).render(shot, None, settings, on_event=lambda e: isinstance(e, FramesReady) and whole.update(e.frames))
+    plan = x2video.Renderer(FakeModel(has_lcm=True)).render_plan(shot, None, settings)
+    assert len(plan) == 14
+    latents: dict = {}
+    parts: dict[int, np.ndarray] = {}
+    for i, w in enumerate(plan):
+        made = x2video.Renderer(FakeModel(has_lcm=True)).render_windows(shot, None, settings, [i], {f: latents[f] for f in w.refs},
+                                                                        on_event=lambda e: isinstance(e, FramesReady) and parts.update(e.frames))
+        latents.update(made[i])
+    assert sorted(parts) == sorted(whole) == list(range(33))
+    for f in whole:
+        np.testing.assert_array_equal(parts[f], whole[f], err_msg=f"frame {f}")
+    renderer = x2video.Renderer(FakeModel(has_lcm=True))
+    with pytest.raises(ValueError, match=r"window 1 reads frames \[0, 16\] as references: pass their latents"):
+        renderer.render_windows(shot, None, settings, [1], {})
+    with pytest.raises(ValueError, match="plan order"):
+        renderer.render_windows(shot, None, settings, [1, 0], {})
+    with pytest.raises(ValueError, match="tier 'formula'.*no windows"):
+        renderer.render_plan(shot, None, RenderSettings(quality="formula"))

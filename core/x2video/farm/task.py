@@ -1,4 +1,6 @@
-"""One farm task: render one job (a shot or a project) through the public API into the shared output folder.
+"""The farm's tasks, through the public API into the shared output folder: plan a job (`plan_job`), render a chunk of
+frames (`render_chunk`) or a window of a diffusion plan (`render_window`), put a split shot's output in place
+(`finish_job`), or render a whole job (a shot or a project) in one task (`render_job`).
 
 Runs inside a Ray worker (or anywhere: it needs only the shared folder). The model is loaded once per worker
 process and kept for the next job with the same model options.

@@ -473,15 +473,16 @@ class Renderer:
         choice, conditioning, prompts, reference = self._setup(shot, edits, settings, base_dir)
         if choice.tier != "diffusion":
             raise ValueError(f"this render runs tier {choice.tier!r} ({choice.reason}), which has no windows")
-        run = self._diffusion(shot, settings, choice, conditioning, prompts, reference, emit)
+        windows = self.plan(shot, self._validate(shot, settings), None if reference is None else reference[0])
         made_here: set[int] = set()
-        for i in indices:
-            if not 0 <= i < len(run.windows):
-                raise ValueError(f"window {i} is not in the plan ({len(run.windows)} windows)")
-            missing = [f for f in run.windows[i].refs if f not in made_here and f not in refs]
+        for i in indices:  # checked before the engine is built
+            if not 0 <= i < len(windows):
+                raise ValueError(f"window {i} is not in the plan ({len(windows)} windows)")
+            missing = [f for f in windows[i].refs if f not in made_here and f not in refs]
             if missing:
                 raise ValueError(f"window {i} reads frames {missing} as references: pass their latents in refs")
-            made_here.update(run.windows[i].generate)
+            made_here.update(windows[i].generate)
+        run = self._diffusion(shot, settings, choice, conditioning, prompts, reference, emit)
         latents = {f: v.to(self.model.device, self.model.dtype) for f, v in refs.items()}
         out: dict[int, dict[int, torch.Tensor]] = {}
         done: set[int] = set()
