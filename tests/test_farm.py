@@ -269,9 +269,10 @@ def test_cli_farm_formula_resume_and_status(cluster, tmp_path, capsys):
     make_shot(shots / "a", 3, 0)
     make_shot(shots / "b", 4, 1)
     out = tmp_path / "out"
-    assert main(["farm", str(shots), "--out", str(out), "--quality", "formula"]) == 0
+    assert main(["farm", str(shots), "--out", str(out), "--quality", "formula", "--chunk-frames", "2"]) == 0
     text = capsys.readouterr().out
     assert "farm a  done: 3 frames" in text and "farm b  done: 4 frames" in text and "2 rendered, 0 finished before, 0 failed" in text
+    assert "(attempt 1, 2 chunks)" in text
     assert main(["render", str(shots / "b"), "--out", str(tmp_path / "ref_b"), "--quality", "formula"]) == 0
     assert_same_frames(tmp_path / "ref_b", out / "b")
     assert main(["farm", str(shots), "--out", str(out), "--quality", "formula"]) == 0
