@@ -29,7 +29,8 @@ from x2video.weights import ModelOptions
 H, W = 32, 48
 
 
-def make_shot(path: Path, frames: int, seed: int) -> Path:
+def make_shot(path: Path, frames: int, seed: int, size: tuple[int, int] = (H, W)) -> Path:
+    H, W = size
     rng = np.random.default_rng(seed)
     n = np.zeros((frames, H, W, 3), np.float32)
     n[..., 2] = 1
@@ -214,6 +215,7 @@ def test_farm_frames_equal_a_single_process_render(cluster, shots, tmp_path):
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_killed_worker_is_retried_and_nothing_finished_is_redone(cluster, shots, tmp_path):
+    """One task per shot (--no-split): the shot whose worker is killed starts over, the others are not touched."""
     out = tmp_path / "out"
     killed: dict = {}
     finished_at_kill: dict[str, tuple] = {}
@@ -235,7 +237,8 @@ def test_killed_worker_is_retried_and_nothing_finished_is_redone(cluster, shots,
     thread = threading.Thread(target=killer, daemon=True)
     thread.start()
     try:
-        result = run_farm(find_jobs([shots / "shots"]), out, _settings(), ModelOptions(), retries=2, write=lambda s: None, poll_seconds=0.1)
+        result = run_farm(find_jobs([shots / "shots"]), out, _settings(), ModelOptions(), retries=2, split=False, write=lambda s: None,
+                          poll_seconds=0.1)
     finally:
         stop.set()
         thread.join(5)
@@ -254,7 +257,7 @@ def test_killed_worker_is_retried_and_nothing_finished_is_redone(cluster, shots,
     assert not list(out.glob(".*partial")), "the killed attempt's staging folder was left behind"
 
     # resume: the same command again renders nothing and starts nothing
-    again = run_farm(find_jobs([shots / "shots"]), out, _settings(), ModelOptions(), write=lambda s: None)
+    again = run_farm(find_jobs([shots / "shots"]), out, _settings(), ModelOptions(), split=False, write=lambda s: None)
     assert sorted(again.skipped) == ["a", "b", "c"] and not again.done
     assert {n: state.read_status(out, n)["starts"] for n in "abc"} == starts
 
@@ -266,9 +269,10 @@ def test_cli_farm_formula_resume_and_status(cluster, tmp_path, capsys):
     make_shot(shots / "a", 3, 0)
     make_shot(shots / "b", 4, 1)
     out = tmp_path / "out"
-    assert main(["farm", str(shots), "--out", str(out), "--quality", "formula"]) == 0
+    assert main(["farm", str(shots), "--out", str(out), "--quality", "formula", "--chunk-frames", "2"]) == 0
     text = capsys.readouterr().out
     assert "farm a  done: 3 frames" in text and "farm b  done: 4 frames" in text and "2 rendered, 0 finished before, 0 failed" in text
+    assert "(attempt 1, 2 chunks)" in text
     assert main(["render", str(shots / "b"), "--out", str(tmp_path / "ref_b"), "--quality", "formula"]) == 0
     assert_same_frames(tmp_path / "ref_b", out / "b")
     assert main(["farm", str(shots), "--out", str(out), "--quality", "formula"]) == 0
@@ -277,3 +281,247 @@ def test_cli_farm_formula_resume_and_status(cluster, tmp_path, capsys):
     assert "rendered with other settings.seed" in capsys.readouterr().err
     assert main(["farm", "--out", str(out), "--status"]) == 0
     assert "a: done, 3 frames" in capsys.readouterr().out
+
+
+# --- one shot split into frame chunks (tiers 0 and 1) --------------------------------------------------------
+
+AUTO = ["--quality", "auto", "--seed", "5"]  # the shipped weights: tier 1 for a shot with every channel
+
+
+def _one_thread_render(shot: Path, out: Path, *flags: str) -> None:
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # as a farm task with 1 CPU
+    try:
+        assert main(["render", str(shot), "--out", str(out), *flags]) == 0
+    finally:
+        torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def long_shot(tmp_path_factory):
+    """A 40-frame shot (5 chunks of 8) and its single-process tier-1 renders, EXR and MP4."""
+    root = tmp_path_factory.mktemp("long")
+    shot = make_shot(root / "shots" / "long", 40, 7)
+    _one_thread_render(shot, root / "ref", *AUTO)
+    _one_thread_render(shot, root / "ref.mp4", *AUTO)
+    return root
+
+
+@pytest.mark.timeout(600)
+def test_tier1_shot_split_into_chunks_equals_a_single_process_render(cluster, long_shot, tmp_path):
+    settings = RenderSettings(quality="auto", seed=5)
+    lines: list[str] = []
+    out = tmp_path / "out"
+    result = run_farm(find_jobs([long_shot / "shots"]), out, settings, ModelOptions(), chunk_frames=8, write=lines.append, poll_seconds=0.05)
+    assert result.ok and sorted(result.done) == ["long"], (result.failed, lines)
+    assert_same_frames(long_shot / "ref", out / "long")
+    status = state.read_status(out, "long")
+    assert status["tier"] == "residual" and status["parts_kind"] == "chunks" and status["parts_total"] == 5 and status["state"] == "done"
+    assert sorted(status["task_starts"]) == ["000000-000008", "000008-000016", "000016-000024", "000024-000032", "000032-000040"]
+    assert all(len(s) == 1 for s in status["task_starts"].values())
+    assert any("chunks" in line and "running" in line for line in lines), lines  # progress: frames and chunks
+    assert "done: 40 frames" in lines[-1] and "5 chunks" in lines[-1]
+    assert not (out / ".farm" / "long.frames").exists() and not (out / ".farm" / "long.chunks").exists()
+
+    # MP4: the chunks' frames staged, then one encode: the same file as the single-process render's
+    mp4 = run_farm(find_jobs([long_shot / "shots"]), tmp_path / "mp4", settings, ModelOptions(), fmt="mp4", chunk_frames=16, write=lambda s: None)
+    assert mp4.ok and (tmp_path / "mp4" / "long.mp4").read_bytes() == (long_shot / "ref.mp4").read_bytes()
+
+
+@pytest.mark.timeout(600)
+def test_chunks_finished_by_an_earlier_run_are_not_rendered_again(cluster, long_shot, tmp_path):
+    """A farm stopped after some chunks: the next run renders only the others, and the frames are the same."""
+    import torch
+
+    from x2video.farm import chunks, task
+
+    settings = RenderSettings(quality="auto", seed=5)
+    job = find_jobs([long_shot / "shots"])[0]
+    out = tmp_path / "out"
+    key = state.job_key(job, settings, ModelOptions(), "exr", None)
+    chunks.begin(out, job.name, chunks.digest(key))
+    threads = torch.get_num_threads()
+    try:
+        task.render_chunk(job, out, settings, ModelOptions(), "exr", (8, 16), chunks.digest(key), run="earlier", threads=1)
+    finally:
+        torch.set_num_threads(threads)
+    before = (out / ".farm" / "long.frames" / "000008.exr").stat().st_mtime_ns
+    result = run_farm([job], out, settings, ModelOptions(), chunk_frames=8, write=lambda s: None)
+    assert result.ok
+    starts = state.read_status(out, "long")["task_starts"]
+    assert [s["run"] for s in starts["000008-000016"]] == ["earlier"]
+    assert all(len(v) == 1 and v[0]["run"] != "earlier" for k, v in starts.items() if k != "000008-000016")
+    assert (out / "long" / "000008.exr").stat().st_mtime_ns == before
+    assert_same_frames(long_shot / "ref", out / "long")
+    # staged frames made with other settings are dropped, not mixed in
+    chunks.begin(out, job.name, chunks.digest(key))
+    task.render_chunk(job, out, settings, ModelOptions(), "exr", (0, 8), chunks.digest(key), run="old")
+    other = RenderSettings(quality="formula", seed=5)
+    chunks.begin(out, job.name, chunks.digest(state.job_key(job, other, ModelOptions(), "exr", None)))
+    assert not list((out / ".farm" / "long.frames").iterdir())
+
+
+@pytest.mark.timeout(600)
+def test_killed_chunk_worker_is_retried_and_finished_chunks_are_not_redone(cluster, tmp_path):
+    from x2video.farm import chunks
+
+    shot = make_shot(tmp_path / "shots" / "big", 48, 11, (112, 160))  # tier 1 at 160x112: a chunk of 12 frames takes about a second
+    _one_thread_render(shot, tmp_path / "ref", *AUTO)
+    out = tmp_path / "out"
+    killed: dict = {}
+    done_at_kill: dict[str, int] = {}
+    stop = threading.Event()
+
+    def killer() -> None:  # kill the worker of a chunk that has written frames but is not done
+        while not stop.is_set():
+            for p in sorted(chunks.tasks_dir(out, "big").glob("0*.json")):
+                rec = chunks.read_task(out, "big", p.stem)
+                if not rec.get("done") and (rec.get("frames_done") or 0) > 0:
+                    for f in (out / ".farm" / "big.frames").glob("*.exr"):
+                        done_at_kill[f.name] = f.stat().st_mtime_ns
+                    done_tasks = [q.stem for q in chunks.tasks_dir(out, "big").glob("0*.json") if chunks.read_task(out, "big", q.stem).get("done")]
+                    killed.update(rec, task=p.stem, done_tasks=done_tasks)
+                    os.kill(rec["pid"], signal.SIGKILL)
+                    return
+            time.sleep(0.01)
+
+    thread = threading.Thread(target=killer, daemon=True)
+    thread.start()
+    try:
+        result = run_farm(find_jobs([tmp_path / "shots"]), out, RenderSettings(quality="auto", seed=5), ModelOptions(), chunk_frames=12,
+                          retries=2, write=lambda s: None, poll_seconds=0.05)
+    finally:
+        stop.set()
+        thread.join(5)
+    assert killed, "the killer never saw a chunk running with frames"
+    assert result.ok and sorted(result.done) == ["big"], result.failed
+    starts = state.read_status(out, "big")["task_starts"]
+    assert [s["attempt"] for s in starts[killed["task"]]] == [1, 2] and starts[killed["task"]][0]["pid"] == killed["pid"]
+    assert all(len(v) == 1 for k, v in starts.items() if k != killed["task"]), starts  # no other chunk ran twice
+    for t in killed["done_tasks"]:  # frames of chunks finished before the kill were not written again
+        c, d = (int(x) for x in t.split("-"))
+        for f in range(c, d):
+            assert (out / "big" / f"{f:06d}.exr").stat().st_mtime_ns == done_at_kill[f"{f:06d}.exr"]
+    assert_same_frames(tmp_path / "ref", out / "big")
+    assert json.loads((out / "big.done.json").read_text())["attempt"] == 2
+
+
+# --- one diffusion shot split into its windows ----------------------------------------------------------------
+
+TINY = ["--preset", "fast", "--quality", "diffusion", "--seed", "5", "--untrained"]
+
+
+def _tiny() -> tuple[RenderSettings, ModelOptions]:
+    return RenderSettings(preset="fast", quality="diffusion", seed=5), ModelOptions(untrained=True)
+
+
+@pytest.fixture(scope="module")
+def recursive_shot(tmp_path_factory):
+    """33 frames: 3 recursive levels and the seam pass (14 windows of 5 frames), and its single-process render."""
+    root = tmp_path_factory.mktemp("recursive")
+    shot = make_shot(root / "shots" / "rec", 33, 9)
+    _one_thread_render(shot, root / "ref", *TINY)
+    return root
+
+
+@pytest.mark.timeout(600)
+def test_diffusion_windows_as_tasks_equal_a_single_process_render(cluster, recursive_shot, tmp_path):
+    """Each window a task on 2 workers (a level's windows in parallel once their references exist): the frames equal the
+    single-process render bit for bit; a window finished by an earlier run (frames and latents on disk) is reused."""
+    import torch
+
+    from x2video.farm import chunks, task
+
+    settings, options = _tiny()
+    job = find_jobs([recursive_shot / "shots"])[0]
+    out = tmp_path / "out"
+    digest = chunks.digest(state.job_key(job, settings, options, "exr", None))
+    plan = task.plan_job(job, settings, options)
+    assert len(plan["windows"]) == 14 and {w["level"] for w in plan["windows"]} == {1, 2, 3}
+    final = {f: i for i, w in enumerate(plan["windows"]) for f in w["generate"]}
+    chunks.begin(out, job.name, digest)
+    threads = torch.get_num_threads()
+    try:  # the keyframe window, rendered by an earlier (stopped) run
+        task.render_window(job, out, settings, options, "exr", 0, [f for f in plan["windows"][0]["generate"] if final[f] == 0], digest,
+                           "earlier", 1, {})
+    finally:
+        torch.set_num_threads(threads)
+    lines: list[str] = []
+    result = run_farm([job], out, settings, options, write=lines.append, poll_seconds=0.05)
+    assert result.ok, (result.failed, lines)
+    assert_same_frames(recursive_shot / "ref", out / "rec")
+    status = state.read_status(out, "rec")
+    assert status["parts_kind"] == "windows" and status["parts_total"] == 14 and status["parts_reused"] == 1
+    assert [s["run"] for s in status["task_starts"]["w0000"]] == ["earlier"]
+    assert all(len(v) == 1 for v in status["task_starts"].values())
+    assert any("windows" in line and "running" in line for line in lines), lines
+
+
+@pytest.mark.timeout(600)
+def test_killed_window_worker_is_retried_and_finished_windows_are_not_redone(cluster, recursive_shot, tmp_path):
+    from x2video.farm import chunks
+
+    settings, options = _tiny()
+    out = tmp_path / "out"
+    killed: dict = {}
+    stop = threading.Event()
+
+    def killer() -> None:  # once the keyframe window is done, kill the worker of the next window that starts
+        while not stop.is_set():
+            if chunks.read_task(out, "rec", "w0000").get("done"):
+                for p in sorted(chunks.tasks_dir(out, "rec").glob("w*.json")):
+                    rec = chunks.read_task(out, "rec", p.stem)
+                    if rec.get("starts") and not rec.get("done"):
+                        killed.update(rec, task=p.stem)
+                        os.kill(rec["pid"], signal.SIGKILL)
+                        return
+            time.sleep(0.005)
+
+    thread = threading.Thread(target=killer, daemon=True)
+    thread.start()
+    try:
+        result = run_farm(find_jobs([recursive_shot / "shots"]), out, settings, options, retries=2, write=lambda s: None, poll_seconds=0.05)
+    finally:
+        stop.set()
+        thread.join(5)
+    assert killed, "the killer never saw a window running"
+    assert result.ok, result.failed
+    starts = state.read_status(out, "rec")["task_starts"]
+    assert [s["attempt"] for s in starts[killed["task"]]] == [1, 2] and starts[killed["task"]][0]["pid"] == killed["pid"]
+    assert all(len(v) == 1 for k, v in starts.items() if k != killed["task"]), starts  # no finished window ran again
+    assert_same_frames(recursive_shot / "ref", out / "rec")
+
+
+def test_render_windows_one_by_one_equals_render_and_refuses_missing_references():
+    """`Renderer.render_windows`, each window in a fresh Renderer given the latents earlier calls returned, gives
+    `render`'s frames (in process, a fake model: 33 frames, 3 levels and the seam pass); misuse is refused."""
+    import x2video
+    from x2video.sampling.events import FramesReady
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from sampling_fake import FakeModel
+    from sampling_fake import make_shot as fake_shot
+
+    shot, settings = fake_shot(33), RenderSettings(preset="fast", seed=5)
+    whole: dict[int, np.ndarray] = {}
+    x2video.Renderer(FakeModel(has_lcm=True)).render(shot, None, settings, on_event=lambda e: isinstance(e, FramesReady) and whole.update(e.frames))
+    plan = x2video.Renderer(FakeModel(has_lcm=True)).render_plan(shot, None, settings)
+    assert len(plan) == 14
+    latents: dict = {}
+    parts: dict[int, np.ndarray] = {}
+    for i, w in enumerate(plan):
+        made = x2video.Renderer(FakeModel(has_lcm=True)).render_windows(shot, None, settings, [i], {f: latents[f] for f in w.refs},
+                                                                        on_event=lambda e: isinstance(e, FramesReady) and parts.update(e.frames))
+        latents.update(made[i])
+    assert sorted(parts) == sorted(whole) == list(range(33))
+    for f in whole:
+        np.testing.assert_array_equal(parts[f], whole[f], err_msg=f"frame {f}")
+    renderer = x2video.Renderer(FakeModel(has_lcm=True))
+    with pytest.raises(ValueError, match=r"window 1 reads frames \[0, 16\] as references: pass their latents"):
+        renderer.render_windows(shot, None, settings, [1], {})
+    with pytest.raises(ValueError, match="plan order"):
+        renderer.render_windows(shot, None, settings, [1, 0], {})
+    with pytest.raises(ValueError, match="tier 'formula'.*no windows"):
+        renderer.render_plan(shot, None, RenderSettings(quality="formula"))

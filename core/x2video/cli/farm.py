@@ -29,6 +29,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                      "(default: $RAY_ADDRESS, else a local cluster for this run)")
     p.add_argument("--local-cpus", type=int, help="CPUs of the local cluster started when there is no --address (default: all)")
     p.add_argument("--cpus-per-shot", type=float, default=1, help="CPUs each shot's task asks for, also torch's threads (default: 1)")
+    p.add_argument("--chunk-frames", type=int, default=None, metavar="N",
+                   help="frames per task for shots rendered frame by frame (tiers 0 and 1: the formula, the residual net; "
+                        "what quality auto renders for a shot with every channel) (default: 64)")
+    p.add_argument("--no-split", dest="split", action="store_false",
+                   help="render each shot as one task (default: frame chunks for tiers 0 and 1, one task per window for diffusion)")
     p.add_argument("--retries", type=int, default=3, help="times a shot is started again when its worker dies (default: 3)")
     p.add_argument("--redo", action="store_true", help="render finished shots again (default: skip them)")
     p.add_argument("--openjd", type=Path, metavar="DIR", help="write an Open Job Description template per shot into DIR and stop (no Ray)")
@@ -55,13 +60,16 @@ def print_status(out: Path) -> int:
             print(f"{name}: done, {marker.get('frames')} frames in {marker.get('seconds')} s on {marker.get('host')} ({marker.get('finished')})")
             continue
         failed += s.get("state") == "failed"
-        print(f"{name}: {s.get('state')}, {s.get('frames_done', 0)}/{s.get('frames_total') or '?'} frames, attempt {s.get('attempt')} "
-              f"on {s.get('host')}:{s.get('pid')}" + (f": {s['error']}" if s.get("error") else ""))
+        where = (f"{s.get('parts_kind')} {s.get('parts_done')}/{s.get('parts_total')} done, {s.get('parts_running')} running, attempt {s.get('attempt')}"
+                 if s.get("parts_total") else f"attempt {s.get('attempt')} on {s.get('host')}:{s.get('pid')}")
+        print(f"{name}: {s.get('state')}, {s.get('frames_done', 0)}/{s.get('frames_total') or '?'} frames, {where}"
+              + (f": {s['error']}" if s.get("error") else ""))
     return 1 if failed else 0
 
 
 def run(args: argparse.Namespace) -> int:
     from x2video.farm import find_jobs, run_farm
+    from x2video.farm.chunks import CHUNK_FRAMES
 
     if args.status:
         return print_status(args.out)
@@ -83,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
         if shipped_weights() is None:
             raise FileNotFoundError(HOW_TO_GET_WEIGHTS.format(where=where_weights_are_looked_for()) + "; or pass --weights DIR")
     result = run_farm(jobs, args.out, settings, options, fmt=args.format, fps=args.fps, address=args.address, local_cpus=args.local_cpus,
-                      cpus_per_shot=args.cpus_per_shot, retries=args.retries, redo=args.redo, write=lambda s: print(s, flush=True))
+                      cpus_per_shot=args.cpus_per_shot, retries=args.retries,
+                      chunk_frames=args.chunk_frames or CHUNK_FRAMES, split=args.split, redo=args.redo, write=lambda s: print(s, flush=True))
     print(f"farm: {len(result.done)} rendered, {len(result.skipped)} finished before, {len(result.failed)} failed, {result.seconds:.1f} s")
     for name, error in result.failed.items():
         print(f"farm {name}: {error}", file=sys.stderr)

@@ -1,4 +1,5 @@
-"""Render farm: many shots on a Ray cluster (`run_farm`), one task per shot, resumable from a shared output folder,
+"""Render farm: many shots on a Ray cluster (`run_farm`), a long shot split across tasks (frame chunks for tiers 0
+and 1, one task per window for diffusion), resumable from a shared output folder,
 and Open Job Description templates for the same jobs (`x2video.farm.openjd`). No Qt; Ray is imported only when a
 farm runs (`pip install 'x2video-studio[farm]'`). docs/FARM.md has the how-to.
 

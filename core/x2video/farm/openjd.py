@@ -46,7 +46,7 @@ def job_template(job: Job, output: Path, settings: Any, options: Any, fps: float
         "parameterDefinitions": params,
         "steps": [{
             "name": "Render",
-            "description": "one task: the whole shot (a recursive render cannot be split into independent frame chunks)",
+            "description": "one task: the whole shot (`x2video farm` on Ray splits shots into chunks or windows; this step does not)",
             "script": {"actions": {"onRun": {"command": "{{Param.X2Video}}", "args": args}}},
         }],
     }

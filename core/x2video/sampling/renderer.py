@@ -246,6 +246,12 @@ class Renderer:
             ref_frame = min(max(ref_frame, start), stop - 1) - start
         return shift(plan(settings.scheme, stop - start, settings.window, ref_frame, settings.seams, settings.max_levels), start)
 
+    def choose_tier(self, shot: Shot, edits: Any, settings: RenderSettings) -> tiers.TierChoice:
+        """The tier a render of `shot` with `edits` (or None) and `settings` runs with this model, and why
+        (`x2video.sampling.tiers.choose_tier`); read from the edits' structure, so it costs nothing. A farm asks
+        it before splitting a shot: tiers 0 and 1 ('formula', 'residual') are per frame."""
+        return tiers.decide(settings.quality, shot, edits, self.model)
+
     # -- the render ------------------------------------------------------------------
     def render(
         self,
@@ -331,6 +337,21 @@ class Renderer:
             raise ValueError(f"working_pixels must be 0 (full resolution) or more, got {settings.working_pixels}")
         return settings
 
+    def _setup(self, shot: Shot, edits: Any, settings: RenderSettings, base_dir: str | Path | None
+               ) -> tuple[tiers.TierChoice, Callable[[int], FrameConditioning], Prompts, tuple[int, np.ndarray] | None]:
+        """(tier, frame -> edited conditioning, prompts, the user's reference (frame, image) or None) of a render."""
+        choice = self.choose_tier(shot, edits, settings)
+        if edits is None:
+            prompts, reference = Prompts(), None
+            conditioning: Callable[[int], FrameConditioning] = functools.partial(plain_conditioning, shot)
+        else:
+            from x2video.edits import apply_edits, resolve_reference
+
+            prompts = edits.prompts()
+            reference = resolve_reference(shot, edits, base_dir) if choice.tier == "diffusion" else None
+            conditioning = functools.partial(apply_edits, shot, edits)
+        return choice, self._clock.wrap("read", conditioning), prompts, reference
+
     def _render(
         self,
         shot: Shot,
@@ -342,21 +363,9 @@ class Renderer:
         done: set[int],
     ) -> None:
         t0 = time.perf_counter()
-        model = self.model
-        net = getattr(model, "residual_net", None)
-        choice = tiers.decide(settings.quality, shot, edits, model)
+        choice, conditioning, prompts, reference = self._setup(shot, edits, settings, base_dir)
         self.last_tier = choice
         log.info("quality %s: tier %s (%s)", settings.quality, choice.tier, choice.reason)
-        if edits is None:
-            prompts, reference = Prompts(), None
-            conditioning: Callable[[int], FrameConditioning] = functools.partial(plain_conditioning, shot)
-        else:
-            from x2video.edits import apply_edits, resolve_reference
-
-            prompts = edits.prompts()
-            reference = resolve_reference(shot, edits, base_dir) if choice.tier == "diffusion" else None
-            conditioning = functools.partial(apply_edits, shot, edits)
-        conditioning = self._clock.wrap("read", conditioning)
         if choice.tier == "formula":  # auto chose tier 0
             from x2video.sampling.formula import formula_frames
 
@@ -365,9 +374,35 @@ class Renderer:
         if choice.tier == "residual":
             self._render_direct(shot, settings, choice, conditioning, emit, cancel, done, t0)
             return
-        # any frame size: large frames run at a working resolution, the network's residual over the formula brought
-        # back on the full-resolution formula (x2video.sampling.working); others reflect-pad to the model's factor,
-        # decoded frames cropped back
+        run = self._diffusion(shot, settings, choice, conditioning, prompts, reference, emit)
+        windows, emit = run.windows, run.emit
+        keep_until = last_use(windows)
+        with torch.inference_mode():
+            levels = sorted({w.level for w in windows}, reverse=True)
+            emit(RenderStarted(num_frames=len({f for w in windows for f in w.generate}), num_windows=len(windows), levels=levels,
+                               tier=choice.tier, reason=choice.reason))
+            latents: dict[int, torch.Tensor] = {}  # frame -> (4, h, w), only while a later window reads it
+            self.peak_latents = 0
+            for index, window in enumerate(windows):
+                x0 = self._window(run, index, latents, cancel, done)
+                for pos, f in zip(window.generate_positions, window.generate):
+                    if keep_until.get(f, -1) > index:
+                        latents[f] = x0[pos].clone()
+                self.peak_latents = max(self.peak_latents, len(latents))
+                for f in window.refs:
+                    if keep_until.get(f) == index:
+                        latents.pop(f, None)
+                run.decode(index, x0, done)
+        emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))
+
+    def _diffusion(self, shot: Shot, settings: RenderSettings, choice: tiers.TierChoice, conditioning: Callable[[int], FrameConditioning],
+                   prompts: Prompts, reference: tuple[int, np.ndarray] | None, emit: Callable[[RenderEvent], None]) -> "_DiffusionRun":
+        """What every window of a diffusion render shares: its plan, the network's conditioning (any frame size:
+        large frames run at a working resolution, the network's residual over the formula brought back on the
+        full-resolution formula (x2video.sampling.working); others reflect-pad to the model's factor, decoded frames
+        cropped back), the validated settings, the text encodings and the reference latent."""
+        model = self.model
+        net = getattr(model, "residual_net", None)
         height, width = shot.size
         full_conditioning = conditioning
         work = working.working_size((height, width), model.downsample, settings.working_pixels)
@@ -389,53 +424,74 @@ class Renderer:
         if choice.regions:
             emit = self._composite(emit, full_conditioning, net if choice.base == "residual" else None, settings.guess_unseen)
         windows = self.plan(shot, settings, None if reference is None else reference[0])
-        keep_until = last_use(windows)
-
         with torch.inference_mode():
             text_global = model.encode_prompts([prompts.global_prompt])  # (1, L, D)
             text_local = model.encode_prompts(list(prompts.local))  # (P, L, D)
             ref_latent = None if reference is None else model.encode_image(reference[1])  # (4, h, w)
-            levels = sorted({w.level for w in windows}, reverse=True)
-            emit(RenderStarted(num_frames=len({f for w in windows for f in w.generate}), num_windows=len(windows), levels=levels,
-                               tier=choice.tier, reason=choice.reason))
-            latents: dict[int, torch.Tensor] = {}  # frame -> (4, h, w), only while a later window reads it
-            self.peak_latents = 0
-            for index, window in enumerate(windows):
-                if cancel is not None and cancel.cancelled:
-                    raise Cancelled(f"cancelled before window {index}")
-                emit(WindowStarted(index=index, frames=list(window.frames), mode=window.mode, level=window.level))
-                tw = time.perf_counter()
-                x0, conds, keys, cond = self._run_window(index, window, settings, conditioning, latents, ref_latent, text_global, text_local, emit, cancel)
-                x0 = model.sample_to_latents(x0, cond)  # RGB latents: later windows read them as references
-                gen_pos = list(window.generate_positions)
-                for pos, f in zip(gen_pos, window.generate):
-                    if keep_until.get(f, -1) > index:
-                        latents[f] = x0[pos].clone()
-                self.peak_latents = max(self.peak_latents, len(latents))
-                for f in window.refs:
-                    if keep_until.get(f) == index:
-                        latents.pop(f, None)
-                # the first window's first frame is decoded and delivered on its own: an editor shows it while the
-                # rest of the window decodes (the decoder's batch is free; the frames are the same either way)
-                chunks = [gen_pos[:1], gen_pos[1:]] if index == 0 and len(gen_pos) > 1 else [gen_pos]
-                for part, chunk in enumerate(chunks):
-                    with self._clock.stage("decode"):
-                        images = model.decode(x0[chunk])  # (G, H, W, 3)
-                    if settings.detail:
-                        with self._clock.stage("detail"):
-                            detail = self._detail([conds[p] for p in chunk], [keys[p] for p in chunk], cond[chunk])
-                        if detail is not None:
-                            images = np.maximum(images + detail, 0)
-                    made = [window.frames[p] for p in chunk]
-                    if work is not None:
-                        frames = {f: working.to_full(images[i], full_conditioning(f)) for i, f in enumerate(made)}
-                    else:
-                        frames = {f: np.ascontiguousarray(images[i][:height, :width], dtype=np.float32) for i, f in enumerate(made)}
-                    again = tuple(f for f in made if f in done)  # the seam pass makes frames a second time
-                    done.update(made)
-                    emit(FramesReady(window=index, frames=frames, level=window.level, mode=window.mode, seconds=time.perf_counter() - tw,
-                                     replaces=again, window_done=part == len(chunks) - 1))
-        emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))
+        return _DiffusionRun(self, settings, windows, conditioning, full_conditioning, work, (height, width), emit, text_global, text_local,
+                             ref_latent)
+
+    def _window(self, run: "_DiffusionRun", index: int, latents: dict[int, torch.Tensor], cancel: CancelToken | None,
+                done: set[int]) -> torch.Tensor:
+        """Denoise window `index` of `run` with the reference latents `latents` (frame -> (4, h, w)); returns its (n, 4, h, w)
+        RGB latents (what later windows read) and keeps what `_DiffusionRun.decode` needs to deliver its frames."""
+        if cancel is not None and cancel.cancelled:
+            raise Cancelled(f"cancelled before window {index}")
+        window = run.windows[index]
+        run.emit(WindowStarted(index=index, frames=list(window.frames), mode=window.mode, level=window.level))
+        run.started = time.perf_counter()
+        x0, run.conds, run.keys, run.cond = self._run_window(index, window, run.settings, run.conditioning, latents, run.ref_latent,
+                                                             run.text_global, run.text_local, run.emit, cancel)
+        return self.model.sample_to_latents(x0, run.cond)  # RGB latents: later windows read them as references
+
+    def render_plan(self, shot: Shot, edits: Any, settings: RenderSettings, *, base_dir: str | Path | None = None) -> list[Window]:
+        """The windows a diffusion-tier render of `shot` with `edits` and `settings` runs (anchored at the user's
+        reference frame where the edits have one); `render_windows` takes their indices. ValueError when the render's
+        tier is not 'diffusion' (tiers 0 and 1 have no windows: every frame is its own)."""
+        choice, _, _, reference = self._setup(shot, edits, settings, base_dir)
+        if choice.tier != "diffusion":
+            raise ValueError(f"this render runs tier {choice.tier!r} ({choice.reason}), which has no windows")
+        return self.plan(shot, self._validate(shot, settings), None if reference is None else reference[0])
+
+    def render_windows(self, shot: Shot, edits: Any, settings: RenderSettings, indices: Sequence[int], refs: dict[int, torch.Tensor],
+                       on_event: EventCallback | None = None, cancel: CancelToken | None = None, *,
+                       base_dir: str | Path | None = None) -> dict[int, dict[int, torch.Tensor]]:
+        """Render only the windows `indices` (of `render_plan`, in plan order) of a diffusion render, given `refs`: frame ->
+        (4, h, w) RGB latent of every reference frame they read and do not make themselves (the latents an earlier
+        call returned). Returns, per window, its generated frames' RGB latents; emits WindowStarted, StepDone and
+        FramesReady for its frames (not RenderStarted/RenderFinished: this is part of a render).
+
+        The windows of one recursive level read only frames of the levels above, so a farm runs them in parallel
+        (`x2video.farm`). `render` runs each window through the same steps (the noise is seeded per frame or per
+        window, the conditioning per frame), so the frames equal a single `render`'s."""
+        if list(indices) != sorted(set(indices)):
+            raise ValueError(f"window indices must ascend without repeats (plan order), got {list(indices)}")
+        emit: Callable[[RenderEvent], None] = on_event if on_event is not None else (lambda e: None)
+        choice, conditioning, prompts, reference = self._setup(shot, edits, settings, base_dir)
+        if choice.tier != "diffusion":
+            raise ValueError(f"this render runs tier {choice.tier!r} ({choice.reason}), which has no windows")
+        windows = self.plan(shot, self._validate(shot, settings), None if reference is None else reference[0])
+        made_here: set[int] = set()
+        for i in indices:  # checked before the engine is built
+            if not 0 <= i < len(windows):
+                raise ValueError(f"window {i} is not in the plan ({len(windows)} windows)")
+            missing = [f for f in windows[i].refs if f not in made_here and f not in refs]
+            if missing:
+                raise ValueError(f"window {i} reads frames {missing} as references: pass their latents in refs")
+            made_here.update(windows[i].generate)
+        run = self._diffusion(shot, settings, choice, conditioning, prompts, reference, emit)
+        latents = {f: v.to(self.model.device, self.model.dtype) for f, v in refs.items()}
+        out: dict[int, dict[int, torch.Tensor]] = {}
+        done: set[int] = set()
+        with torch.inference_mode():
+            for i in indices:
+                window = run.windows[i]
+                x0 = self._window(run, i, latents, cancel, done)
+                made = {f: x0[p].clone() for p, f in zip(window.generate_positions, window.generate)}
+                latents.update(made)
+                out[i] = made
+                run.decode(i, x0, done)
+        return out
 
     def _render_direct(self, shot: Shot, settings: RenderSettings, choice: tiers.TierChoice, conditioning: Callable[[int], FrameConditioning],
                        emit: Callable[[RenderEvent], None], cancel: CancelToken | None, done: set[int], t0: float) -> None:
@@ -605,3 +661,48 @@ class Renderer:
             x0 = sample_ddim(model_fn, x_T, settings.steps, callback=callback, cancel=cancel, known=known,
                              resample=settings.resample, jump_noise=jump_noise, denoised_fn=denoised_fn)
         return x0, conds, keys, cond
+
+
+class _DiffusionRun:
+    """One diffusion render's shared state (`Renderer._diffusion`), and the decoding of a window's frames into
+    `FramesReady` events (the detail pass, working-size or padded frames back to the shot's size)."""
+
+    def __init__(self, renderer: Renderer, settings: RenderSettings, windows: list[Window], conditioning: Callable[[int], FrameConditioning],
+                 full_conditioning: Callable[[int], FrameConditioning], work: tuple[int, int] | None, size: tuple[int, int],
+                 emit: Callable[[RenderEvent], None], text_global: torch.Tensor, text_local: torch.Tensor, ref_latent: torch.Tensor | None) -> None:
+        self.renderer, self.settings, self.windows = renderer, settings, windows
+        self.conditioning, self.full_conditioning, self.work, self.size, self.emit = conditioning, full_conditioning, work, size, emit
+        self.text_global, self.text_local, self.ref_latent = text_global, text_local, ref_latent
+        # the window in progress (`Renderer._window`): its frames' conditioning, cache keys and latents, its start
+        self.conds: list[FrameConditioning] = []
+        self.keys: list[str] = []
+        self.cond: torch.Tensor | None = None
+        self.started = 0.0
+
+    def decode(self, index: int, x0: torch.Tensor, done: set[int]) -> None:
+        """Decode the window just run (RGB latents `x0`) and emit its frames; `done`: frames delivered before (the seam
+        pass makes frames a second time: `FramesReady.replaces`)."""
+        r, model, window = self.renderer, self.renderer.model, self.windows[index]
+        height, width = self.size
+        gen_pos = list(window.generate_positions)
+        # the first window's first frame is decoded and delivered on its own: an editor shows it while the
+        # rest of the window decodes (the decoder's batch is free; the frames are the same either way)
+        chunks = [gen_pos[:1], gen_pos[1:]] if index == 0 and len(gen_pos) > 1 else [gen_pos]
+        for part, chunk in enumerate(chunks):
+            with r._clock.stage("decode"):
+                images = model.decode(x0[chunk])  # (G, H, W, 3)
+            if self.settings.detail:
+                with r._clock.stage("detail"):
+                    assert self.cond is not None
+                    detail = r._detail([self.conds[p] for p in chunk], [self.keys[p] for p in chunk], self.cond[chunk])
+                if detail is not None:
+                    images = np.maximum(images + detail, 0)
+            made = [window.frames[p] for p in chunk]
+            if self.work is not None:
+                frames = {f: working.to_full(images[i], self.full_conditioning(f)) for i, f in enumerate(made)}
+            else:
+                frames = {f: np.ascontiguousarray(images[i][:height, :width], dtype=np.float32) for i, f in enumerate(made)}
+            again = tuple(f for f in made if f in done)  # the seam pass makes frames a second time
+            done.update(made)
+            self.emit(FramesReady(window=index, frames=frames, level=window.level, mode=window.mode, seconds=time.perf_counter() - self.started,
+                                  replaces=again, window_done=part == len(chunks) - 1))
