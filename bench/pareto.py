@@ -175,6 +175,32 @@ def cycles_job(shot_dir: Path, frames: int) -> dict | None:
             "width": int(info["width"]), "height": int(info["height"]), "samples": extra.get("samples")}
 
 
+def frames_sha256(shots: list, nframes: list[int]) -> str:
+    """A digest of the frames a run renders and scores: every channel the model reads and the data set's rgb, per
+    shot and frame (float32 bytes), so that a merge can tell the same data from data rebuilt under the same names."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for s, n in zip(shots, nframes):
+        for t in range(n):
+            for c in ("albedo", "normal", "roughness", "metallic", "irradiance", "rgb"):
+                if s.has(c):
+                    h.update(c.encode())
+                    h.update(np.ascontiguousarray(s.channel(c, t), np.float32).tobytes())
+    return h.hexdigest()
+
+
+def images_sha256(shots: list[list[np.ndarray]]) -> str:
+    """A digest of display images at 8 bits (a reference render: exact where Cycles and OIDN repeat themselves)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for frames in shots:
+        for f in frames:
+            h.update(np.round(np.clip(f, 0, 1) * 255).astype(np.uint8).tobytes())
+    return h.hexdigest()
+
+
 # --------------------------------------------------------------------------------------------- Cycles (own process)
 def _quiet() -> None:
     """Blender prints a line per tile and pass to the C stdout: send it to /dev/null in the worker."""
@@ -262,7 +288,7 @@ def warm_up(model: Any, shot: Any, methods: list[Method]) -> None:
 
 # --------------------------------------------------------------------------------------------- the bench
 def measure(opts: ParetoOptions, argv: list[str] | None, on_partial: Any = None) -> dict:
-    """The result (see the module docstring); `on_partial(result)` after each size, with "complete": False."""
+    """The result (see the module docstring); `on_partial(result)` after each row, with "complete": False."""
     import torch
 
     from x2video.io import load_shot
@@ -329,6 +355,9 @@ def measure(opts: ParetoOptions, argv: list[str] | None, on_partial: Any = None)
                                         "note": f"the data set's frames at {'/'.join(map(str, samples_gt)) or '?'} spp, denoised ({why})"
                                                 + ("; Cycles rows at more samples than these are scored against a noisier reference"
                                                    if any(m.samples > max(samples_gt or [0]) for m in cyc) else "")}
+        # what a later --merge checks: the same shots, frames and inputs, the same reference
+        ground_truth[f"{w}x{h}"].update(shots=[d.name for d in dirs], frames=nframes, data_sha256=frames_sha256(shots, nframes),
+                                        reference_sha256=images_sha256(refs))
         if cyc and why_no_cycles:
             unavailable += [{"method": m.key, "size": [w, h], "reason": why_no_cycles} for m in cyc]
         if model is not None:
@@ -375,10 +404,10 @@ def measure(opts: ParetoOptions, argv: list[str] | None, on_partial: Any = None)
                    "per_shot": per_shot}
             row["seconds_per_frame"] = row[f"{opts.clock}_seconds_per_frame"]
             rows.append(row)
+            if on_partial is not None:
+                on_partial(result(False))
             print(f"{row['name']:>36}: {row['wall_seconds_per_frame']:8.3f} s/frame ({row['cpu_seconds_per_frame']:8.3f} CPU s)  "
                   f"PSNR {row['psnr']:6.2f}  TC {row['tc']}", file=sys.stderr, flush=True)
-        if on_partial is not None and (w, h) != sizes[-1]:
-            on_partial(result(False))
     return result(True)
 
 
