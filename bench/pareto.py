@@ -3,6 +3,17 @@ of making the picture: the formula, tier 1, the diffusion sampler's step counts 
 
     python -m bench.pareto --data DATA/pt160,DATA/pt320 --sizes 160x112,320x224 [--rooms 2 --frames 4] (or --rooms 2,1: per size)
         [--methods formula,residual,ddim-20,...,cycles-64] [--reference-samples 128] [--threads 2]
+    python -m bench.pareto ...the same data, sizes, rooms, frames... --methods residual --merge docs/pareto.json
+    python -m bench.pareto --data DATA/pt160 --sizes 160x112 --rooms 1 --frames 8 --methods lcm-2,lcm-2-seq \
+        --merge docs/pareto.json --section "long shot"
+
+`--merge` reruns some methods into an existing result (new weights, a quieter machine): their rows replace the rows
+of the same method and size, the others stay, and every row names the run that measured it (`runs`: command, commit,
+date, load, weights digest), so a chart of several runs says so. It is refused unless the run measures the same
+thing: the same data folders, shots and frames (names and a digest of the channels), the same ground truth (kind,
+samples, seed; the reference render's digest, else the deterministic formula row re-scored against the kept one).
+`--section NAME` keeps rows of other shots or frames (recursive against sequential sampling needs a shot longer than
+a window) in a section of their own, drawn below the main panels; the editor reads the main rows.
 
 For each size, the first `--rooms` finished shots of that size among the `--data` folders (DATA/<split>/<shot>/,
 from `x2video dataset make --renderer cycles`) and their first `--frames` frames. Methods:
