@@ -621,9 +621,10 @@ def _row_order(r: dict) -> tuple:
             r.get("steps") or 0, r.get("samples") or 0)
 
 
-def merge(old: dict, new: dict, section: str = "", origin: Path | None = None) -> dict:
+def merge(old: dict, new: dict, section: str = "", origin: Path | None = None, merged_with: str | None = None) -> dict:
     """`old` with `new`'s rows: in section `section` ('' the main one), a row of `new` replaces the row of the same
-    method and size, the others are kept; each row names its run (`runs`). MergeError when `merge_problems`."""
+    method and size, the others are kept; each row names its run (`runs`; `merged_with`: the command that merged a
+    finished result). MergeError when `merge_problems`."""
     where = str(origin) if origin is not None else "the result merged into"
     if old.get("format") != "x2video-pareto":
         raise MergeError(f"--merge {where}: not a bench.pareto result (format {old.get('format')!r})")
@@ -639,6 +640,8 @@ def merge(old: dict, new: dict, section: str = "", origin: Path | None = None) -
     run_id = max(r["id"] for r in runs) + 1
     rec = _run_record(new, run_id, section)
     rec["merge_checks"] = checks
+    if merged_with:
+        rec["merged_with"] = merged_with
     runs.append(rec)
     n = _section(new, "")
     o = _section(out, section) or {"data": n["data"], "split": n["split"], "rooms": {}, "frames": {}, "ground_truth": {}, "rows": [],
@@ -818,7 +821,8 @@ def markdown(result: dict) -> str:
             lines.append(f"| {r['id']} | {r.get('date') or '?'}{' (' + r['date_note'] + ')' if r.get('date_note') else ''} | "
                          f"{str(r.get('commit') or '?')[:10]} | {la} → {lb} | {(r.get('wall_seconds') or 0) / 60:.1f} | "
                          f"{w.get('residual.safetensors', 'not recorded')} / {w.get('unet.safetensors', 'not recorded')} | "
-                         f"{', '.join(r['methods'])}{' (section ' + r['section'] + ')' if r.get('section') else ''} | `{r.get('command')}` |")
+                         f"{', '.join(r['methods'])}{' (section ' + r['section'] + ')' if r.get('section') else ''} | `{r.get('command')}`"
+                         + (f", merged by `{r['merged_with']}`" if r.get("merged_with") else "") + " |")
         checks = [f"run {r['id']} at {k}: {v}" for r in runs for k, v in (r.get("merge_checks") or {}).items()]
         if checks:
             lines += ["", "Merge checks (same shots, frames and ground truth as the rows kept): " + "; ".join(checks) + "."]
@@ -886,7 +890,7 @@ def main(argv: list[str] | None = None) -> int:
         old = json.loads(origin.read_text())
         out = Path(opts.out) if opts.out else origin
         if opts.from_result:
-            result = _clean(merge(old, json.loads(Path(opts.from_result).read_text()), opts.section, origin))
+            result = _clean(merge(old, json.loads(Path(opts.from_result).read_text()), opts.section, origin, command("pareto", argv)))
         else:
             if _section(old, opts.section) is not None:
                 keys = [t.strip().lower() for t in opts.methods.split(",") if t.strip()]
