@@ -298,14 +298,20 @@ def same_plan(model: Any, shot: Any, m: Method, frames: int) -> bool:
     return key(r.plan(shot, s)) == key(r.plan(shot, dataclasses.replace(s, scheme="recursive")))
 
 
-def warm_up(model: Any, shot: Any, methods: list[Method]) -> None:
-    """One untimed render per network the methods use (first-call costs stay out of the first row)."""
+def warm_up(model: Any, shots: list, nframes: list[int], methods: list[Method]) -> None:
+    """Untimed renders of the frames the rows render, one per network and scheme the methods use (1 step): first-call
+    costs stay out of the rows, among them the diffusion engine's graphs, which are exported and compiled per window
+    size and window kind (`x2video.model.engine`: a 2-frame warm-up left a 3-, 4- or 5-frame window's to the first row)."""
     from x2video.sampling.renderer import Renderer
 
-    kinds = {(m.kind, m.sampler) for m in methods if m.kind in ("residual", "diffusion")}
-    for kind, sampler in sorted(kinds):
-        m = Method("warm", kind, sampler, 1) if kind == "diffusion" else Method("warm", kind)
-        render_timed(Renderer(model), shot, diffusion_settings(m, min(2, shot.num_frames)))
+    kinds = {(m.kind, m.sampler, m.scheme if m.kind == "diffusion" else "") for m in methods if m.kind in ("residual", "diffusion")}
+    firsts: dict[int, Any] = {}
+    for s, n in zip(shots, nframes):
+        firsts.setdefault(n, s)  # one shot per frame count: the windows depend on nothing else
+    for kind, sampler, scheme in sorted(kinds):
+        m = Method("warm", kind, sampler, 1, scheme) if kind == "diffusion" else Method("warm", kind)
+        for n, shot in firsts.items():
+            render_timed(Renderer(model), shot, diffusion_settings(m, n))
 
 
 # --------------------------------------------------------------------------------------------- the bench
@@ -385,9 +391,10 @@ def measure(opts: ParetoOptions, argv: list[str] | None, on_partial: Any = None)
         if cyc and why_no_cycles:
             unavailable += [{"method": m.key, "size": [w, h], "reason": why_no_cycles} for m in cyc]
         if model is not None:
-            warm_up(model, shots[0], methods)
+            warm_up(model, shots, nframes, methods)
         for m in methods:
             per_shot, secs_total, cpu_total, frames_total = [], 0.0, 0.0, 0
+            engine = None  # what ran the diffusion tier's networks (RenderSettings.engine 'auto' resolved)
             if m.kind == "cycles":
                 if why_no_cycles:
                     continue
@@ -411,6 +418,8 @@ def measure(opts: ParetoOptions, argv: list[str] | None, on_partial: Any = None)
                         renderer = Renderer(model)
                         c0 = time.process_time()
                         fr, sec = render_timed(renderer, s, diffusion_settings(m, n))
+                        if m.kind == "diffusion":
+                            engine = getattr(renderer, "engine", None)
                     outs.append((fr, sec, time.process_time() - c0, float(s.info.irradiance_scale)))
             for (fr, sec, cpu, scale), s, n, ref, gt in zip(outs, shots, nframes, refs, gts):
                 disp = display(fr, scale)
@@ -422,7 +431,7 @@ def measure(opts: ParetoOptions, argv: list[str] | None, on_partial: Any = None)
                 frames_total += n
             row = {"name": f"{m.label} {w}x{h}", "method": m.key, "label": m.label, "kind": m.kind, "family": m.family, "size": [w, h],
                    "sampler": m.sampler or None, "steps": m.steps or None, "scheme": m.scheme if m.kind == "diffusion" else None,
-                   "samples": m.samples or None, "wall_seconds_per_frame": secs_total / max(frames_total, 1),
+                   "samples": m.samples or None, "engine": engine, "wall_seconds_per_frame": secs_total / max(frames_total, 1),
                    "cpu_seconds_per_frame": cpu_total / max(frames_total, 1), "frames": frames_total,
                    **{k: _mean([p[k] for p in per_shot]) for k in ("psnr", "ssim", "tc", "psnr_dataset", "tc_dataset")},
                    "per_shot": per_shot}
@@ -523,7 +532,8 @@ def _run_record(res: dict, run_id: int, section: str, origin: Path | None = None
            "date": res.get("date"), "load_average_start": res.get("load_average_start"), "load_average_end": res.get("load_average_end"),
            "wall_seconds": res.get("wall_seconds"), "weights": res.get("weights"), "weights_sha256": res.get("weights_sha256"),
            "threads": res.get("threads"), "clock": res.get("clock"), "complete": res.get("complete", True), "machine": res.get("machine"),
-           "methods": list(dict.fromkeys(r["method"] for r in res.get("rows", [])))}
+           "methods": list(dict.fromkeys(r["method"] for r in res.get("rows", []))),
+           "engines": sorted({r["engine"] for r in res.get("rows", []) if r.get("engine")}) or None}
     if rec["date"] is None and origin is not None:
         rec["date"], rec["date_note"] = _commit_date(origin), f"not recorded by the run: the last commit date of {origin.name}"
     return rec
@@ -813,14 +823,15 @@ def markdown(result: dict) -> str:
              + ", ".join(f"at {k} the first {v} room(s), first {result['frames'][k]} frames" for k, v in result["rooms"].items())
              + (f". {result['wall_seconds'] / 60:.1f} min in all." if not runs else "."), ""]
     if runs:
-        lines += ["| run | date | commit | load average start → end | minutes | weights (residual.safetensors / unet.safetensors SHA-256) | rows | command |",
-                  "|---|---|---|---|---|---|---|---|"]
+        lines += ["| run | date | commit | load average start → end | minutes | weights (residual.safetensors / unet.safetensors SHA-256) | "
+                  "diffusion engine | rows | command |", "|---|---|---|---|---|---|---|---|---|"]
         for r in runs:
             w = r.get("weights_sha256") or {}
             la, lb = (r.get("load_average_start") or ["?"])[0], (r.get("load_average_end") or ["?"])[0]
             lines.append(f"| {r['id']} | {r.get('date') or '?'}{' (' + r['date_note'] + ')' if r.get('date_note') else ''} | "
                          f"{str(r.get('commit') or '?')[:10]} | {la} → {lb} | {(r.get('wall_seconds') or 0) / 60:.1f} | "
                          f"{w.get('residual.safetensors', 'not recorded')} / {w.get('unet.safetensors', 'not recorded')} | "
+                         f"{', '.join(r.get('engines') or []) or 'not recorded'} | "
                          f"{', '.join(r['methods'])}{' (section ' + r['section'] + ')' if r.get('section') else ''} | `{r.get('command')}`"
                          + (f", merged by `{r['merged_with']}`" if r.get("merged_with") else "") + " |")
         checks = [f"run {r['id']} at {k}: {v}" for r in runs for k, v in (r.get("merge_checks") or {}).items()]

@@ -198,3 +198,13 @@ def test_a_section_of_its_own_compares_the_schemes_and_leaves_the_main_rows(tmp_
         P.main(["--section", "x", "--data", str(tmp_path / "data")])
     pytest.importorskip("matplotlib")
     assert P.draw(res, tmp_path / "m.png").stat().st_size > 10_000
+
+
+def test_warm_up_renders_the_frames_and_schemes_the_rows_render(monkeypatch):
+    """The engine exports a graph per window size and kind: a warm-up of other frames leaves that to the first row."""
+    seen = []
+    monkeypatch.setattr(P, "render_timed", lambda r, shot, s: seen.append((shot, s.quality, s.sampler, s.scheme, s.steps, s.frames)))
+    a, b = object(), object()
+    P.warm_up(with_net(), [a, b], [8, 8], [P.parse_method(k) for k in ("formula", "residual", "lcm-2", "lcm-2-seq", "ddim-4", "ddim-20")])
+    assert sorted(seen, key=str) == sorted([(a, "residual", "ddim", "recursive", 20, (0, 8)), (a, "diffusion", "lcm", "recursive", 1, (0, 8)),
+                                            (a, "diffusion", "lcm", "sequential", 1, (0, 8)), (a, "diffusion", "ddim", "recursive", 1, (0, 8))], key=str)
