@@ -509,6 +509,8 @@ def summarise(rows: list[dict]) -> dict:
                 s[f"{key}_{clock}"] = a / b if a and b else None
         if c64 is not None:
             s["cycles64_psnr"] = c64["psnr"]
+        if any(r.get("run") is not None for r in (fast, ddim20, c64) if r):  # a merged result: which run timed each
+            s["runs"] = {k: (r or {}).get("run") for k, r in (("fastest", fast), ("ddim20", ddim20), ("cycles64", c64))}
         out[f"{size[0]}x{size[1]}"] = s
     return out
 
@@ -850,7 +852,10 @@ def markdown(result: dict) -> str:
                      f"wall s/frame): {sp(s['speedup_over_ddim20_cpu'])} faster than DDIM-20 and {sp(s['speedup_over_cycles64_cpu'])} faster "
                      f"than Cycles at 64 samples in CPU time ({sp(s['speedup_over_ddim20_wall'])} and {sp(s['speedup_over_cycles64_wall'])} "
                      "in wall time)"
-                     + (f"; Cycles at 64 samples scores {s['cycles64_psnr']:.2f} dB" if s.get("cycles64_psnr") is not None else "") + ".")
+                     + (f"; Cycles at 64 samples scores {s['cycles64_psnr']:.2f} dB" if s.get("cycles64_psnr") is not None else "")
+                     + (f" (timed in runs {s['runs']['fastest']}, {s['runs']['ddim20']} and {s['runs']['cycles64']} respectively: "
+                        "seconds of different runs compare only as well as their loads do)"
+                        if len({v for v in (s.get("runs") or {}).values() if v is not None}) > 1 else "") + ".")
     for name, sec in (result.get("sections") or {}).items():
         lines += ["", f"## {name}", "", f"Data: {', '.join(sec['data'])} ({sec['split']})."]
         for size, g in sec["ground_truth"].items():
