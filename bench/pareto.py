@@ -673,6 +673,9 @@ def merge(old: dict, new: dict, section: str = "", origin: Path | None = None, m
                 "wall_seconds"):
         if key in new:
             out[key] = new[key]  # the latest run's (each run's own: `runs`)
+    out["summary"] = summarise(out["rows"])  # derived: recomputed for every section (the code may have changed since)
+    for sec in (out.get("sections") or {}).values():
+        sec["summary"], sec["schemes"] = summarise(sec["rows"]), compare_schemes(sec["rows"])
     out["complete"] = bool(old.get("complete", True)) and bool(new.get("complete", True))
     out["runs"] = runs
     return out
