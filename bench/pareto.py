@@ -673,6 +673,8 @@ def merge(old: dict, new: dict, section: str = "", origin: Path | None = None, m
                 "wall_seconds"):
         if key in new:
             out[key] = new[key]  # the latest run's (each run's own: `runs`)
+    if merged_with:
+        out["command"] = merged_with  # what wrote this file
     out["summary"] = summarise(out["rows"])  # derived: recomputed for every section (the code may have changed since)
     for sec in (out.get("sections") or {}).values():
         sec["summary"], sec["schemes"] = summarise(sec["rows"]), compare_schemes(sec["rows"])

@@ -188,7 +188,7 @@ def test_a_section_of_its_own_compares_the_schemes_and_leaves_the_main_rows(tmp_
     assert P.main(["--merge", str(old), "--section", "long shot", "--from-result", str(long), "--out", str(tmp_path / "m.json"), "--no-png"]) == 0
     res = json.loads((tmp_path / "m.json").read_text())
     assert [r["method"] for r in res["rows"]] == ["formula", "residual"] and all(r["run"] == 1 for r in res["rows"])
-    assert "--from-result" in res["runs"][1]["merged_with"] and "--out" in res["runs"][1]["command"]
+    assert "--from-result" in res["runs"][1]["merged_with"] == res["command"] and "--out" in res["runs"][1]["command"]
     sec = res["sections"]["long shot"]
     assert {r["method"] for r in sec["rows"]} == {"ddim-1", "ddim-1-seq"} and sec["ground_truth"]["48x32"]["frames"] == [7]
     (c,) = sec["schemes"]
