@@ -716,6 +716,14 @@ def _gt_line(ground_truth: dict) -> str:
                      + (" (own noise seed)" if v["kind"] == "bench reference" else "") for k, v in ground_truth.items())
 
 
+def _shots_text(g: dict) -> str:
+    """'room_00007, room_00015 (8 frames each)' from a section's ground-truth entry."""
+    shots, frames = g.get("shots", []), g.get("frames", [])
+    if len(set(frames)) == 1:
+        return f"{', '.join(shots)} ({frames[0]} frames{' each' if len(shots) > 1 else ''})"
+    return ", ".join(f"{s} ({n} frames)" for s, n in zip(shots, frames))
+
+
 def _main_run(rows: list[dict]) -> Any:
     """The run that measured most of these rows (the others are tagged on the chart)."""
     runs = [r.get("run") for r in rows]
@@ -780,7 +788,7 @@ def draw(result: dict, path: Path) -> Path:
     handles, labels = axes[0][0].get_legend_handles_labels()
     for i, (name, sec, srows) in enumerate(sections, start=1):
         _panels(axes[i], srows, result.get("clock"))
-        shots = "; ".join(f"{k}: {', '.join(g.get('shots', []))} ({', '.join(map(str, g.get('frames', [])))} frames), ground truth "
+        shots = "; ".join(f"{k}: {_shots_text(g)}, ground truth "
                           f"{'Cycles' if g['kind'] == 'bench reference' else 'the data set'} at {g['samples']} spp + OIDN"
                           for k, g in sec["ground_truth"].items())
         axes[i][0].set_title(f"{name}: {shots}", fontsize=8, loc="left")
@@ -864,7 +872,7 @@ def markdown(result: dict) -> str:
     for name, sec in (result.get("sections") or {}).items():
         lines += ["", f"## {name}", "", f"Data: {', '.join(sec['data'])} ({sec['split']})."]
         for size, g in sec["ground_truth"].items():
-            lines.append(f"At {size}: {', '.join(g.get('shots', []))}, {', '.join(map(str, g.get('frames', [])))} frames; ground truth: {g['note']}.")
+            lines.append(f"At {size}: {_shots_text(g)}; ground truth: {g['note']}.")
         lines += [""] + _table(sec["rows"], bool(runs)) + _unavailable(sec)
         if sec.get("schemes"):
             f = lambda v, d: "—" if v is None else f"{v:.{d}f}"  # noqa: E731
