@@ -101,7 +101,9 @@ def test_pareto_chart_marks_the_current_setting_at_the_nearest_size(tmp_path, qt
             (("formula", "formula (tier 0)", "formula", 0.002, 23.5), ("ddim-4", "DDIM-4", "ddim-recursive", 1.5, 22.0),
              ("lcm-2", "LCM-2", "lcm-recursive", 0.5 * size[0] / 160, 21.0), ("cycles-64", "Cycles 64 spp + OIDN", "cycles", 20.0, 35.0))]
     path = tmp_path / "pareto.json"
-    path.write_text(json.dumps({"format": "x2video-pareto", "rows": rows}))
+    seq = {"method": "lcm-2-seq", "label": "LCM-2 sequential", "family": "lcm-sequential", "size": [160, 112], "seconds_per_frame": 0.45,
+           "psnr": 24.59}
+    path.write_text(json.dumps({"format": "x2video-pareto", "rows": rows, "sections": {"long shot": {"rows": [seq]}}}))
     c = Charts(tmp_path, pareto=path)
     qtbot.addWidget(c)
     assert "4 settings" in c.bench_note.text()
@@ -109,6 +111,9 @@ def test_pareto_chart_marks_the_current_setting_at_the_nearest_size(tmp_path, qt
     assert mark is not None and mark["size"] == [320, 224] and mark["seconds_per_frame"] == 1.0 and c.marked is mark
     assert "LCM-2" in c.bench_note.text() and "320x224" in c.bench_note.text()
     assert c.mark_setting("ddim-7", (160, 112)) is None and "not among the measured" in c.bench_note.text()
+    assert c.mark_setting(pareto_key("diffusion", RenderSettings(sampler="lcm", steps=2, scheme="sequential")), (160, 112)) is None
+    assert "section 'long shot'" in c.bench_note.text() and "24.59 dB" in c.bench_note.text()
+    assert c.mark_setting("lcm-2-seq", (320, 224)) is None and "not among the measured" in c.bench_note.text()  # not at that size
     assert c.mark_setting(pareto_key("formula", RenderSettings()), (160, 112))["psnr"] == 23.5
     assert Charts(tmp_path, pareto=tmp_path / "missing.json").pareto is None  # falls back to the bench points
 

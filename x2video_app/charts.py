@@ -55,6 +55,16 @@ def load_pareto(path: Path | None = None) -> dict | None:
     return None
 
 
+def section_row(data: dict, key: str, size: tuple[int, int]) -> tuple[str, dict] | None:
+    """(section name, row) of method `key` at `size` among the sections of a bench.pareto result (`--section`: rows
+    of other shots, e.g. recursive against sequential sampling on a shot longer than a window), or None."""
+    for name, sec in (data.get("sections") or {}).items():
+        for r in sec.get("rows") or []:
+            if r.get("method") == key and tuple(r.get("size", ())) == tuple(size) and r.get("psnr") is not None:
+                return name, r
+    return None
+
+
 def find_bench_points(obj: Any, source: str = "") -> list[tuple[str, float, float]]:
     """Every dict inside a bench results JSON that has a seconds-per-frame and a PSNR field.
 
@@ -214,7 +224,13 @@ class Charts(QWidget):
             self.bench_note.setText(f"This render: {mark['label']}, measured {mark['seconds_per_frame']:.3g} s/frame and "
                                     f"{mark['psnr']:.2f} dB PSNR on path-traced rooms at {where}.")
         elif key is not None:
-            self.bench_note.setText(f"This render ({key}) is not among the measured settings ({where}).")
+            other = section_row(data, key, at)
+            if other is not None:  # e.g. sequential sampling, measured on a longer shot in a section of its own
+                name, r = other
+                self.bench_note.setText(f"This render ({r['label']}) is charted in section '{name}' of {data.get('_path', 'docs/pareto.json')} "
+                                        f"(another shot): {r['seconds_per_frame']:.3g} s/frame, {r['psnr']:.2f} dB PSNR at {at[0]}x{at[1]}.")
+            else:
+                self.bench_note.setText(f"This render ({key}) is not among the measured settings ({where}).")
         else:
             self.bench_note.setText(f"{len(rows)} settings measured on path-traced rooms at {where}.")
         return mark
