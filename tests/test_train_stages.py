@@ -414,14 +414,13 @@ def test_cache_from_a_model_folder_keeps_its_latent_scales(runs, tmp_path):
     assert all(v == 1.0 for v in vcfg.latent_scales.values())  # the VAE run's: measured by the first cache
 
 
-def test_batch_workers_draw_valid_distinct_batches(runs):
-    """--workers: batches drawn in forked DataLoader workers are the same kind of batch as in-process
-    ones, workers draw different samples, and workers=0 keeps the in-process sequence reproducible."""
+def check_batch_workers(root: str) -> None:
+    """The body of `test_batch_workers_draw_valid_distinct_batches`, run in a fresh interpreter."""
     from x2video.model.checkpoint import read_config
     from x2video.train.batches import AugmentConfig, LatentData, WindowConfig, video_batches
 
-    cfg = read_config(runs["root"] / "cache" / "model")
-    data = LatentData(runs["root"] / "cache", "train", cfg.latent_scales, shading_prior=True)
+    cfg = read_config(Path(root) / "cache" / "model")
+    data = LatentData(Path(root) / "cache", "train", cfg.latent_scales, shading_prior=True)
     wc, aug = WindowConfig(frames=3, levels=2), AugmentConfig()
     inproc = video_batches(data, 2, aug, wc, seed=3, workers=0)
     a, b = next(inproc(0)), next(inproc(0))
@@ -439,6 +438,23 @@ def test_batch_workers_draw_valid_distinct_batches(runs):
             assert g.ref.shape == g.x0.shape
     # the two workers alternate; their seeds differ, so their first batches differ
     assert not (got[0].x0.shape == got[1].x0.shape and torch.equal(got[0].x0, got[1].x0))
+
+
+def test_batch_workers_draw_valid_distinct_batches(runs):
+    """--workers: batches drawn in forked DataLoader workers are the same kind of batch as in-process
+    ones, workers draw different samples, and workers=0 keeps the in-process sequence reproducible.
+
+    Run in a fresh interpreter, as `x2video train` runs: in this test process, after the OpenVINO engine
+    tests (test_engine.py), forking the workers crashed the whole process (SIGSEGV) under pytest's output
+    capture; a script that renders with OpenVINO and then forks DataLoader workers runs fine, so the crash
+    is the test process's state, not the trainer's."""
+    import subprocess
+    import sys
+
+    here = str(Path(__file__).resolve().parent)
+    code = f"import sys; sys.path.insert(0, {here!r}); import test_train_stages as t; t.check_batch_workers({str(runs['root'])!r})"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
 
 
 def test_window_noise_shares_the_fraction_within_windows_only():
