@@ -424,7 +424,7 @@ def write_report(out: dict, md: Path, figs: Path) -> None:
                                       "not involve the tier-1 net, so its cells stay valid when only the tier-1 weights change"
                                       if " ; " in out["command"] else "")
         + "; peak RSS is the whole process's (the loaded model is most of it), and after a 1920x1080 tier-1 frame the "
-        "process keeps about 2 GB more (not returned by malloc_trim; likely ONNX Runtime's memory arena), "
+        "process keeps about 2 GB more (ONNX Runtime's memory arena, switched off since these runs: 0.3 GB stays after such a frame now), "
         "which is why the size family runs last: read the bracketed "
         "number (above the cell's start) there.",
         "",
