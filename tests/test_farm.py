@@ -4,6 +4,7 @@ bit for bit: both run torch on one thread), and a worker killed mid-render is re
 rendered again."""
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -13,6 +14,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Callable, Iterator
 
 import numpy as np
 import pytest
@@ -200,6 +202,31 @@ def _settings() -> RenderSettings:
 
 @pytest.mark.slow
 @pytest.mark.timeout(900)
+@contextlib.contextmanager
+def kill_when(victim: Callable[[], dict | None], interval: float) -> Iterator[dict]:
+    """While the body runs, a thread polls `victim` every `interval` seconds; the first record it returns (a task's
+    status, with the worker's 'pid') is SIGKILLed, once, and copied into the dict this yields."""
+    killed: dict = {}
+    stop = threading.Event()
+
+    def loop() -> None:
+        while not stop.is_set():
+            rec = victim()
+            if rec:
+                killed.update(rec)
+                os.kill(rec["pid"], signal.SIGKILL)
+                return
+            time.sleep(interval)
+
+    thread = threading.Thread(target=loop, daemon=True)
+    thread.start()
+    try:
+        yield killed
+    finally:
+        stop.set()
+        thread.join(5)
+
+
 def test_farm_frames_equal_a_single_process_render(cluster, shots, tmp_path):
     out = tmp_path / "out"
     lines: list[str] = []
@@ -217,31 +244,21 @@ def test_farm_frames_equal_a_single_process_render(cluster, shots, tmp_path):
 def test_killed_worker_is_retried_and_nothing_finished_is_redone(cluster, shots, tmp_path):
     """One task per shot (--no-split): the shot whose worker is killed starts over, the others are not touched."""
     out = tmp_path / "out"
-    killed: dict = {}
     finished_at_kill: dict[str, tuple] = {}
-    stop = threading.Event()
 
-    def killer() -> None:  # kill the worker that renders c once its keyframes exist (mid-render)
-        while not stop.is_set():
-            s = state.read_status(out, "c")
-            if s.get("state") == "running" and (s.get("frames_done") or 0) > 0:
-                for name in "ab":
-                    m = state.marker_path(out, name)
-                    if m.exists():
-                        finished_at_kill[name] = (m.stat().st_mtime_ns, m.read_bytes())
-                killed.update(s)
-                os.kill(s["pid"], signal.SIGKILL)
-                return
-            time.sleep(0.02)
+    def victim() -> dict | None:  # the worker that renders c once its keyframes exist (mid-render)
+        s = state.read_status(out, "c")
+        if s.get("state") == "running" and (s.get("frames_done") or 0) > 0:
+            for name in "ab":
+                m = state.marker_path(out, name)
+                if m.exists():
+                    finished_at_kill[name] = (m.stat().st_mtime_ns, m.read_bytes())
+            return s
+        return None
 
-    thread = threading.Thread(target=killer, daemon=True)
-    thread.start()
-    try:
+    with kill_when(victim, 0.02) as killed:
         result = run_farm(find_jobs([shots / "shots"]), out, _settings(), ModelOptions(), retries=2, split=False, write=lambda s: None,
                           poll_seconds=0.1)
-    finally:
-        stop.set()
-        thread.join(5)
     assert killed, "the killer never saw shot c running with frames"
     assert 0 < killed["frames_done"] < 17
     assert result.ok and sorted(result.done) == ["a", "b", "c"], result.failed
@@ -370,31 +387,21 @@ def test_killed_chunk_worker_is_retried_and_finished_chunks_are_not_redone(clust
     shot = make_shot(tmp_path / "shots" / "big", 48, 11, (112, 160))  # tier 1 at 160x112: a chunk of 12 frames takes about a second
     _one_thread_render(shot, tmp_path / "ref", *AUTO)
     out = tmp_path / "out"
-    killed: dict = {}
     done_at_kill: dict[str, int] = {}
-    stop = threading.Event()
 
-    def killer() -> None:  # kill the worker of a chunk that has written frames but is not done
-        while not stop.is_set():
-            for p in sorted(chunks.tasks_dir(out, "big").glob("0*.json")):
-                rec = chunks.read_task(out, "big", p.stem)
-                if not rec.get("done") and (rec.get("frames_done") or 0) > 0:
-                    for f in (out / ".farm" / "big.frames").glob("*.exr"):
-                        done_at_kill[f.name] = f.stat().st_mtime_ns
-                    done_tasks = [q.stem for q in chunks.tasks_dir(out, "big").glob("0*.json") if chunks.read_task(out, "big", q.stem).get("done")]
-                    killed.update(rec, task=p.stem, done_tasks=done_tasks)
-                    os.kill(rec["pid"], signal.SIGKILL)
-                    return
-            time.sleep(0.01)
+    def victim() -> dict | None:  # the worker of a chunk that has written frames but is not done
+        for p in sorted(chunks.tasks_dir(out, "big").glob("0*.json")):
+            rec = chunks.read_task(out, "big", p.stem)
+            if not rec.get("done") and (rec.get("frames_done") or 0) > 0:
+                for f in (out / ".farm" / "big.frames").glob("*.exr"):
+                    done_at_kill[f.name] = f.stat().st_mtime_ns
+                done_tasks = [q.stem for q in chunks.tasks_dir(out, "big").glob("0*.json") if chunks.read_task(out, "big", q.stem).get("done")]
+                return {**rec, "task": p.stem, "done_tasks": done_tasks}
+        return None
 
-    thread = threading.Thread(target=killer, daemon=True)
-    thread.start()
-    try:
+    with kill_when(victim, 0.01) as killed:
         result = run_farm(find_jobs([tmp_path / "shots"]), out, RenderSettings(quality="auto", seed=5), ModelOptions(), chunk_frames=12,
                           retries=2, write=lambda s: None, poll_seconds=0.05)
-    finally:
-        stop.set()
-        thread.join(5)
     assert killed, "the killer never saw a chunk running with frames"
     assert result.ok and sorted(result.done) == ["big"], result.failed
     starts = state.read_status(out, "big")["task_starts"]
@@ -465,27 +472,17 @@ def test_killed_window_worker_is_retried_and_finished_windows_are_not_redone(clu
 
     settings, options = _tiny()
     out = tmp_path / "out"
-    killed: dict = {}
-    stop = threading.Event()
 
-    def killer() -> None:  # once the keyframe window is done, kill the worker of the next window that starts
-        while not stop.is_set():
-            if chunks.read_task(out, "rec", "w0000").get("done"):
-                for p in sorted(chunks.tasks_dir(out, "rec").glob("w*.json")):
-                    rec = chunks.read_task(out, "rec", p.stem)
-                    if rec.get("starts") and not rec.get("done"):
-                        killed.update(rec, task=p.stem)
-                        os.kill(rec["pid"], signal.SIGKILL)
-                        return
-            time.sleep(0.005)
+    def victim() -> dict | None:  # once the keyframe window is done, the worker of the next window that starts
+        if chunks.read_task(out, "rec", "w0000").get("done"):
+            for p in sorted(chunks.tasks_dir(out, "rec").glob("w*.json")):
+                rec = chunks.read_task(out, "rec", p.stem)
+                if rec.get("starts") and not rec.get("done"):
+                    return {**rec, "task": p.stem}
+        return None
 
-    thread = threading.Thread(target=killer, daemon=True)
-    thread.start()
-    try:
+    with kill_when(victim, 0.005) as killed:
         result = run_farm(find_jobs([recursive_shot / "shots"]), out, settings, options, retries=2, write=lambda s: None, poll_seconds=0.05)
-    finally:
-        stop.set()
-        thread.join(5)
     assert killed, "the killer never saw a window running"
     assert result.ok, result.failed
     starts = state.read_status(out, "rec")["task_starts"]

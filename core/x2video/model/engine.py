@@ -57,6 +57,23 @@ class EngineError(RuntimeError):
     """A part could not be exported or compiled for the chosen engine (the message says which and why)."""
 
 
+def ort_session(model: str | bytes, threads: int) -> Any:
+    """An ONNX Runtime CPU session for our graphs (the diffusion tier's here, the tier-1 net's in
+    `x2video.model.residual`): `threads` intra-op threads, no inter-op pool, quiet, and no memory arena or
+    pattern: with them a fast-preset render of 33 frames at 320x224 peaked at 3.6 GB (each graph's arena kept its
+    largest batch; 1.7 GB without, 16 % more time) and a 1920x1080 tier-1 frame left the process 0.8 GB larger for
+    good (0.3 GB without, about 9 % more time at that size) on the 2-core VM."""
+    import onnxruntime as ort
+
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = threads
+    so.inter_op_num_threads = 1
+    so.log_severity_level = 3
+    so.enable_cpu_mem_arena = False
+    so.enable_mem_pattern = False
+    return ort.InferenceSession(model, so, providers=["CPUExecutionProvider"])
+
+
 def cache_dir() -> Path:
     """Where exported graphs and compiled blobs live: $XDG_CACHE_HOME/x2video/engine (default ~/.cache)."""
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
@@ -117,17 +134,7 @@ class _Graph:
     def __init__(self, runtime: str, path: Path, threads: int) -> None:
         self.runtime = runtime
         if runtime == "onnx":
-            import onnxruntime as ort
-
-            so = ort.SessionOptions()
-            so.intra_op_num_threads = threads
-            so.inter_op_num_threads = 1
-            so.log_severity_level = 3
-            # no memory arena or pattern: with them a fast-preset render of 33 frames at 320x224 peaked at 3.6 GB
-            # (each graph's arena kept its largest batch); without, 1.7 GB, for 16 % more time (2-core VM)
-            so.enable_cpu_mem_arena = False
-            so.enable_mem_pattern = False
-            self._sess = ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+            self._sess = ort_session(str(path), threads)
             self.inputs = [i.name for i in self._sess.get_inputs()]
         else:
             import openvino as ov

@@ -350,16 +350,9 @@ class OnnxResidual:
         self._tile_session = self._bottom_session = None  # made on the first tiled frame (`apply_tiled`)
 
     def _session(self, model: bytes):
-        import onnxruntime as ort
+        from x2video.model.engine import ort_session
 
-        so = ort.SessionOptions()
-        so.intra_op_num_threads = self._threads
-        so.log_severity_level = 3
-        # no memory arena: with it a 1920x1080 frame left the process 0.8 GB larger for good (1.73 GB peak);
-        # without, 1.41 GB peak and 0.3 GB kept, for about 9 % more time at that size and none at 320x224
-        so.enable_cpu_mem_arena = False
-        so.enable_mem_pattern = False
-        return ort.InferenceSession(model, so, providers=["CPUExecutionProvider"])
+        return ort_session(model, self._threads)
 
     def _export(self, module: nn.Module, inputs: tuple, names: list[str], output: str) -> bytes:
         import io

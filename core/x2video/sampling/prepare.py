@@ -20,7 +20,6 @@ import torch
 
 from x2video.conditioning import FrameConditioning
 from x2video.model.api import WindowInputs
-from x2video.sampling import tiers
 from x2video.sampling.cache import conditioning_key
 from x2video.sampling.events import CancelToken, RenderSettings
 
@@ -38,7 +37,7 @@ def prepare(renderer: "Renderer", shot: "Shot", settings: RenderSettings, edits:
     from x2video.sampling.renderer import pad_amounts, pad_conditioning, plain_conditioning
 
     model = renderer.model
-    choice = tiers.decide(settings.quality, shot, edits, model)
+    choice = renderer.choose_tier(shot, edits, settings)
     if choice.tier != "diffusion":
         return 0
     t0 = time.perf_counter()
