@@ -15,8 +15,8 @@ compared with PyTorch's (max abs difference in linear RGB).
     python -m bench.render [--frames 17] [--size 320x224] [--engines torch,auto] [--device cpu|cuda] [--fp16] [--threads N]
     python -m bench.render --preset fast --frames 1000 [--quality diffusion|residual|formula] [--disk]
 
---preset renders that one preset (recursive) once, cold, and records peak RSS (getrusage): the 1,000-frame
-memory check of issue 31. --disk writes the synthetic shot as an EXR shot folder first and renders from it
+--preset renders that one preset (recursive) once, cold, as `x2video render` does (the Renderer keeps no
+conditioning for a re-render), and records peak RSS (getrusage): the 1,000-frame memory check of issue 31. --disk writes the synthetic shot as an EXR shot folder first and renders from it
 (lazy reads), and every mode writes the frames through a `FrameSink` into a temporary EXR folder, so read and
 write are real I/O.
 
@@ -243,8 +243,9 @@ def main(argv: list[str] | None = None) -> None:
         shot = load_shot(write_shot_folder(shot, Path(tmp.name) / "shot"))
     sink_dir = Path(tmp.name) / "out"
     engines = [e.strip() for e in args.engines.split(",") if e.strip()]
-    ddim = Renderer(base)
-    renderers = {"ddim": ddim, "lcm": Renderer(lcm, cache=ddim.cache)}  # same VAE: one conditioning cache
+    # --preset renders as `x2video render` does: nothing retained for a re-render (Renderer retain=False)
+    ddim = Renderer(base, retain=args.preset is None)
+    renderers = {"ddim": ddim, "lcm": Renderer(lcm, cache=ddim.cache, retain=args.preset is None)}  # same VAE: one conditioning cache
     load_before = os.getloadavg()
     results = []
     if args.preset:

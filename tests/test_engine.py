@@ -91,6 +91,27 @@ def test_unet_variants_differ(model: X2VideoModel, runtime: str) -> None:
     assert float((va - vb).abs().max()) > 1e-3
 
 
+@pytest.mark.parametrize("runtime", RUNTIMES[-1:])  # the release does not depend on the runtime: auto's (OpenVINO when installed)
+def test_unet_graphs_beyond_the_cap_are_released_least_recently_used_first(model: X2VideoModel, runtime: str) -> None:
+    """A long shot's levels each bring UNet variants; the engine keeps `max_unet_graphs` of them and builds a released
+    one again, with the same output, when it comes back."""
+    parts = eng.CompiledParts(model, runtime, max_unet_graphs=2)
+    calls = [_window(model, 5, "interp", (0, 4), level) for level in (1, 2, 3)]
+    first = parts.unet(calls[0][0], torch.tensor(400), calls[0][1], lcm=False)
+    parts.unet(calls[1][0], torch.tensor(400), calls[1][1], lcm=False)
+    parts.unet(calls[0][0], torch.tensor(400), calls[0][1], lcm=False)  # level 1 used again: level 2 is now the oldest
+    parts.unet(calls[2][0], torch.tensor(400), calls[2][1], lcm=False)
+    held = parts.unet_graphs()
+    assert len(held) == 2 and parts.released == 1
+    assert [v[1] for v in held] == ["interp1", "interp3"]
+    parts.unet(calls[1][0], torch.tensor(400), calls[1][1], lcm=False)  # built again from the disk cache
+    assert [v[1] for v in parts.unet_graphs()] == ["interp3", "interp2"] and parts.released == 2
+    again = parts.unet(calls[0][0], torch.tensor(400), calls[0][1], lcm=False)
+    assert torch.equal(first, again)
+    with pytest.raises(ValueError, match="max_unet_graphs"):
+        eng.CompiledParts(model, runtime, max_unet_graphs=0)
+
+
 @pytest.mark.parametrize("runtime", RUNTIMES)
 @pytest.mark.parametrize("distilled", [False, True])
 def test_decoder_and_encoder_parity(runtime: str, distilled: bool) -> None:

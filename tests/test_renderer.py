@@ -107,6 +107,28 @@ def test_conditioning_encoded_once_per_frame_and_cached_across_renders() -> None
     assert other.model.encoded_frames == 17
 
 
+def test_a_renderer_that_does_not_retain_drops_each_frame_after_its_last_window() -> None:
+    """`retain=False` (the CLI, farm workers): the same frames, each encoded once, and nothing left in the cache;
+    during the render it holds no more than the frames still ahead."""
+    shot = make_shot(33)
+    kept, dropped = Renderer(FakeModel()), Renderer(FakeModel(), retain=False)
+    held: list[int] = []
+
+    def watch(e) -> None:
+        if isinstance(e, FramesReady) and e.window_done:
+            held.append(dropped.cache_stats().entries)
+
+    def last(events: list) -> dict[int, np.ndarray]:  # the seam pass makes some frames twice: the later one counts
+        return {f: img for e in events if isinstance(e, FramesReady) for f, img in e.frames.items()}
+
+    a = last(run(kept, shot, RenderSettings(steps=1, window=5)))
+    b = last(run(dropped, shot, RenderSettings(steps=1, window=5), extra=watch))
+    assert a.keys() == b.keys() and all(np.array_equal(a[f], b[f]) for f in a)
+    assert kept.model.encoded_frames == dropped.model.encoded_frames == 33  # nothing dropped too early
+    assert kept.cache_stats().entries == 33 and dropped.cache_stats().entries == 0
+    assert max(held) < 33
+
+
 def test_interpolation_windows_read_the_produced_end_latents() -> None:
     shot = make_shot(17)
     model = FakeModel()

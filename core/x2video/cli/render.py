@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
                                     + "; or pass --weights DIR, or add --untrained for a smoke render with random weights")
         model = load_model(**dataclasses.asdict(options))
         resolved = select_steps(settings, model)
-        render, steps_label, steps = Renderer(model).render, f"{resolved.sampler}-{resolved.steps}", resolved.steps
+        render, steps_label, steps = Renderer(model, retain=False).render, f"{resolved.sampler}-{resolved.steps}", resolved.steps
     t0 = time.perf_counter()
     bar = tqdm(unit="step", desc=f"render {steps_label}", dynamic_ncols=True)
     with FrameSink(args.out, fps=args.fps or shot.info.fps, expected=list(range(start, stop)), units=units) as sink:

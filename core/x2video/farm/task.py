@@ -115,7 +115,7 @@ def render_chunk(job: Job, out: Path, settings: Any, options: Any, fmt: state.Ou
 
         formula_frames(shot, edits, sub, on_event=staged, base_dir=base_dir)
     else:
-        x2video.Renderer(_model(options)).render(shot, edits, sub, on_event=staged, base_dir=base_dir)
+        x2video.Renderer(_model(options), retain=False).render(shot, edits, sub, on_event=staged, base_dir=base_dir)
     if staged.written != set(range(a, b)):
         raise RuntimeError(f"{job.source}: the render of frames [{a}, {b}) made frames {sorted(staged.written)[:10]}...")
     seconds = time.perf_counter() - t0
@@ -144,7 +144,7 @@ def render_window(job: Job, out: Path, settings: Any, options: Any, fmt: state.O
     refs = {int(f): torch.from_numpy(np.asarray(produced[k]["latents"][f])) for f, k in ref_from.items()}
     staged = chunks.StagedFrames(out, job.name, fmt, OutputUnits.for_shot(shot, settings.exposure), keep=set(keep),
                                  progress=lambda n: chunks.update_task(out, job.name, task, frames_done=n))
-    made = x2video.Renderer(_model(options)).render_windows(shot, edits, settings, [index], refs, on_event=staged, base_dir=base_dir)[index]
+    made = x2video.Renderer(_model(options), retain=False).render_windows(shot, edits, settings, [index], refs, on_event=staged, base_dir=base_dir)[index]
     if staged.written != set(keep):
         raise RuntimeError(f"{job.source}: window {index} made frames {sorted(staged.written)}, expected {sorted(keep)}")
     latents = {f: v.float().cpu().numpy() for f, v in made.items()}
@@ -199,7 +199,7 @@ def render_job(job: Job, out: Path, settings: Any, options: Any, fmt: state.Outp
         if settings.quality == "formula":  # no network, no weights (as `x2video render --quality formula`)
             from x2video.sampling.formula import formula_frames as render
         else:
-            render = x2video.Renderer(_model(options)).render
+            render = x2video.Renderer(_model(options), retain=False).render
         target = state.output_path(out, job.name, fmt)
         units = OutputUnits.for_shot(shot, settings.exposure)
         frames: set[int] = set()

@@ -4,7 +4,10 @@ The key hashes what `encode_frames` reads from a `FrameConditioning` — the fiv
 channels (or their absence) and the A|M|R union mask — plus `model.content_key()`. Local
 prompt masks, prompts and the frame index are not part of it: they do not enter the
 conditioning latents, so a re-render after a prompt-only change re-encodes nothing.
-Thread-safe; least recently used entries are evicted beyond `max_bytes`.
+Thread-safe; least recently used entries are evicted beyond `max_bytes`. A Renderer made with
+`retain=False` (the CLI, farm workers: one render each) drops a frame's entries after the last window
+that reads them, so a long shot holds only the frames still ahead (issue 31: 0.8 MB a frame at 320x224,
+the conditioning latents and the half-precision detail).
 """
 from __future__ import annotations
 
@@ -82,6 +85,15 @@ class ConditioningCache:
             while self._bytes > self.max_bytes and len(self._items) > 1:
                 _, dropped = self._items.popitem(last=False)
                 self._bytes -= dropped.numel() * dropped.element_size()
+
+    def discard(self, keys: "list[str]") -> None:
+        """Drop `keys` (absent ones are ignored): a render that keeps nothing for re-renders
+        (`Renderer(retain=False)`) drops each frame's entries after their last use."""
+        with self._lock:
+            for key in keys:
+                old = self._items.pop(key, None)
+                if old is not None:
+                    self._bytes -= old.numel() * old.element_size()
 
     def stats(self) -> CacheStats:
         with self._lock:

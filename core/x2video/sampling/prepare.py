@@ -80,12 +80,14 @@ def prepare(renderer: "Renderer", shot: "Shot", settings: RenderSettings, edits:
 def warm_engine(renderer: "Renderer", windows: Sequence[Any], settings: RenderSettings, latent_size: tuple[int, int],
                 text: torch.Tensor | None = None, cancel: CancelToken | None = None) -> int:
     """Build (export or read from the disk cache, compile) and run once on zeros the engine's graph of every UNet
-    variant `windows` use, and the decoder's, so no render call pays for them; nothing for PyTorch. Returns the
-    variants built. `settings` must be validated (`Renderer._validate`: the sampler resolved)."""
+    variant `windows` use, in plan order and as many as the engine keeps at once (`engine.UNET_GRAPHS`: a long
+    shot's later levels come back from the blob cache when reached), and the decoder's, so no render call pays
+    for them; nothing for PyTorch. Returns the variants built. `settings` must be validated
+    (`Renderer._validate`: the sampler resolved)."""
     model = renderer.model
     if renderer.engine == "torch":
         return 0
-    from x2video.model.engine import unet_variant
+    from x2video.model.engine import UNET_GRAPHS, unet_variant
 
     lcm = settings.sampler == "lcm"
     h, w = latent_size
@@ -99,7 +101,7 @@ def warm_engine(renderer: "Renderer", windows: Sequence[Any], settings: RenderSe
             variant = unet_variant(window.mode, window.level, window.ref_positions, n, model.config.hybrid.interp_levels)
             if variant in seen:
                 continue
-            if cancel is not None and cancel.cancelled:
+            if len(seen) == UNET_GRAPHS or (cancel is not None and cancel.cancelled):
                 break
             seen.add(variant)
             z = torch.zeros(n, model.latent_channels, h, w, device=model.device, dtype=model.dtype)  # (n, 4, h, w)

@@ -3,7 +3,8 @@
 Paper Sec. Recursive Sampling (keyframes, then interpolation levels) and Sec. Acceleration
 (reference frame, LCM-2). Per render: edits applied frame by frame, prompts encoded once,
 each frame's conditioning encoded once through a content-keyed cache that outlives the
-render (a prompt-only re-render re-encodes nothing), initial noise seeded per window, and
+render (a prompt-only re-render re-encodes nothing; `retain=False` for one-off renders drops
+each frame's entries after its last window), initial noise seeded per window, and
 only the latents that later windows read as references are kept; decoded frames leave
 through `FramesReady` events and are not held. No global state: one Renderer per thread,
 or one shared Renderer driven from one thread at a time.
@@ -190,9 +191,14 @@ _NO_TIMES = NoTimes()
 class Renderer:
     """Drives a `RenderModel` over a shot; see the module docstring."""
 
-    def __init__(self, model: RenderModel, *, cache: ConditioningCache | None = None) -> None:
+    def __init__(self, model: RenderModel, *, cache: ConditioningCache | None = None, retain: bool = True) -> None:
         self.model = model
         self.cache = cache if cache is not None else ConditioningCache()
+        #: True: each frame's conditioning latents and detail stay in `cache` after the render, so a re-render
+        #: re-encodes nothing (the editor). False: they leave the cache after the last window that reads them
+        #: (the CLI and farm workers, which render once): a 1,000-frame shot at 320x224 then holds the frames still
+        #: ahead instead of 0.8 GB (issue 31).
+        self.retain = retain
         #: wall seconds spent encoding conditioning (channel latents) in the last render; 0 when
         #: the cache held every frame (the editor's re-render). Benchmarks split time with it.
         self.encode_seconds = 0.0
@@ -383,6 +389,7 @@ class Renderer:
                                tier=choice.tier, reason=choice.reason))
             latents: dict[int, torch.Tensor] = {}  # frame -> (4, h, w), only while a later window reads it
             self.peak_latents = 0
+            cond_until = {f: i for i, w in enumerate(windows) for f in w.frames}  # frame -> last window encoding it
             for index, window in enumerate(windows):
                 x0 = self._window(run, index, latents, cancel, done)
                 for pos, f in zip(window.generate_positions, window.generate):
@@ -393,6 +400,8 @@ class Renderer:
                     if keep_until.get(f) == index:
                         latents.pop(f, None)
                 run.decode(index, x0, done)
+                if not self.retain:
+                    self._release(run, cond_until, index)
         emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))
 
     def _diffusion(self, shot: Shot, settings: RenderSettings, choice: tiers.TierChoice, conditioning: Callable[[int], FrameConditioning],
@@ -483,6 +492,7 @@ class Renderer:
         latents = {f: v.to(self.model.device, self.model.dtype) for f, v in refs.items()}
         out: dict[int, dict[int, torch.Tensor]] = {}
         done: set[int] = set()
+        cond_until = {f: i for i in indices for f in run.windows[i].frames}
         with torch.inference_mode():
             for i in indices:
                 window = run.windows[i]
@@ -491,7 +501,16 @@ class Renderer:
                 latents.update(made)
                 out[i] = made
                 run.decode(i, x0, done)
+                if not self.retain:
+                    self._release(run, cond_until, i)
         return out
+
+    def _release(self, run: "_DiffusionRun", cond_until: dict[int, int], index: int) -> None:
+        """`retain=False`: drop from the cache what window `index` of `run` (just decoded) was the last to read: every
+        detail (read once, at decoding) and the conditioning latents of frames no later window holds
+        (`cond_until`: frame -> its last window)."""
+        window = run.windows[index]
+        self.cache.discard([k + "#detail" for k in run.keys] + [k for f, k in zip(window.frames, run.keys) if cond_until[f] == index])
 
     def _render_direct(self, shot: Shot, settings: RenderSettings, choice: tiers.TierChoice, conditioning: Callable[[int], FrameConditioning],
                        emit: Callable[[RenderEvent], None], cancel: CancelToken | None, done: set[int], t0: float) -> None:
