@@ -49,6 +49,7 @@ from x2video.io.atomic import write_json_atomic
 from x2video.model.pipeline import X2VideoModel
 from x2video.sampling.events import FramesReady, RenderSettings, StepDone
 from x2video.sampling.prepare import warm_engine
+from x2video.sampling.planner import plan
 from x2video.sampling.renderer import Renderer, select_steps
 from x2video.sampling.sink import FrameSink
 from x2video.sampling.timing import StageTimes
@@ -141,10 +142,11 @@ def time_render(renderer: Renderer, shot: Shot, settings: RenderSettings, sink_d
 
 
 def time_parts(model: X2VideoModel, shot: Shot, engines: list[str], window: int, repeats: int) -> dict:
-    """Each part on one keyframe window of `shot`, the engines interleaved call by call (a shared machine's load
-    hits them alike) and the fastest of `repeats` kept: the channel encoding of the window, one UNet call
-    (the distilled UNet when the model has it), the VAE decoding of the window's frames; with the max abs
-    difference of each engine's output from PyTorch's."""
+    """Each part on one window of `shot`, the engines interleaved call by call (a shared machine's load hits them
+    alike) and the fastest of `repeats` kept: the channel encoding of the window, one UNet call (the distilled
+    UNet when the model has it) on an interpolation window and on the plan's first keyframe window
+    (unet_keyN: what the editor's first network frame waits for, twice at LCM-2), the VAE decoding of the
+    window's frames and of one frame; with the max abs difference of each engine's output from PyTorch's."""
     from x2video.sampling.renderer import plain_conditioning
 
     conds = [plain_conditioning(shot, t) for t in range(window)]
@@ -164,6 +166,13 @@ def time_parts(model: X2VideoModel, shot: Shot, engines: list[str], window: int,
                               local_masks=torch.zeros(n, 0, *shot.size))
         parts["unet"] = lambda: model.predict_v(x, torch.tensor(749), inputs, lcm=lcm)
         parts["decode"] = lambda: torch.from_numpy(model.decode(x))
+        # what the editor's first network frame costs: the plan's first (keyframe) window, and one frame decoded
+        first = plan("recursive", shot.num_frames, window)[0]
+        k = len(first.frames)
+        key = WindowInputs(cond=cond[:k], ref=torch.zeros(k, model.latent_channels, h, w), ref_positions=first.ref_positions, mode=first.mode,
+                           level=first.level, text_global=text, text_local=inputs.text_local, local_masks=torch.zeros(k, 0, *shot.size))
+        parts[f"unet_key{k}"] = lambda k=k: model.predict_v(x[:k], torch.tensor(999), key, lcm=lcm)
+        parts["decode1"] = lambda: torch.from_numpy(model.decode(x[:1]))
         outputs: dict[str, dict[str, torch.Tensor]] = {}
         best: dict[str, dict[str, float]] = {e: {} for e in engines}
         for e in engines:  # build and warm every graph before timing
