@@ -143,8 +143,12 @@ class _Graph:
             core = ov.Core()
             core.set_property({"CACHE_DIR": str(path.parent / "openvino")})
             # compiled from the file's path, OpenVINO finds its cached blob without parsing the ONNX: 0.43-0.55 s and
-            # 40 MB less than read_model + compile_model (0.65-0.8 s) for a UNet graph on the 2-core VM
-            compiled = core.compile_model(str(path), "CPU", {"INFERENCE_NUM_THREADS": threads, "INFERENCE_PRECISION_HINT": "f32"})
+            # 40 MB less than read_model + compile_model (0.65-0.8 s) for a UNet graph on the 2-core VM.
+            # No CPU pinning: OpenVINO pins its threads by default, and two processes (two farm workers, the editor
+            # beside a CLI render) then share the same core while the other idles: a keyframe UNet call took 1.0 s in
+            # each of two processes instead of 0.44 s (0.44-0.46 s unpinned; one process alone: the same either way).
+            compiled = core.compile_model(str(path), "CPU", {"INFERENCE_NUM_THREADS": threads, "INFERENCE_PRECISION_HINT": "f32",
+                                                             "ENABLE_CPU_PINNING": False})
             self._req = compiled.create_infer_request()
             self._lock = threading.Lock()  # one infer request: one call at a time
             self.inputs = [sorted(p.get_names())[0] for p in compiled.inputs]
