@@ -16,9 +16,9 @@ compared with PyTorch's (max abs difference in linear RGB).
     python -m bench.render --preset fast --frames 1000 [--quality diffusion|residual|formula] [--disk]
 
 --preset renders that one preset (recursive) once, cold, as `x2video render` does (the Renderer keeps no
-conditioning for a re-render), and records peak RSS (getrusage): the 1,000-frame memory check of issue 31. --disk writes the synthetic shot as an EXR shot folder first and renders from it
-(lazy reads), and every mode writes the frames through a `FrameSink` into a temporary EXR folder, so read and
-write are real I/O.
+conditioning for a re-render), and records peak RSS (getrusage): the 1,000-frame memory check of issue 31.
+--disk writes the synthetic shot as an EXR shot folder first and renders from it (lazy reads), and every mode
+writes the frames through a `FrameSink` into a temporary EXR folder, so read and write are real I/O.
 
 Results are merged into bench/results/render/render.json under a key naming the device (with --preset:
 render_<preset>_<quality>_<frames>f.json), so CPU and GPU runs sit side by side:
@@ -48,8 +48,8 @@ from x2video.channels import SPECS
 from x2video.io.atomic import write_json_atomic
 from x2video.model.pipeline import X2VideoModel
 from x2video.sampling.events import FramesReady, RenderSettings, StepDone
-from x2video.sampling.prepare import warm_engine
 from x2video.sampling.planner import plan
+from x2video.sampling.prepare import warm_engine
 from x2video.sampling.renderer import Renderer, select_steps
 from x2video.sampling.sink import FrameSink
 from x2video.sampling.timing import StageTimes

@@ -9,6 +9,8 @@ encoder 1e-5, a whole LCM-2 render 2.6e-4 in linear RGB.
 The bounds below leave a decade of room for other CPUs' kernels and no more."""
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import torch
@@ -110,6 +112,26 @@ def test_unet_graphs_beyond_the_cap_are_released_least_recently_used_first(model
     assert torch.equal(first, again)
     with pytest.raises(ValueError, match="max_unet_graphs"):
         eng.CompiledParts(model, runtime, max_unet_graphs=0)
+
+
+def test_engine_threads_reach_the_graphs(monkeypatch) -> None:
+    """`X2VideoModel.engine_threads` sets the graphs' threads (None: torch's count); the editor's factory gives them
+    X2VIDEO_TORCH_THREADS, else every core."""
+    pytest.importorskip("PySide6")
+    from x2video_app import render_controller as rc
+
+    m = X2VideoModel.untrained("tiny", seed=5)
+    for want, expected in ((None, torch.get_num_threads()), (3, 3)):
+        m._parts.clear()
+        m.engine_threads = want
+        m.engine = "onnx"  # as set_engine would resolve it; nothing is built until a part runs
+        assert m._compiled().threads == expected
+    m.engine = "torch"
+    monkeypatch.setattr(rc, "load_model", lambda choice: m)
+    monkeypatch.delenv("X2VIDEO_TORCH_THREADS", raising=False)
+    assert rc.RenderController._default_factory(None).model.engine_threads == (os.cpu_count() or 1)
+    monkeypatch.setenv("X2VIDEO_TORCH_THREADS", "1")
+    assert rc.RenderController._default_factory(None).model.engine_threads == 1
 
 
 @pytest.mark.parametrize("runtime", RUNTIMES)

@@ -101,6 +101,9 @@ class X2VideoModel:
         #: ('onnx', 'openvino'); see `set_engine` and `x2video.model.engine`
         self.engine = "torch"
         self._parts: dict[str, object] = {}  # runtime -> x2video.model.engine.CompiledParts, built on first use
+        #: threads the engine's graphs run on (None: torch's thread count when they are first built); set before
+        #: the first diffusion render. The editor gives them every core (x2video_app.render_controller).
+        self.engine_threads: int | None = None
         if is_video_unet(unet) != config.video:
             raise ValueError(f"config says video={config.video} but the UNet has {unet.config.in_channels} input channels")
 
@@ -208,7 +211,7 @@ class X2VideoModel:
         if parts is None:
             from x2video.model.engine import CompiledParts
 
-            parts = self._parts[self.engine] = CompiledParts(self, self.engine)
+            parts = self._parts[self.engine] = CompiledParts(self, self.engine, threads=self.engine_threads)
         return parts
 
     # -- RenderModel ---------------------------------------------------------------
