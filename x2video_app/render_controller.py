@@ -46,9 +46,9 @@ def set_render_threads() -> int:
 def engine_threads() -> int:
     """Threads for the diffusion tier's exported graphs (`X2VideoModel.engine_threads`): X2VIDEO_TORCH_THREADS, else
     every core. Unlike torch's OpenMP threads these do not crawl when the machine is busy: on the 2-core
-    development machine a keyframe UNet call on OpenVINO took 0.39 s on two threads and 0.69 s on one, and with
-    the other core kept busy 0.66-0.70 s on two against 0.71-0.74 on one (ONNX Runtime: 0.50 / 0.87 s quiet,
-    1.13 / 1.03 s median busy); the editor's first diffusion keyframe came 0.94-0.99 s after Render instead of 1.2-1.5 s."""
+    development machine a UNet call on OpenVINO took 0.39 s on two threads and 0.69 s on one, and with the other
+    core kept busy 0.66-0.70 s on two against 0.71-0.74 on one (ONNX Runtime: 0.50 / 0.87 s quiet, 0.99-1.13 /
+    0.95-1.03 s busy); the editor's first diffusion keyframe came 1.03 s after Render instead of 1.2-1.5 s."""
     import os
 
     env = os.environ.get("X2VIDEO_TORCH_THREADS")

@@ -27,7 +27,9 @@ a call cannot use a graph the part runs in PyTorch for that call, and the log sa
 
 Exported graphs are cached on disk under $XDG_CACHE_HOME/x2video/engine (default ~/.cache), keyed by a
 digest of the weights, the variant and the shapes, so each variant is exported once per machine (seconds
-on 2 cores); OpenVINO keeps its compiled blobs beside them. Sessions stay in memory per model.
+on 2 cores); OpenVINO keeps its compiled blobs beside them. Compiled graphs stay in memory per model, at most
+`UNET_GRAPHS` UNet graphs (the least recently used is released: a long shot's finished levels). OpenVINO runs
+without CPU pinning (two processes pinned their threads to the same core).
 """
 from __future__ import annotations
 
