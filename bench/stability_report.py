@@ -225,6 +225,11 @@ def observations(cells: list[dict]) -> list[str]:
                    "trusted, so there is no regional composite around the mask. Outside the mask PSNR is "
                    f"{a['psnr_by_class']['outside']:.1f} dB, where the formula gives {f['psnr_by_class']['outside']:.1f} dB; a composite "
                    "over the formula (tier 0 around the generated region) would keep the formula's quality there.")
+    elif a and b and a.get("psnr_by_class") and b.get("psnr_by_class") and "+" in str(b.get("tier")):
+        out.append(f"- A local prompt on a masked object takes the regional path too (tier {b.get('tier')}: the sampler's pixels "
+                   f"inside the mask, tier 1 around it): outside the mask PSNR is {b['psnr_by_class']['outside']:.1f} dB with the "
+                   f"prompt and {a['psnr_by_class']['outside']:.1f} dB without; inside {b['psnr_by_class']['inside']:.1f} and "
+                   f"{a['psnr_by_class']['inside']:.1f} dB.")
     elif a and b and a.get("psnr_by_class") and b.get("psnr_by_class"):
         out.append(f"- A local prompt sends 'auto' to the sampler for the whole frame (tier {b.get('tier')}), not only inside its "
                    f"mask: outside one masked object PSNR is {a['psnr_by_class']['outside']:.1f} dB with the regional composite "

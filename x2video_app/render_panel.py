@@ -24,7 +24,8 @@ from x2video_app.render_state import RenderState
 #: the Quality choices (RenderSettings.quality): (value, label, tooltip)
 QUALITY_ITEMS = (
     ("auto", "auto", "The tier-1 network where nothing must be generated, the diffusion sampler where something must "
-                     "(a dropped channel, a masked A|M|R region, a local prompt, a reference); the status bar says which ran and why."),
+                     "(a dropped channel or a reference: whole frames; a masked A|M|R region or a local prompt: inside its mask, "
+                     "tier 1 around it); the status bar says which ran and why."),
     ("formula", "formula (no network)", "Albedo x irradiance of the edited channels: exact for diffuse light, instant, no weights."),
     ("residual", "residual (tier 1)", "One pass of the tier-1 network per frame over the formula: glossy light, metals, "
                                       "emitters. Fast, cannot flicker; generates nothing."),

@@ -538,7 +538,8 @@ class Renderer:
 
     def _composite(self, emit: Callable[[RenderEvent], None], conditioning: Callable[[int], FrameConditioning], net,
                    guess_unseen: bool = False) -> Callable[[RenderEvent], None]:
-        """Wrap `emit` so each generated frame keeps tier 2 only inside its A|M|R regions (feathered), tier 1 elsewhere
+        """Wrap `emit` so each generated frame keeps tier 2 only inside its A|M|R regions and local prompts' masks
+        (`tiers.generated_region`, feathered), tier 1 elsewhere
         (the formula where `net` is None: auto's choice when the tier-1 net is not trusted)."""
 
         def wrapped(event: RenderEvent) -> None:
@@ -550,7 +551,7 @@ class Renderer:
                             else [formula(c.channels, np.shape(c.amr_mask)[:2] if np.size(c.amr_mask) else None) for c in conds])
                 frames = {}
                 for f, c, b in zip(fs, conds, base):
-                    w = tiers.feathered(c.amr_mask)[..., None]  # (H, W, 1)
+                    w = tiers.feathered(tiers.generated_region(c))[..., None]  # (H, W, 1)
                     frames[f] = (w * event.frames[f] + (1 - w) * b).astype(np.float32)
                 event = dataclasses.replace(event, frames=frames)
             emit(event)

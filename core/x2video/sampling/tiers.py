@@ -7,8 +7,9 @@
                  a region whose albedo/material is masked out (A|M|R), a local prompt, a reference.
 
 `choose_tier` decides for a render (quality "auto") and says why; `auto` composites per region:
-frames whose channels are all present take tier 1 outside the regions tier 2 must generate, and
-the two meet over a feathered seam (`feathered`). The user can force any tier.
+frames whose channels are all present take tier 1 outside the regions tier 2 must generate (A|M|R
+regions and local prompts' masks, `generated_region`), and the two meet over a feathered seam
+(`feathered`). The user can force any tier.
 """
 from __future__ import annotations
 
@@ -82,8 +83,21 @@ def generation_reasons(shot, edits) -> tuple[list[str], bool]:
         why.append(f"local prompt(s) on {', '.join(local)}")
     if edits.reference is not None:
         why.append("a reference frame to follow")
-    only_regions = bool(regional) and len(why) == 1
+    # A|M|R inside masks and local prompts act inside their masks only (Masked Cross-Attention confines a local
+    # prompt to its mask): around them the frame is what auto renders with nothing to generate. The sampler still
+    # sees whole frames; `generated_region` says where its pixels are kept.
+    regions = bool(regional) + bool(local)
+    only_regions = regions > 0 and len(why) == regions
     return why, only_regions
+
+
+def generated_region(cond: FrameConditioning) -> np.ndarray:
+    """(H, W) bool: where a regional render keeps the sampler's pixels: the frame's A|M|R regions and its local
+    prompts' masks (> 0.5)."""
+    region = np.asarray(cond.amr_mask, np.float32) > 0.5
+    if cond.local_masks.size:
+        region = region | (np.asarray(cond.local_masks, np.float32) > 0.5).any(0)
+    return region
 
 
 def choose_tier(quality: str, reasons: list[str], only_regions: bool, has_residual: bool, global_prompt: str = "",
@@ -115,8 +129,8 @@ def choose_tier(quality: str, reasons: list[str], only_regions: bool, has_residu
         return TierChoice("residual", f"every channel present, nothing to generate{note}")
     if only_regions:  # generate only inside the regions; around them what auto would render with nothing to generate
         if residual_trusted:
-            return TierChoice("diffusion", f"{reasons[0]}: generated there, tier 1 around it", base="residual", regions=True)
-        return TierChoice("diffusion", f"{reasons[0]}: generated there, the formula around it", base="formula", regions=True)
+            return TierChoice("diffusion", f"{'; '.join(reasons)}: generated there, tier 1 around it", base="residual", regions=True)
+        return TierChoice("diffusion", f"{'; '.join(reasons)}: generated there, the formula around it", base="formula", regions=True)
     return TierChoice("diffusion", "; ".join(reasons))
 
 
