@@ -16,6 +16,8 @@ the shipped weights built in the background) and measures, on the wall clock:
   press_to_first_network_s    -> the viewer painted the render's first frame (a keyframe; tier 1: the first batch)
   render_s                    -> the render finished (--full; by default each render is cancelled once its
                               first frame is on screen, to spare a shared machine)
+  gui_tick_gap_ms             while the render runs, the gaps between 10 ms timer ticks of the GUI's event loop
+                              (median, 95th percentile, max): how long a click or a repaint waits
 
 The first render encodes every frame's conditioning; later ones reuse the Renderer's cache unless
 --cold (cleared before each press). --tier1-standin adds an UNTRAINED tier-1 network of the default
@@ -41,6 +43,9 @@ from typing import Callable  # noqa: E402
 
 from bench.common import command, results_path  # noqa: E402
 
+#: the GUI probe's timer interval: while a render runs, the gaps between its ticks (median, 95th percentile, max) say how
+#: long a click or a repaint would wait (`gui_tick_gap_ms`; 10 ms when the event loop is free)
+TICK_MS = 10
 #: issue 31's targets, seconds
 TARGETS = {"startup_to_demo_visible_s": 5.0, "press_to_frame_on_screen_s": 0.5, "press_to_first_network_s": 1.5}
 
@@ -95,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     t_base = time.perf_counter()  # the measured start-up begins here (plus the interpreter's start)
     load_before = [round(v, 2) for v in os.getloadavg()]
 
-    from PySide6.QtCore import QCoreApplication, QEvent, QEventLoop, QObject, Qt
+    from PySide6.QtCore import QCoreApplication, QEvent, QEventLoop, QObject, Qt, QTimer
     from PySide6.QtTest import QTest
 
     from x2video_app.main_window import launch
@@ -159,11 +164,18 @@ def main(argv: list[str] | None = None) -> int:
                     win.render_ctl.cancel()
 
         win.render_ctl.sigEvent.connect(on_event)
+        ticks: list[float] = []
+        timer = QTimer()  # the GUI's responsiveness while it renders: gaps between 10 ms ticks of the event loop
+        timer.setInterval(TICK_MS)
+        timer.timeout.connect(lambda ticks=ticks: ticks.append(time.perf_counter()))
         load = [round(v, 2) for v in os.getloadavg()]
         t_click = time.perf_counter()
+        timer.start()
         QTest.mouseClick(win.render_panel.render_button, Qt.MouseButton.LeftButton)
         pump_until(lambda: not win.render_ctl.running and win.render_ctl.preview_worker is None, f"render {k + 1}")
+        timer.stop()
         win.render_ctl.sigEvent.disconnect(on_event)
+        gaps = sorted(1000 * (b - a) for a, b in zip(ticks, ticks[1:]))
         st, offset = win.doc.render, win.render_ctl.pressed_at - t_click
         row = {
             "press": k + 1,
@@ -177,13 +189,17 @@ def main(argv: list[str] | None = None) -> int:
             "press_to_first_preview_event_s": round(marks["preview"] - t_click, 3) if "preview" in marks else None,
             "press_to_first_network_event_s": round(marks["network"] - t_click, 3) if "network" in marks else None,
             "render_s": round(st.finished_at - st.started_at, 2) if st.finished_at and st.status == "finished" else None,
+            "gui_tick_gap_ms": {"ticks": len(ticks), "median": round(gaps[len(gaps) // 2], 1), "p95": round(gaps[int(0.95 * (len(gaps) - 1))], 1),
+                                "max": round(gaps[-1], 1)} if gaps else None,
             "conditioning_cache": str(win.render_ctl.renderer.cache_stats()),
             "engine": getattr(win.render_ctl.renderer, "engine", None),
+            "threads": {"torch": win.render_ctl.threads, "engine": getattr(win.render_ctl.renderer.model, "engine_threads", None)},
             "load_average_at_press": load,
         }
         renders.append(row)
         print(f"press {k + 1}: frame on screen {row['press_to_frame_on_screen_s']} s, first network frame "
-              f"{row['press_to_first_network_s']} s, render {row['render_s']} s ({row['tier']}: {row['reason']}); load {load}", flush=True)
+              f"{row['press_to_first_network_s']} s, render {row['render_s']} s ({row['tier']}: {row['reason']}); GUI tick gaps "
+              f"{row['gui_tick_gap_ms']} ms; load {load}", flush=True)
 
     from x2video.eval.machine import machine_info
     from x2video.io.atomic import write_json_atomic
