@@ -131,16 +131,22 @@ def test_forced_formula_and_diffusion():
     assert next(e for e in events if isinstance(e, RenderStarted)).tier == "diffusion"
 
 
+def patch_edits(shot, name: str) -> Edits:
+    """Edits with one mask `name` painted on rows 16:28, columns 24:40 of every frame (48x64 frames)."""
+    e = Edits()
+    m = np.zeros((48, 64), np.float32)
+    m[16:28, 24:40] = 1
+    e.masks[name] = Mask()
+    for t in range(shot.num_frames):
+        e.masks[name].paint(t, m)
+    return e
+
+
 def test_a_local_prompt_is_generated_inside_its_mask_and_the_rest_is_tier_1():
     """Masked Cross-Attention confines a local prompt to its mask, so auto keeps tier 1 around it (STABILITY.md measured
     29.4 dB outside a masked object with the composite, 23.0 with the sampler's whole frame)."""
     shot, model = full_shot(h=48, w=64), with_net()
-    e = Edits()
-    m = np.zeros((48, 64), np.float32)
-    m[16:28, 24:40] = 1
-    e.masks["sofa"] = Mask()
-    for t in range(shot.num_frames):
-        e.masks["sofa"].paint(t, m)
+    e = patch_edits(shot, "sofa")
     e.local_prompts["sofa"] = "a red leather sofa"
     events, frames = render(model, shot, RenderSettings(steps=2), e)
     started = next(x for x in events if isinstance(x, RenderStarted))
@@ -156,12 +162,7 @@ def test_a_local_prompt_is_generated_inside_its_mask_and_the_rest_is_tier_1():
 
 def test_masked_region_is_generated_and_the_rest_is_tier_1():
     shot, model = full_shot(h=48, w=64), with_net()
-    e = Edits()
-    m = np.zeros((48, 64), np.float32)
-    m[16:28, 24:40] = 1
-    e.masks["patch"] = Mask()
-    for t in range(shot.num_frames):
-        e.masks["patch"].paint(t, m)
+    e = patch_edits(shot, "patch")
     e.ops.append(MaskOut(mask="patch"))
     events, frames = render(model, shot, RenderSettings(steps=2), e)
     assert next(x for x in events if isinstance(x, RenderStarted)).tier == "diffusion"
