@@ -7,12 +7,14 @@ conditioning encoded inside the render) and its peak resident memory (`getrusage
 the model, the shot's frames as they are read, the network's working memory). The shot is generated
 frame by frame (room-like piecewise-constant channels with windows; speed does not depend on the
 content), as a shot folder is read frame by frame. Tiers: 'formula' (albedo x irradiance),
-'residual' (the tier-1 net; large frames in tiles, `x2video.model.residual.apply_tiled`) and
-'diffusion' (the fast preset; large frames at a working resolution, `x2video.sampling.working`).
+'residual' (the tier-1 net; large frames at a working size of `RenderSettings.residual_pixels`,
+`x2video.sampling.tiers.residual_frames`), 'residual@full' (the tier-1 net at full size, in tiles beyond
+896x896, `x2video.model.residual.apply_tiled`) and 'diffusion' (the fast preset; large frames at a working
+resolution, `x2video.sampling.working`).
 
 Accuracy (`--data`, path-traced shots, e.g. `x2video dataset make --renderer cycles --size 1024x1024`):
-each tier beside the formula, scored as `bench/pathtraced.py` scores them (its `evaluate`), and the
-diffusion tier also at the model's training size as working resolution.
+each tier beside the formula, scored as `bench/pathtraced.py` scores them (its `evaluate`), tier 1 also at
+full size, and the diffusion tier also at the model's training size as working resolution.
 
     python -m bench.bigframes [--sizes 1920x1080,1366x768,1024x1024] [--tiers formula,residual,diffusion] [--frames 5]
                               [--threads 2] [--data DATA --split test] [--name bigframes]
@@ -34,7 +36,9 @@ import numpy as np
 
 from bench.common import command, results_path
 
-TIERS = ("formula", "residual", "diffusion")
+TIERS = ("formula", "residual", "residual@full", "diffusion")
+#: RenderSettings fields of a case's tier beyond its quality
+TIER_SETTINGS = {"residual@full": {"residual_pixels": 0}, "diffusion": {"preset": "fast"}}
 SIZES = "1920x1080,1366x768,1024x1024"
 #: the shipped model's training size: the diffusion tier's other working resolution in the accuracy table
 TRAINING_PIXELS = 160 * 112
@@ -101,7 +105,7 @@ def run_case(size: tuple[int, int], tier: str, frames: int, threads: int) -> dic
     rss_loaded = peak_rss_gb()
     shot = generated_shot(frames, h, w)
     ready: list[float] = []
-    settings = RenderSettings(quality=tier, preset="fast" if tier == "diffusion" else None)
+    settings = RenderSettings(quality=tier.split("@")[0], **TIER_SETTINGS.get(tier, {}))  # type: ignore[arg-type]
 
     def on_event(e) -> None:
         if isinstance(e, FramesReady):
@@ -114,12 +118,13 @@ def run_case(size: tuple[int, int], tier: str, frames: int, threads: int) -> dic
            "seconds": round(secs, 2), "sec_per_frame": round(secs / frames, 3), "cpu_seconds_per_frame": round(cpu / frames, 3),
            "first_frame_seconds": round(ready[0] - t0, 2) if ready else None,
            "peak_rss_gb": round(peak_rss_gb(), 3), "rss_after_load_gb": round(rss_loaded, 3)}
-    if tier == "residual" and len(ready) > 1:
+    if settings.quality == "residual" and len(ready) > 1:
         out["sec_per_frame_after_first"] = round((ready[-1] - ready[0]) / (len(ready) - 1), 3)
-    if tier == "residual":
-        net = model.residual_net
-        f = net.cfg.factor
-        if needs_tiles((h, w), f):
+    if settings.quality == "residual":
+        f = model.residual_net.cfg.factor
+        ws = working.working_size((h, w), f, settings.residual_pixels)
+        out["working_size"] = None if ws is None else [ws[1], ws[0]]
+        if ws is None and needs_tiles((h, w), f):
             out["tiles"] = len(tile_grid(h + (-h) % f, w + (-w) % f, factor=f))
     if tier == "diffusion":
         ws = working.working_size((h, w), model.downsample, settings.working_pixels)
@@ -157,7 +162,7 @@ def accuracy(data: Path, split: str, tiers: list[str], threads: int) -> dict:
     shots = sorted(p for p in root.iterdir() if (p / "shot.json").is_file())
     if not shots:
         raise FileNotFoundError(f"{root}: no shot folders (shot.json) to score")
-    runs = [(f"{t}|all", t, "all", {}) for t in tiers]
+    runs = [(f"{t}|all", t.split("@")[0], "all", TIER_SETTINGS.get(t, {}) if t != "diffusion" else {}) for t in tiers]
     if "diffusion" in tiers:
         runs.append((f"diffusion@{TRAINING_PIXELS}|all", "diffusion", "all", {"working_pixels": TRAINING_PIXELS}))
     summary, per_shot = evaluate(renderer, shots, runs)
@@ -199,7 +204,8 @@ def ceiling(shots: list[Path], factor: int) -> dict:
     return {size: {k: round(float(np.mean(v)), 2) for k, v in row.items()} for size, row in rows.items()}
 
 
-LABELS = {"albedo_x_irradiance|all": "formula: albedo × irradiance", "formula|all": "tier 0 (formula)", "residual|all": "tier 1 (residual net, tiled)",
+LABELS = {"albedo_x_irradiance|all": "formula: albedo × irradiance", "formula|all": "tier 0 (formula)",
+          "residual|all": "tier 1 (residual net, working ≤ 512×512 px)", "residual@full|all": "tier 1 at full size (tiled)",
           "diffusion|all": "tier 2 (diffusion, fast preset, working 320×224 px budget)",
           f"diffusion@{TRAINING_PIXELS}|all": "tier 2 (fast preset, working at the training size 160×112 px budget)"}
 

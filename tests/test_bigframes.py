@@ -249,3 +249,56 @@ def test_large_diffusion_frames_run_at_the_working_resolution():
     assert set(sizes) == {(64, 104)}  # full size, reflect-padded to the factor 8
     with pytest.raises(ValueError, match="working_pixels"):
         Renderer(model).render(shot, None, RenderSettings(quality="diffusion", steps=2, working_pixels=-1), on)
+
+
+class ConstantNet:
+    """A tier-1 net whose correction is the same everywhere: log1p(frame) = log1p(formula) + c."""
+
+    def __init__(self, c: float):
+        self.c, self.cfg = c, R.ResidualConfig(widths=(8, 16, 16))  # factor 4
+
+    def __call__(self, x, g=None):
+        return torch.full((x.shape[0], 3, x.shape[2], x.shape[3]), self.c)
+
+
+def test_large_tier1_frames_run_at_the_working_resolution():
+    """Above `residual_pixels` the tier-1 net sees working-size channels; its correction comes back onto the
+    full-resolution formula, whose detail stays."""
+    h, w = 60, 100
+    shot = ArrayShot({k: np.stack([room_channels(h, w, s)[k] for s in range(2)]) for k in room_channels(h, w)})
+    model = FakeModel()
+    model.residual_net = Spy(ConstantNet(0.3))
+    got: dict[int, np.ndarray] = {}
+
+    def on(e):
+        if isinstance(e, FramesReady):
+            got.update(e.frames)
+
+    Renderer(model).render(shot, None, RenderSettings(quality="residual", guess_unseen=True, residual_pixels=24 * 40), on)
+    assert model.residual_net.pixels == [24 * 40, 24 * 40]  # 60x100 scaled by 0.4 on the factor-4 grid, the first frame alone
+    for t in range(2):
+        base = R.formula(shot.frame(t))
+        assert got[t].shape == (h, w, 3) and base.std() > 0.1
+        np.testing.assert_allclose(np.log1p(got[t]) - np.log1p(base), 0.3, atol=1e-4)  # every full-resolution edge kept
+    model.residual_net.pixels.clear()
+    Renderer(model).render(shot, None, RenderSettings(quality="residual", guess_unseen=True, residual_pixels=0), on)
+    assert model.residual_net.pixels == [h * w, h * w]  # at full size
+    model.residual_net.pixels.clear()
+    Renderer(model).render(shot, None, RenderSettings(quality="residual", guess_unseen=True), on)
+    assert model.residual_net.pixels == [h * w, h * w]  # the default bound (512x512) leaves this frame alone
+    with pytest.raises(ValueError, match="residual_pixels"):
+        Renderer(model).render(shot, None, RenderSettings(quality="residual", residual_pixels=-1), on)
+
+
+def test_tier1_at_working_size_is_close_to_full_size_on_smooth_light():
+    """With a real (deep) net, the working-size pass differs from the full-size one by what the bilinear upsampling
+    of its correction loses, not by a misplaced or rescaled correction."""
+    net = deep_net(levels=3)
+    h, w = 96, 160
+    ch = room_channels(h, w, 4)
+    full = tiers.residual_frames(net, [_cond(ch, h, w)], guess_unseen=True)[0]
+    small = tiers.residual_frames(net, [_cond(ch, h, w)], guess_unseen=True, max_pixels=48 * 80)[0]
+    base = R.formula(ch)
+    err_small = np.abs(np.log1p(small) - np.log1p(full)).mean()
+    err_formula = np.abs(np.log1p(base) - np.log1p(full)).mean()
+    assert small.shape == full.shape and err_small < 0.5 * err_formula, (err_small, err_formula)

@@ -188,6 +188,12 @@ def mean_anchor(window: Window, strength: float, ref: torch.Tensor, offset: torc
 _NO_TIMES = NoTimes()
 
 
+def _check_pixel_bounds(settings: RenderSettings) -> None:
+    for name in ("working_pixels", "residual_pixels"):
+        if getattr(settings, name) < 0:
+            raise ValueError(f"{name} must be 0 (full resolution) or more, got {getattr(settings, name)}")
+
+
 class Renderer:
     """Drives a `RenderModel` over a shot; see the module docstring."""
 
@@ -339,8 +345,7 @@ class Renderer:
             raise ValueError(f"ref_dc must lie in [0, 1] (0 = off), got {settings.ref_dc}")
         if settings.resample < 1:
             raise ValueError(f"resample must be at least 1 (1 = off), got {settings.resample}")
-        if settings.working_pixels < 0:
-            raise ValueError(f"working_pixels must be 0 (full resolution) or more, got {settings.working_pixels}")
+        _check_pixel_bounds(settings)
         return settings
 
     def _setup(self, shot: Shot, edits: Any, settings: RenderSettings, base_dir: str | Path | None
@@ -369,6 +374,7 @@ class Renderer:
         done: set[int],
     ) -> None:
         t0 = time.perf_counter()
+        _check_pixel_bounds(settings)  # tier 1 reads residual_pixels before `_validate` runs
         choice, conditioning, prompts, reference = self._setup(shot, edits, settings, base_dir)
         self.last_tier = choice
         log.info("quality %s: tier %s (%s)", settings.quality, choice.tier, choice.reason)
@@ -431,7 +437,8 @@ class Renderer:
         settings = self._validate(shot, settings)
         self._use_engine(settings)
         if choice.regions:
-            emit = self._composite(emit, full_conditioning, net if choice.base == "residual" else None, settings.guess_unseen)
+            emit = self._composite(emit, full_conditioning, net if choice.base == "residual" else None, settings.guess_unseen,
+                                   settings.residual_pixels)
         windows = self.plan(shot, settings, None if reference is None else reference[0])
         with torch.inference_mode():
             text_global = model.encode_prompts([prompts.global_prompt])  # (1, L, D)
@@ -529,7 +536,7 @@ class Renderer:
             conds = [conditioning(f) for f in fs]
             if choice.tier == "residual":
                 with self._clock.stage("residual"):
-                    images = tiers.residual_frames(net, conds, self.model.device, batch, settings.guess_unseen)
+                    images = tiers.residual_frames(net, conds, self.model.device, batch, settings.guess_unseen, settings.residual_pixels)
             else:
                 images = [tiers.formula_frame(c) for c in conds]
             done.update(fs)
@@ -537,7 +544,7 @@ class Renderer:
         emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))
 
     def _composite(self, emit: Callable[[RenderEvent], None], conditioning: Callable[[int], FrameConditioning], net,
-                   guess_unseen: bool = False) -> Callable[[RenderEvent], None]:
+                   guess_unseen: bool = False, max_pixels: int = 0) -> Callable[[RenderEvent], None]:
         """Wrap `emit` so each generated frame keeps tier 2 only inside its A|M|R regions and local prompts' masks
         (`tiers.generated_region`, feathered), tier 1 elsewhere
         (the formula where `net` is None: auto's choice when the tier-1 net is not trusted)."""
@@ -547,7 +554,7 @@ class Renderer:
                 fs = list(event.frames)
                 conds = [conditioning(f) for f in fs]
                 with self._clock.stage("residual"):
-                    base = (tiers.residual_frames(net, conds, self.model.device, guess_unseen=guess_unseen) if net is not None
+                    base = (tiers.residual_frames(net, conds, self.model.device, guess_unseen=guess_unseen, max_pixels=max_pixels) if net is not None
                             else [formula(c.channels, np.shape(c.amr_mask)[:2] if np.size(c.amr_mask) else None) for c in conds])
                 frames = {}
                 for f, c, b in zip(fs, conds, base):

@@ -147,26 +147,54 @@ def formula_frame(cond: FrameConditioning) -> np.ndarray:
 
 @torch.inference_mode()
 def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.device | str = "cpu", batch: int = 4,
-                    guess_unseen: bool = False) -> list[np.ndarray]:
+                    guess_unseen: bool = False, max_pixels: int = 0) -> list[np.ndarray]:
     """Tier 1: (H, W, 3) linear frames from the tier-1 net, up to `batch` frames per pass and never more than
     `residual.MAX_PIXELS` pixels in one: a frame larger than that runs in overlapping tiles (`residual.apply_tiled`,
     equal to the whole-frame pass to float precision), so the net's working memory does not grow with the frame.
+    A frame with more than `max_pixels` pixels (`RenderSettings.residual_pixels`; 0: none) runs the net at a
+    working size of at most that many (`working.working_size`, channels area-averaged); the net's correction of
+    the formula there, log1p(net's frame) - log1p(formula), comes back to full size bilinearly and is added to
+    the full-resolution formula in log space, so the formula's detail stays full resolution.
     Unless `guess_unseen`, pixels whose channels say nothing of their light (`residual.unseen_light`: sky, clear
-    glass, mirrors) keep the formula instead of the net's guess."""
-    frames = _net_frames(net, conds, device, batch)
+    glass, mirrors) keep the formula instead of the net's guess (decided at full resolution)."""
+    from x2video.sampling import working
+
+    def work(c: FrameConditioning) -> tuple[int, int] | None:
+        return working.working_size(_size(c), net.cfg.factor, max_pixels) if max_pixels else None
+
+    sizes = [work(c) for c in conds]
+    small = [c if ws is None else working.downsample_conditioning(c, ws) for c, ws in zip(conds, sizes)]
+    frames = _net_frames(net, small, device, batch)
+    frames = [f if ws is None else _correction_to_full(f, s, c) for f, s, c, ws in zip(frames, small, conds, sizes)]
     return frames if guess_unseen else [keep_formula_where_unseen(f, c.channels) for f, c in zip(frames, conds)]
+
+
+def _shape(c: FrameConditioning) -> tuple[int, int] | None:
+    return tuple(np.shape(c.amr_mask)[:2]) if np.size(c.amr_mask) else None  # type: ignore[return-value]
+
+
+def _size(c: FrameConditioning) -> tuple[int, int]:
+    return _shape(c) or next(np.shape(v)[:2] for v in c.channels.values() if v is not None)
+
+
+def _correction_to_full(frame: np.ndarray, small: FrameConditioning, full: FrameConditioning) -> np.ndarray:
+    """(H, W, 3): the tier-1 net's `frame` made at working size for `small`, as a log-space correction of the
+    formula brought up bilinearly onto `full`'s full-resolution formula."""
+    import cv2
+
+    from x2video.model.residual import formula
+
+    H, W = _size(full)
+    r = np.log1p(np.maximum(frame, 0)) - np.log1p(np.maximum(formula(small.channels, _shape(small)), 0))  # (h, w, 3)
+    up = cv2.resize(np.ascontiguousarray(r, np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
+    return np.maximum(np.expm1(np.log1p(np.maximum(formula(full.channels, _shape(full)), 0)) + up), 0).astype(np.float32)
 
 
 def _net_frames(net, conds: Sequence[FrameConditioning], device: torch.device | str, batch: int) -> list[np.ndarray]:
     """The net's own output for each frame (`residual_frames` without the unseen-light rule)."""
     from x2video.model.residual import MAX_PIXELS, apply, apply_tiled, features, needs_tiles
 
-    def shape(c: FrameConditioning) -> tuple[int, int] | None:
-        return tuple(np.shape(c.amr_mask)[:2]) if np.size(c.amr_mask) else None  # type: ignore[return-value]
-
-    def size(c: FrameConditioning) -> tuple[int, int]:
-        return shape(c) or next(np.shape(v)[:2] for v in c.channels.values() if v is not None)
-
+    shape, size = _shape, _size
     out: list[np.ndarray] = []
     i = 0
     while i < len(conds):
