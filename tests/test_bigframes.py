@@ -261,7 +261,7 @@ class ConstantNet:
         return torch.full((x.shape[0], 3, x.shape[2], x.shape[3]), self.c)
 
 
-def test_large_tier1_frames_run_at_the_working_resolution():
+def test_large_tier1_frames_run_at_the_working_resolution(caplog):
     """Above `residual_pixels` the tier-1 net sees working-size channels; its correction comes back onto the
     full-resolution formula, whose detail stays."""
     h, w = 60, 100
@@ -274,7 +274,9 @@ def test_large_tier1_frames_run_at_the_working_resolution():
         if isinstance(e, FramesReady):
             got.update(e.frames)
 
-    Renderer(model).render(shot, None, RenderSettings(quality="residual", guess_unseen=True, residual_pixels=24 * 40), on)
+    with caplog.at_level("INFO", logger="x2video.sampling.renderer"):
+        Renderer(model).render(shot, None, RenderSettings(quality="residual", guess_unseen=True, residual_pixels=24 * 40), on)
+    assert "shot size 100x60: the tier-1 net runs at 40x24" in caplog.text
     assert model.residual_net.pixels == [24 * 40, 24 * 40]  # 60x100 scaled by 0.4 on the factor-4 grid, the first frame alone
     for t in range(2):
         base = R.formula(shot.frame(t))

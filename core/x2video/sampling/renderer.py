@@ -528,6 +528,10 @@ class Renderer:
         emit(RenderStarted(num_frames=len(order), num_windows=0, levels=[0], tier=choice.tier, reason=choice.reason))
         net = getattr(self.model, "residual_net", None)
         batch = 4
+        work = working.working_size(shot.size, net.cfg.factor, settings.residual_pixels) if choice.tier == "residual" else None
+        if work is not None:
+            log.info("shot size %dx%d: the tier-1 net runs at %dx%d (residual_pixels %d), its correction of the formula brought"
+                     " back on the full-resolution formula", shot.size[1], shot.size[0], work[1], work[0], settings.residual_pixels)
         for index, i in enumerate([0, *range(1, len(order), batch)]):
             if cancel is not None and cancel.cancelled:
                 raise Cancelled(f"cancelled after {len(done)} frames")
