@@ -17,6 +17,7 @@ formula. Deterministic and per frame: it cannot flicker more than its inputs.
 """
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -137,9 +138,11 @@ def unseen_light(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | N
     nr, ir = ch.get("normal"), ch.get("irradiance")
     if nr is None or ir is None:
         return None
-    geometry = np.linalg.norm(_finite(nr)[..., :3], axis=-1) > 0.5
+    n = _finite(nr)[..., :3]
+    geometry = np.einsum("...c,...c->...", n, n) > 0.25  # |n| > 0.5
     light = np.maximum(_finite(ir), 0)
-    light = light.max(-1) if light.ndim == 3 else light
+    if light.ndim == 3:  # the brightest component (an elementwise max: numpy's reduce over a short last axis is slow)
+        light = functools.reduce(np.maximum, [light[..., c] for c in range(light.shape[-1])])
     level = float(light[geometry].mean()) if geometry.any() else 0.0
     me = ch.get("metallic")
     metal = (np.asarray(_finite(me)).reshape(light.shape) >= 0.5) if me is not None else np.zeros(light.shape, bool)
