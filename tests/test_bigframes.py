@@ -282,6 +282,10 @@ def test_large_tier1_frames_run_at_the_working_resolution(caplog):
         base = R.formula(shot.frame(t))
         assert got[t].shape == (h, w, 3) and base.std() > 0.1
         np.testing.assert_allclose(np.log1p(got[t]) - np.log1p(base), 0.3, atol=1e-4)  # every full-resolution edge kept
+    # without irradiance there is no formula: the net's own (working-size) frame comes up
+    dark = tiers.residual_frames(ConstantNet(0.3), [_cond(dict(shot.frame(0), irradiance=None), h, w)], guess_unseen=True, max_pixels=24 * 40)[0]
+    assert dark.shape == (h, w, 3)
+    np.testing.assert_allclose(dark, np.expm1(0.3), rtol=1e-5)
     model.residual_net.pixels.clear()
     Renderer(model).render(shot, None, RenderSettings(quality="residual", guess_unseen=True, residual_pixels=0), on)
     assert model.residual_net.pixels == [h * w, h * w]  # at full size
