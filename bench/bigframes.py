@@ -229,10 +229,13 @@ def markdown(result: dict) -> str:
                      f"{c['rss_after_load_gb']} | {'; '.join(detail)} | {c.get('load_average_before_after')} |")
     acc = result.get("accuracy")
     if acc:
-        lines += ["", f"Accuracy on {len(acc['shots'])} path-traced shot(s) ({', '.join(acc['shots'])}), display PSNR/SSIM in the shot's units:", "",
-                  "| render | PSNR↑ | SSIM↑ | s/frame |", "|---|---|---|---|"]
+        tc = any(v.get("tc") is not None for v in acc["summary"].values())  # shots of two frames or more
+        lines += ["", f"Accuracy on {len(acc['shots'])} path-traced shot(s) ({', '.join(acc['shots'])}), display PSNR/SSIM in the shot's units"
+                  + (", TC (warping error over the ground truth's)" if tc else "") + ":", "",
+                  "| render | PSNR↑ | SSIM↑ | " + ("TC↓ | " if tc else "") + "s/frame |", "|---|---|---|" + ("---|" if tc else "") + "---|"]
         for key, v in acc["summary"].items():
-            lines.append(f"| {LABELS.get(key, key)} | {v['psnr']:.2f} | {v['ssim']:.4f} | {v['sec_per_frame']:.2f} |")
+            cell = (f"{v['tc']:.3f} | " if v.get("tc") is not None else "— | ") if tc else ""
+            lines.append(f"| {LABELS.get(key, key)} | {v['psnr']:.2f} | {v['ssim']:.4f} | {cell}{v['sec_per_frame']:.2f} |")
         if acc.get("ceiling"):
             lines += ["", "Ceiling of the working-resolution path (the ground truth at working size as a perfect network's frame), PSNR:", "",
                       "| working size | " + " | ".join(next(iter(acc["ceiling"].values()))) + " |", "|---|" + "---|" * len(next(iter(acc["ceiling"].values())))]
@@ -282,7 +285,7 @@ def main(argv: list[str] | None = None) -> int:
         result["data"] = {"dir": portable_path(args.data), "split": args.split}
         result["accuracy"] = accuracy(args.data, args.split, tiers, args.threads)
         for key, v in result["accuracy"]["summary"].items():
-            print(f"{key:32s} PSNR {v['psnr']:6.2f}  SSIM {v['ssim']:.4f}  s/frame {v['sec_per_frame']:.2f}", flush=True)
+            print(f"{key:32s} PSNR {v['psnr']:6.2f}  SSIM {v['ssim']:.4f}  TC {v.get('tc')}  s/frame {v['sec_per_frame']:.2f}", flush=True)
     dest = results_path("bigframes", args.name)
     dest.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(dest, result)
