@@ -49,7 +49,7 @@ def test_multilayer_lazy(tmp_path, monkeypatch):
     write_multilayer(src, tmp_path / "ml")
     calls = []
     real = ml_mod.read_image
-    monkeypatch.setattr(ml_mod, "read_image", lambda p: calls.append(p) or real(p))
+    monkeypatch.setattr(ml_mod, "read_image", lambda p, **kw: calls.append(p) or real(p, **kw))
     shot = load_shot(tmp_path / "ml", cache_size=3)
     assert calls == []
     for t in range(12):

@@ -4,6 +4,12 @@ OpenImageIO stores EXR channels sorted by layer name, so nothing here relies on 
 `ImageData.channel(name)` / `ImageData.stack(names)` look channels up by name.
 Integer pixel formats of PNG/JPG/TIFF are normalised to [0, 1] (``ImageData.max_int`` tells the
 scale, for object ids); 32-bit integer EXR channels are read raw.
+
+`read_image(path, channels=...)` reads only the named channels of an EXR, in one pass through OpenEXR's own
+Python bindings (OpenImageIO reads a contiguous channel range per call, and each call decompresses the file
+again). A Blender multi-layer frame holds every light pass: 70 channels at 1024x768, 0.65-1.1 s to read whole
+with OpenImageIO, 0.29 s for the 22 a shot uses (`x2video.io.multilayer`). Without the bindings, or for a file
+they cannot read, the whole image is read through OpenImageIO as before.
 """
 from __future__ import annotations
 
@@ -84,11 +90,16 @@ def read_spec(path: str | Path) -> oiio.ImageSpec:
         inp.close()
 
 
-def read_image(path: str | Path) -> ImageData:
-    """Read all channels of the first subimage of `path`."""
+def read_image(path: str | Path, channels: Sequence[str] | None = None) -> ImageData:
+    """Read the channels of the first subimage of `path`: all of them, or for an EXR at least `channels` (only
+    those when OpenEXR's bindings can read them; `ImageData.channel_names` lists the file's channels either way)."""
     path = str(path)
     if not Path(path).is_file():
         raise ImageReadError(f"{path}: file does not exist")
+    if channels is not None and path.lower().endswith(".exr"):
+        img = _read_exr_channels(path, channels)
+        if img is not None:
+            return img
     inp = oiio.ImageInput.open(path)
     if inp is None:
         raise ImageReadError(f"{path}: cannot open image ({oiio.geterror() or 'unknown error'})")
@@ -117,6 +128,44 @@ def read_image(path: str | Path) -> ImageData:
         return ImageData(path, spec.width, spec.height, names, planes, formats[0], max_int, attrs)
     finally:
         inp.close()
+
+
+def _read_exr_channels(path: str, channels: Sequence[str]) -> ImageData | None:
+    """`channels` of an EXR in one pass (OpenEXR's bindings), float channels as float32 and 32-bit integer ones raw;
+    None when the bindings are missing or cannot read the file or a channel (the caller reads it all through
+    OpenImageIO, which also says what is wrong with a broken file)."""
+    try:
+        import Imath
+        import OpenEXR
+    except ImportError:
+        return None
+    spec = read_spec(path)
+    names = tuple(spec.channelnames)
+    want = list(dict.fromkeys(channels))
+    if not want or any(c not in names for c in want):
+        return None
+    try:
+        f = OpenEXR.InputFile(path)
+    except Exception:  # noqa: BLE001  (not readable by the bindings: OpenImageIO's path decides)
+        return None
+    try:
+        header = f.header()
+        dw = header["dataWindow"]
+        w, h = dw.max.x - dw.min.x + 1, dw.max.y - dw.min.y + 1
+        if (w, h) != (spec.width, spec.height):
+            return None
+        raw = [c for c in want if header["channels"][c].type.v == Imath.PixelType.UINT]  # ids: read raw, as below
+        planes = {}
+        for group, kind, dtype in ((raw, Imath.PixelType.UINT, np.uint32), ([c for c in want if c not in raw], Imath.PixelType.FLOAT, np.float32)):
+            if group:  # one pass over the file per group
+                for c, buf in zip(group, f.channels(group, Imath.PixelType(kind))):
+                    planes[c] = np.frombuffer(buf, dtype).reshape(h, w).copy()
+    except Exception:  # noqa: BLE001
+        return None
+    finally:
+        f.close()
+    attrs = {p.name: p.value for p in spec.extra_attribs if p.name.startswith("x2video:") or p.name in ("framesPerSecond", "oiio:ColorSpace")}
+    return ImageData(path, spec.width, spec.height, names, planes, str(spec.channelformat(0)), None, attrs)
 
 
 def write_exr(

@@ -177,19 +177,22 @@ class MultilayerShot(Shot):
             ts = sorted({int(round(i)) for i in np.linspace(0, n - 1, min(n, 16))})
             total, count = 0.0, 0
             for t in ts:
-                s, c = log_luminance_sum(self._frame(t, scale=1.0)["irradiance"])
+                s, c = log_luminance_sum(self._frame(t, scale=1.0, only=("irradiance",))["irradiance"])
                 total, count = total + s, count + c
             self.info.irradiance_scale = exposure_scale(total, count)
             self._cache.clear()
 
-    def _frame(self, t: int, scale: float | None = None) -> dict[str, np.ndarray]:
+    def _frame(self, t: int, scale: float | None = None, only: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
+        """Our channels of frame t (those in `only`, default all), reading only the EXR channels they come from
+        (a Blender frame holds every light pass: `x2video.io.image.read_image`)."""
         path = self._files[t]
-        img = read_image(path)
+        sources = {ch: src for ch, src in self._sources.items() if only is None or ch in only}
+        img = read_image(path, channels=[n for src in sources.values() for names in src.passes for n in names])
         if (img.height, img.width) != (self.info.height, self.info.width):
             raise ValueError(f"{path}: size {img.width}x{img.height}, frame 0 is {self.info.width}x{self.info.height}")
         where = f"{path} (frame {t})"
         out: dict[str, np.ndarray] = {}
-        for ch, src in self._sources.items():
+        for ch, src in sources.items():
             out[ch] = self._convert(ch, src, img, where, t, self.info.irradiance_scale if scale is None else scale)
         return out
 
@@ -217,5 +220,5 @@ class MultilayerShot(Shot):
         """(H, W, 2) forward motion of frame t (our ``motion.X/Y`` layer), or None."""
         if self._motion_src is None:
             return None
-        img = read_image(self._files[t])
+        img = read_image(self._files[t], channels=self._motion_src.passes[0])
         return img.stack(self._motion_src.passes[0])
