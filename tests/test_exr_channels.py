@@ -60,3 +60,15 @@ def test_a_blender_shot_reads_the_same_with_and_without_the_bindings(tmp_path, m
         assert set(ref) == set(frames[t])
         for k in ref:
             assert np.array_equal(ref[k], frames[t][k]), (t, k)
+
+
+def test_noisy_irradiance_reads_the_sampled_light_passes(tmp_path):
+    from x2video.train.residual_stage import noisy_irradiance
+
+    rng = np.random.default_rng(2)
+    planes = _planes(rng, [f"{p}.{c}" for p in ("NoisyDiffDir", "NoisyDiffInd", "DiffDir", "Combined") for c in "RGB"])
+    write_exr(tmp_path / "f.exr", planes, "float")
+    want = np.stack([planes[f"NoisyDiffDir.{c}"] + planes[f"NoisyDiffInd.{c}"] for c in "RGB"], -1).clip(0, None)
+    np.testing.assert_array_equal(noisy_irradiance(tmp_path / "f.exr"), want)
+    write_exr(tmp_path / "g.exr", {k: v for k, v in planes.items() if not k.startswith("NoisyDiffInd")}, "float")
+    assert noisy_irradiance(tmp_path / "g.exr") is None

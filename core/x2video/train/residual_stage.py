@@ -113,16 +113,14 @@ NOISY_PLANES = slice(8, 14)
 def noisy_irradiance(frame_file: Path) -> np.ndarray | None:
     """(H, W, 3) NoisyDiffDir + NoisyDiffInd of a Cycles frame from `x2video.cycles.passes.compositor_output`
     (the light passes as sampled, before denoising), or None when the file has none."""
-    from x2video.io.image import read_image
+    from x2video.io.image import read_image, read_spec
 
-    img = read_image(frame_file)
-    names = set(img.channel_names)
-    parts = []
-    for p in ("NoisyDiffDir", "NoisyDiffInd"):
-        comps = [f"{p}.{c}" for c in "RGB"]
-        if not all(c in names for c in comps):
-            return None
-        parts.append(img.stack(comps))
+    names = set(read_spec(frame_file).channelnames)
+    comps = {p: [f"{p}.{c}" for c in "RGB"] for p in ("NoisyDiffDir", "NoisyDiffInd")}
+    if not all(c in names for cs in comps.values() for c in cs):
+        return None
+    img = read_image(frame_file, channels=[c for cs in comps.values() for c in cs])  # those 6 of the frame's ~70
+    parts = [img.stack(cs) for cs in comps.values()]
     return np.nan_to_num(parts[0] + parts[1], nan=0.0, posinf=0.0, neginf=0.0).clip(0, None).astype(np.float32)
 
 
