@@ -33,6 +33,11 @@ def test_selected_channels_equal_the_whole_read(tmp_path, pixel_type):
     assert some.attributes == whole.attributes and (some.width, some.height) == (27, 19)
     for n in some.planes:
         assert some.planes[n].dtype == np.float32 and np.array_equal(some.planes[n], whole.planes[n])
+    assert some.all().shape == (19, 27, 2)  # what was read
+    with pytest.raises(ValueError, match="'ViewLayer.Combined.R' was not read"):
+        some.channel("ViewLayer.Combined.R")
+    with pytest.raises(ValueError, match="no channel 'nope'"):
+        some.channel("nope")
 
 
 def test_raw_integer_ids_and_fallbacks(tmp_path, monkeypatch):

@@ -68,6 +68,8 @@ class ImageData:
         try:
             return self.planes[name]
         except KeyError:
+            if name in self.channel_names:  # `read_image(..., channels=...)` read others only
+                raise ImageReadError(f"{self.path}: channel {name!r} was not read (read_image read {', '.join(self.planes)})") from None
             raise ImageReadError(f"{self.path}: no channel {name!r} (has {', '.join(self.channel_names)})") from None
 
     def stack(self, names: Sequence[str], dtype: Any = np.float32) -> np.ndarray:
@@ -75,8 +77,8 @@ class ImageData:
         return np.stack([self.channel(n) for n in names], axis=-1).astype(dtype, copy=False)
 
     def all(self) -> np.ndarray:
-        """(H, W, C) float32 array of all channels in file order."""
-        return self.stack(self.channel_names)
+        """(H, W, C) float32 array of all channels read, in file order."""
+        return self.stack([n for n in self.channel_names if n in self.planes])
 
 
 def read_spec(path: str | Path) -> oiio.ImageSpec:

@@ -181,15 +181,19 @@ def features(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None 
     return x, np.ascontiguousarray(shading.transpose(2, 0, 1))
 
 
-def apply(net, x: torch.Tensor, shading: torch.Tensor) -> torch.Tensor:
-    """Linear radiance (N, 3, H, W) from features and the formula (`features`' second output) of any size
-    (reflect-padded to the net's factor, cropped back)."""
+def correction(net, x: torch.Tensor) -> torch.Tensor:
+    """The net's log-space correction (N, 3, H, W) of the formula for features x of any size (reflect-padded to
+    the net's factor, cropped back)."""
     h, w = x.shape[-2:]
     f = net.cfg.factor  # an OnnxResidual carries the same cfg
     ph, pw = (-h) % f, (-w) % f
     xp = F.pad(x, (0, pw, 0, ph), mode="reflect" if min(h, w) > max(ph, pw) else "replicate") if ph or pw else x
-    delta = net(xp)[..., :h, :w]
-    return torch.expm1(torch.log1p(shading.clamp_min(0)) + delta).clamp_min(0)
+    return net(xp)[..., :h, :w]
+
+
+def apply(net, x: torch.Tensor, shading: torch.Tensor) -> torch.Tensor:
+    """Linear radiance (N, 3, H, W) from features and the formula (`features`' second output) of any size."""
+    return torch.expm1(torch.log1p(shading.clamp_min(0)) + correction(net, x)).clamp_min(0)
 
 
 #: tier 1 on larger frames runs in overlapping tiles (`apply_tiled`): core side of a tile in pixels, the context

@@ -152,21 +152,39 @@ def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.devic
     `residual.MAX_PIXELS` pixels in one: a frame larger than that runs in overlapping tiles (`residual.apply_tiled`,
     equal to the whole-frame pass to float precision), so the net's working memory does not grow with the frame.
     A frame with more than `max_pixels` pixels (`RenderSettings.residual_pixels`; 0: none) runs the net at a
-    working size of at most that many (`working.working_size`, channels area-averaged); the net's correction of
-    the formula there, log1p(net's frame) - log1p(formula), comes back to full size bilinearly and is added to
+    working size of at most that many (`working.working_size`, channels area-averaged); the net's log-space
+    correction of the formula there (`residual.correction`) comes back to full size bilinearly and is added to
     the full-resolution formula in log space, so the formula's detail stays full resolution.
     Unless `guess_unseen`, pixels whose channels say nothing of their light (`residual.unseen_light`: sky, clear
-    glass, mirrors) keep the formula instead of the net's guess (decided at full resolution)."""
+    glass, mirrors) keep the formula instead of the net's guess (decided at full resolution; at a working size the
+    correction is also 0 on such working pixels and next to them, so the guess does not spread when upsampled)."""
     from x2video.sampling import working
 
-    def work(c: FrameConditioning) -> tuple[int, int] | None:
-        return working.working_size(_size(c), net.cfg.factor, max_pixels) if max_pixels else None
-
-    sizes = [work(c) for c in conds]
-    small = [c if ws is None else working.downsample_conditioning(c, ws) for c, ws in zip(conds, sizes)]
-    frames = _net_frames(net, small, device, batch)
-    frames = [f if ws is None else _correction_to_full(f, s, c) for f, s, c, ws in zip(frames, small, conds, sizes)]
+    sizes = [working.working_size(_size(c), net.cfg.factor, max_pixels) if max_pixels else None for c in conds]
+    frames: list[np.ndarray] = [np.empty(0)] * len(conds)
+    whole = [i for i, ws in enumerate(sizes) if ws is None]
+    for i, f in zip(whole, _net_frames(net, [conds[i] for i in whole], device, batch)):
+        frames[i] = f
+    small = [i for i, ws in enumerate(sizes) if ws is not None]
+    lows = [working.downsample_conditioning(conds[i], sizes[i]) for i in small]
+    for i, low, r in zip(small, lows, _net_frames(net, lows, device, batch, corrections=True)):
+        if not guess_unseen:  # upsampled, the guess would spread a working pixel onto the lit surfaces around
+            r = _without_unseen(r, low)  # windows and mirrors (a bright rim): no correction there or next to it
+        frames[i] = _correction_to_full(r, conds[i])
     return frames if guess_unseen else [keep_formula_where_unseen(f, c.channels) for f, c in zip(frames, conds)]
+
+
+def _without_unseen(r: np.ndarray, low: FrameConditioning) -> np.ndarray:
+    """A working-size correction `r` (h, w, 3) set to 0 where `low`'s channels hold no light and one pixel around."""
+    import cv2
+
+    from x2video.model.residual import unseen_light
+
+    m = unseen_light(low.channels, r.shape[:2])
+    if m is None or not m.any():
+        return r
+    near = cv2.dilate(m.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    return np.where(near[..., None], 0, r).astype(np.float32)
 
 
 def _shape(c: FrameConditioning) -> tuple[int, int] | None:
@@ -177,22 +195,23 @@ def _size(c: FrameConditioning) -> tuple[int, int]:
     return _shape(c) or next(np.shape(v)[:2] for v in c.channels.values() if v is not None)
 
 
-def _correction_to_full(frame: np.ndarray, small: FrameConditioning, full: FrameConditioning) -> np.ndarray:
-    """(H, W, 3): the tier-1 net's `frame` made at working size for `small`, as a log-space correction of the
-    formula brought up bilinearly onto `full`'s full-resolution formula."""
+def _correction_to_full(r: np.ndarray, full: FrameConditioning) -> np.ndarray:
+    """(H, W, 3): the tier-1 net's log-space correction `r` (h, w, 3) made at working size, brought up bilinearly
+    onto `full`'s full-resolution formula."""
     import cv2
 
     from x2video.model.residual import formula
 
     H, W = _size(full)
-    r = np.log1p(np.maximum(frame, 0)) - np.log1p(np.maximum(formula(small.channels, _shape(small)), 0))  # (h, w, 3)
-    up = cv2.resize(np.ascontiguousarray(r, np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
+    up = cv2.resize(np.ascontiguousarray(r, np.float32), (W, H), interpolation=cv2.INTER_LINEAR).reshape(H, W, 3)
     return np.maximum(np.expm1(np.log1p(np.maximum(formula(full.channels, _shape(full)), 0)) + up), 0).astype(np.float32)
 
 
-def _net_frames(net, conds: Sequence[FrameConditioning], device: torch.device | str, batch: int) -> list[np.ndarray]:
-    """The net's own output for each frame (`residual_frames` without the unseen-light rule)."""
-    from x2video.model.residual import MAX_PIXELS, apply, apply_tiled, features, needs_tiles
+def _net_frames(net, conds: Sequence[FrameConditioning], device: torch.device | str, batch: int,
+                corrections: bool = False) -> list[np.ndarray]:
+    """The net's own output for each frame (`residual_frames` without the unseen-light rule), or with `corrections`
+    its log-space correction of the formula (before the output is clipped at 0)."""
+    from x2video.model.residual import MAX_PIXELS, apply, apply_tiled, correction, features, formula, needs_tiles
 
     shape, size = _shape, _size
     out: list[np.ndarray] = []
@@ -200,7 +219,10 @@ def _net_frames(net, conds: Sequence[FrameConditioning], device: torch.device | 
     while i < len(conds):
         hw = size(conds[i])
         if needs_tiles(hw, net.cfg.factor):
-            out.append(apply_tiled(net, conds[i].channels, shape(conds[i])))
+            f = apply_tiled(net, conds[i].channels, shape(conds[i]))
+            if corrections:  # (a working size beyond one tile: the clipped output's correction)
+                f = np.log1p(np.maximum(f, 0)) - np.log1p(np.maximum(formula(conds[i].channels, shape(conds[i])), 0))
+            out.append(f)
             i += 1
             continue
         n = max(1, min(batch, MAX_PIXELS // (hw[0] * hw[1])))
@@ -210,7 +232,7 @@ def _net_frames(net, conds: Sequence[FrameConditioning], device: torch.device | 
         feats = [features(c.channels, shape(c)) for c in group]
         x = torch.from_numpy(np.stack([f[0] for f in feats])).to(device)  # (B, C_in, H, W)
         s = torch.from_numpy(np.stack([f[1] for f in feats])).to(device)  # (B, 3, H, W)
-        y = apply(net, x, s).permute(0, 2, 3, 1).float().cpu().numpy()  # (B, H, W, 3)
+        y = (correction(net, x) if corrections else apply(net, x, s)).permute(0, 2, 3, 1).float().cpu().numpy()  # (B, H, W, 3)
         out.extend(np.ascontiguousarray(f) for f in y)
         i += len(group)
     return out
