@@ -91,8 +91,8 @@ class RenderSettings:
     """Tier 1, large frames: a frame with more pixels than this runs the tier-1 net at a working resolution of at
     most this many pixels (aspect kept) and its log-space correction of the formula comes back to full size,
     bilinearly, on top of the full-resolution formula (`x2video.sampling.tiers.residual_frames`). On 1024x1024
-    Cycles frames it scored about what the full-size pass scores (21.06 dB against 21.07, the formula 19.09), 2.7x faster there and
-    3.6x at 1920x1080 (docs/SHOT_FORMAT.md). 0: the net at full resolution, in overlapping tiles beyond 896x896."""
+    Cycles frames it scored about what the full-size pass scores (21.06 dB against 21.07, the formula 19.09), 3.0x faster there and
+    4.4x at 1920x1080 (docs/SHOT_FORMAT.md). 0: the net at full resolution, in overlapping tiles beyond 896x896."""
 
 
 class CancelToken:
