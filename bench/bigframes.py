@@ -37,8 +37,8 @@ import numpy as np
 from bench.common import command, results_path
 
 TIERS = ("formula", "residual", "residual@full", "diffusion")
-#: RenderSettings fields of a case's tier beyond its quality
-TIER_SETTINGS = {"residual@full": {"residual_pixels": 0}, "diffusion": {"preset": "fast"}}
+#: RenderSettings fields of a case's tier beyond its quality (the diffusion tier also takes the fast preset)
+TIER_SETTINGS = {"residual@full": {"residual_pixels": 0}}
 SIZES = "1920x1080,1366x768,1024x1024"
 #: the shipped model's training size: the diffusion tier's other working resolution in the accuracy table
 TRAINING_PIXELS = 160 * 112
@@ -105,7 +105,8 @@ def run_case(size: tuple[int, int], tier: str, frames: int, threads: int) -> dic
     rss_loaded = peak_rss_gb()
     shot = generated_shot(frames, h, w)
     ready: list[float] = []
-    settings = RenderSettings(quality=tier.split("@")[0], **TIER_SETTINGS.get(tier, {}))  # type: ignore[arg-type]
+    quality = tier.split("@")[0]
+    settings = RenderSettings(quality=quality, preset="fast" if quality == "diffusion" else None, **TIER_SETTINGS.get(tier, {}))  # type: ignore[arg-type]
 
     def on_event(e) -> None:
         if isinstance(e, FramesReady):
@@ -162,7 +163,7 @@ def accuracy(data: Path, split: str, tiers: list[str], threads: int) -> dict:
     shots = sorted(p for p in root.iterdir() if (p / "shot.json").is_file())
     if not shots:
         raise FileNotFoundError(f"{root}: no shot folders (shot.json) to score")
-    runs = [(f"{t}|all", t.split("@")[0], "all", TIER_SETTINGS.get(t, {}) if t != "diffusion" else {}) for t in tiers]
+    runs = [(f"{t}|all", t.split("@")[0], "all", TIER_SETTINGS.get(t, {})) for t in tiers]
     if "diffusion" in tiers:
         runs.append((f"diffusion@{TRAINING_PIXELS}|all", "diffusion", "all", {"working_pixels": TRAINING_PIXELS}))
     summary, per_shot = evaluate(renderer, shots, runs)

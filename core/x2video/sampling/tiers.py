@@ -158,6 +158,7 @@ def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.devic
     Unless `guess_unseen`, pixels whose channels say nothing of their light (`residual.unseen_light`: sky, clear
     glass, mirrors) keep the formula instead of the net's guess (decided at full resolution; at a working size the
     correction is also 0 on such working pixels and next to them, so the guess does not spread when upsampled)."""
+    from x2video.model.residual import formula
     from x2video.sampling import working
 
     sizes = [working.working_size(_size(c), net.cfg.factor, max_pixels) if max_pixels else None for c in conds]
@@ -170,7 +171,7 @@ def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.devic
     for i, low, r in zip(small, lows, _net_frames(net, lows, device, batch, corrections=True)):
         if not guess_unseen:  # upsampled, the guess would spread a working pixel onto the lit surfaces around
             r = _without_unseen(r, low)  # windows and mirrors (a bright rim): no correction there or next to it
-        frames[i] = _correction_to_full(r, conds[i])
+        frames[i] = working.onto_formula(r, formula(conds[i].channels, _shape(conds[i])))
     return frames if guess_unseen else [keep_formula_where_unseen(f, c.channels) for f, c in zip(frames, conds)]
 
 
@@ -193,18 +194,6 @@ def _shape(c: FrameConditioning) -> tuple[int, int] | None:
 
 def _size(c: FrameConditioning) -> tuple[int, int]:
     return _shape(c) or next(np.shape(v)[:2] for v in c.channels.values() if v is not None)
-
-
-def _correction_to_full(r: np.ndarray, full: FrameConditioning) -> np.ndarray:
-    """(H, W, 3): the tier-1 net's log-space correction `r` (h, w, 3) made at working size, brought up bilinearly
-    onto `full`'s full-resolution formula."""
-    import cv2
-
-    from x2video.model.residual import formula
-
-    H, W = _size(full)
-    up = cv2.resize(np.ascontiguousarray(r, np.float32), (W, H), interpolation=cv2.INTER_LINEAR).reshape(H, W, 3)
-    return np.maximum(np.expm1(np.log1p(np.maximum(formula(full.channels, _shape(full)), 0)) + up), 0).astype(np.float32)
 
 
 def _net_frames(net, conds: Sequence[FrameConditioning], device: torch.device | str, batch: int,

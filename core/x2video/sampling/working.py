@@ -117,16 +117,23 @@ def guided_upsample(low: np.ndarray, guide: np.ndarray, radius: int | None = Non
 def to_full(frame: np.ndarray, cond_full: FrameConditioning, upsample: str = "bilinear") -> np.ndarray:
     """(H, W, 3) full-resolution linear frame from a diffusion frame (h, w, 3) made at working size for the frame
     whose full-resolution conditioning is `cond_full` (see the module docstring)."""
-    import cv2
-
     from x2video.sampling.tiers import formula_frame
 
     if upsample not in UPSAMPLE:
         raise ValueError(f"unknown upsampling {upsample!r} (use one of {', '.join(UPSAMPLE)})")
     base = formula_frame(cond_full)  # (H, W, 3) albedo x irradiance, zero inside A|M|R regions
-    H, W = base.shape[:2]
     h, w = frame.shape[:2]
     r = np.log1p(np.maximum(frame, 0)) - np.log1p(np.maximum(resize_area(base, (h, w)), 0))  # (h, w, 3) what the network adds
-    guide = guide_image(cond_full, base) if upsample == "guided" else None
+    return onto_formula(r, base, guide_image(cond_full, base) if upsample == "guided" else None)
+
+
+def onto_formula(r: np.ndarray, base: np.ndarray, guide: np.ndarray | None = None) -> np.ndarray:
+    """(H, W, 3) linear: a working-size log-space residual `r` (h, w, 3) upsampled (bilinear; then the guided filter
+    by `guide` when one is given) and added to log1p of the full-resolution formula `base` (H, W, 3). The
+    diffusion tier's `to_full` and tier 1's working size (`x2video.sampling.tiers.residual_frames`) both end here."""
+    import cv2
+
+    H, W = base.shape[:2]
+    r = np.ascontiguousarray(r, np.float32)
     up = guided_upsample(r, guide) if guide is not None else cv2.resize(r, (W, H), interpolation=cv2.INTER_LINEAR).reshape(H, W, 3)
     return np.maximum(np.expm1(np.log1p(np.maximum(base, 0)) + up), 0).astype(np.float32)
