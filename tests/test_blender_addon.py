@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parents[1]
 ADDON = ROOT / "packaging" / "blender" / "x2video_export.py"
 PASSES = ROOT / "core" / "x2video" / "cycles" / "passes.py"
 CLASSES = ROOT / "core" / "x2video" / "cycles" / "classes.py"
-SHARED = ("AOVS", "PASS_FLAGS", "LIGHT_PASSES", "FILE_PASSES")
+SHARED = ("AOVS", "PASS_FLAGS", "LIGHT_PASSES", "FILE_PASSES", "_TAG")
 
 bpy_missing = subprocess.run([sys.executable, "-c", "import importlib.util,sys; sys.exit(importlib.util.find_spec('bpy') is None)"], check=False).returncode
 

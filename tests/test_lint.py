@@ -1,4 +1,4 @@
-"""`ruff check` (its rules in pyproject.toml) passes on the product code, the benches and the tests."""
+"""`ruff check .` (its rules in pyproject.toml, ruff pinned in the test extra) passes from the repository root, as a contributor runs it."""
 import shutil
 import subprocess
 import sys
@@ -18,7 +18,7 @@ def test_ruff_check_passes():
     ruff = _ruff()
     if ruff is None:
         pytest.fail("ruff is not installed: pip install -e '.[test]'")
-    proc = subprocess.run([ruff, "check", "--no-cache", "core", "x2video_app", "bench", "tests"], cwd=ROOT, capture_output=True, text=True)
+    proc = subprocess.run([ruff, "check", "--no-cache", "."], cwd=ROOT, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 

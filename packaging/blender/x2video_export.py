@@ -12,6 +12,16 @@ Self-contained: it cannot import x2video. Its pass and AOV lists are a copy of
 Blender 3.4 to 4.2.
 """
 
+import json
+import math
+import os
+import shutil
+import tempfile
+
+import bpy
+from bpy.props import BoolProperty, IntProperty, PointerProperty, StringProperty
+
+# Blender's add-on list reads `bl_info` from the source with ast (addon_utils), wherever it stands at module level.
 bl_info = {
     "name": "X2Video shot export",
     "author": "X2Video Studio",
@@ -21,15 +31,6 @@ bl_info = {
     "description": "Render passes + shader AOVs into an X2Video shot (multi-layer EXR frames, cameras.json, shot.json)",
     "category": "Render",
 }
-
-import json
-import math
-import os
-import shutil
-import tempfile
-
-import bpy
-from bpy.props import BoolProperty, IntProperty, PointerProperty, StringProperty
 
 # ------------------------------------------------------------------------------------------------ the set-up
 # Copied from x2video.cycles.passes (keep equal: tests/test_blender_addon.py compares them).
