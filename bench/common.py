@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from x2video.cli.args import size_arg
-from x2video.cli.fields import add_fields, from_args
+from x2video.fields import add_fields, from_args
 from x2video.sampling.events import RenderSettings
 from x2video.weights import ModelOptions
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from bench.common import command, results_path
 from x2video.cli.args import size_arg
-from x2video.cli.fields import add_fields, from_args
+from x2video.fields import add_fields, from_args
 from x2video.sampling.events import RenderSettings
 
 

@@ -17,7 +17,8 @@ from typing import Any, Callable
 from PySide6.QtCore import QObject, Signal
 from superqt.utils import create_worker
 
-from x2video.sampling.events import CancelToken, FramesReady, RenderEvent, RenderSettings, RenderStarted
+from x2video.sampling.events import CancelToken, FramesReady, RenderEvent, RenderStarted
+from x2video.sampling.settings import RenderSettings
 from x2video_app.document import Document
 from x2video_app.model_source import ModelChoice, load_model
 from x2video_app.preview import PreviewReady, preview_frame, preview_frames, preview_order

@@ -18,7 +18,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from x2video.sampling.events import RenderSettings
+from x2video.sampling.settings import RenderSettings
 from x2video_app.render_state import RenderState
 
 #: the Quality choices (RenderSettings.quality): (value, label, tooltip)

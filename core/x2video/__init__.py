@@ -26,7 +26,7 @@ _EXPORTS = {
     "load_model": "x2video.weights",
     "shipped_weights": "x2video.weights",
     "Renderer": "x2video.sampling.renderer",
-    "RenderSettings": "x2video.sampling.events",
+    "RenderSettings": "x2video.sampling.settings",
     "CancelToken": "x2video.sampling.events",
     "Edits": "x2video.edits.model",
     "FrameSink": "x2video.sampling.sink",
@@ -37,8 +37,8 @@ if TYPE_CHECKING:
     from x2video.edits.model import Edits as Edits
     from x2video.io.load import load_shot as load_shot
     from x2video.sampling.events import CancelToken as CancelToken
-    from x2video.sampling.events import RenderSettings as RenderSettings
     from x2video.sampling.renderer import Renderer as Renderer
+    from x2video.sampling.settings import RenderSettings as RenderSettings
     from x2video.sampling.sink import FrameSink as FrameSink
     from x2video.weights import load_model as load_model
     from x2video.weights import shipped_weights as shipped_weights

@@ -8,13 +8,10 @@ from x2video.procedural.demo import DEMO
 
 
 def parse_size(text: str) -> tuple[int, int]:
-    """'320x224' -> (320, 224), at least 8 pixels each way."""
-    from x2video.train.data import parse_size as parse
+    """'320x224' -> (320, 224), at least 8 pixels each way (`x2video.fields.parse_size`, where the library reads it too)."""
+    from x2video.fields import parse_size as parse
 
-    w, h = parse(text)
-    if w < 8 or h < 8:
-        raise ValueError(f"--size {text}: width and height must be at least 8")
-    return w, h
+    return parse(text)
 
 
 def make(args: argparse.Namespace) -> int:

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from x2video.cli.fields import add_fields, from_args
-from x2video.sampling.events import RenderSettings
+from x2video.sampling.settings import RenderSettings
 from x2video.weights import ModelOptions
 
 log = logging.getLogger(__name__)

@@ -1,7 +1,7 @@
 """Open Job Description job templates (specification `jobtemplate-2023-09`) for farm jobs, one per shot: the
 same render as `x2video farm`, as one step running `x2video render ...`, for schedulers that read OpenJD (AWS
 Deadline Cloud; `openjd run NAME.template.json -p file://NAME.params.json` runs one on this machine). The flags come
-from the settings dataclasses (`x2video.cli.fields.to_flags`), so a template renders what `x2video farm` with the
+from the settings dataclasses (`x2video.fields.to_flags`), so a template renders what `x2video farm` with the
 same flags renders. The shot and output paths are job parameters without defaults (OpenJD wants a PATH default
 relative to the template's folder, and shots live elsewhere): `NAME.params.json` beside the template holds them.
 """
@@ -10,9 +10,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from x2video.cli.fields import to_flags
 from x2video.farm import state
 from x2video.farm.jobs import Job
+from x2video.fields import to_flags
 from x2video.io.atomic import write_json_atomic
 
 SPECIFICATION = "jobtemplate-2023-09"
@@ -22,7 +22,7 @@ def job_template(job: Job, output: Path, settings: Any, options: Any, fps: float
     """The job template (a dict, JSON-ready) that renders `job` to `output` with `settings` and `options`
     (`x2video.RenderSettings`, `x2video.weights.ModelOptions`): parameters for the shot or project and the output
     (`job_parameters` gives their values) and the `x2video` command on the worker, and one step 'Render'."""
-    from x2video.sampling.events import RenderSettings
+    from x2video.sampling.settings import RenderSettings
     from x2video.weights import ModelOptions
 
     source = "Project" if job.kind == "project" else "Shot"

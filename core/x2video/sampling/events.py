@@ -1,98 +1,18 @@
-"""Render settings, cancel token and the typed events a `Renderer` emits (CLI, editor and bench share them)."""
+"""The cancel token and the typed events a `Renderer` emits (CLI, editor and bench share them).
+
+`RenderSettings` lives in `x2video.sampling.settings`; importing it from here keeps working."""
 from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
-from typing import Callable, Literal, Union
+from typing import Callable, Union
 
 import numpy as np
 
+from x2video.sampling.settings import RenderSettings
 
-@dataclass
-class RenderSettings:
-    """How to sample a shot. The field docstrings are the CLI help (`x2video.cli.fields`); why each
-    default is what it is, measured, is in docs/evaluations/ (the notebook and the entries it cites)."""
-
-    sampler: Literal["ddim", "lcm"] = "ddim"
-    """DDIM (v-prediction, trailing spacing) or LCM multistep (needs distilled weights); ignored with a preset."""
-    steps: int = 20
-    """Denoising steps per window (paper: DDIM-20; LCM-2 after distillation); ignored with a preset."""
-    seed: int = 0
-    """Seed of the initial noise; same inputs and seed give identical frames."""
-    window: int = 5
-    """Frames per window N (the paper trains with N=5)."""
-    scheme: Literal["recursive", "sequential"] = "recursive"
-    """Recursive Sampling (keyframes, then interpolation levels) or the sequential baseline."""
-    frames: tuple[int, int] | None = None
-    """Render only frames [START, STOP) of the shot."""
-    detail: bool = True
-    """Residual models only: add back the classical shading's fine detail that the VAE loses (off: an ablation)."""
-    replace_refs: bool = True
-    """Between denoising steps, hold each window's reference frames (those earlier windows produced) at their
-    latent noised to the step's level, as in training, instead of letting the window re-estimate them
-    (`x2video.sampling.samplers.Known`); off is the ablation."""
-    seams: bool = True
-    """The seam pass, recursive scheme with three levels or more (18 frames or more at N = 5): after the first
-    interpolation level, make each keyframe again with its neighbours in a window of that level
-    (`x2video.sampling.planner.seam_windows`), so the finer levels interpolate between frames that agree. One
-    more window per keyframe; the frames it makes again arrive twice (`FramesReady.replaces`)."""
-    max_levels: int | None = None
-    """Recursive scheme only: at most this many levels K (unset: the fewest that let one keyframe window span the
-    shot; K = 3 at 65 frames and N = 5). Fewer levels put the keyframes (N-1)^(K-1) frames apart and chain the
-    keyframe windows (`x2video.sampling.planner.plan_recursive`); K = 1 is sequential sampling in keyframe mode."""
-    noise: Literal["window", "frame"] = "frame"
-    """How the initial noise is seeded: per 'frame' of the shot (a frame has the same noise in every window that
-    holds it, a reference is re-noised with the noise it was made from, and a sub-range renders with the same
-    noise; `frame_noise`), or per 'window' (each window draws its own noise for all its positions)."""
-    noise_shared: float = 0.95
-    """With 'frame' noise: the fraction of the noise's variance every frame of the shot shares, in [0, 1] (a
-    mixed noise prior, Ge et al. 2023, "Preserve Your Own Correlation"); each frame's noise stays standard
-    normal; 0 gives independent per-frame noise. Higher values trade a little PSNR for temporal consistency."""
-    ref_dc: float = 1.0
-    """Interpolation windows, where a frame's lighting must be inferred (the whole frame without albedo or
-    irradiance, else inside its A|M|R mask): at every denoising step pull that region's latent mean per
-    channel (its colour and brightness) this fraction of the way, in [0, 1], to the linear interpolation of
-    the two references' means (statistics matching to the keyframes, as AdaIN on latents in Rerender-A-Video,
-    Yang et al. 2023), so that windows agree on the lighting across seams; 0: off."""
-    resample: int = 1
-    """DDIM only: RePaint's resampling (Lugmayr et al. 2022) in windows that hold references: each denoising
-    step but the first and last is taken this many times, going back one step's worth of noise in between
-    (`x2video.sampling.samplers.sample_ddim`); 1: off; r costs those windows about r times the network passes."""
-    quality: Literal["auto", "formula", "residual", "diffusion"] = "auto"
-    """Which tier renders (`x2video.sampling.tiers`): 'formula' = albedo x irradiance, no network, no weights;
-    'residual' = one pass of the tier-1 network over it (needs residual.safetensors beside the weights);
-    'diffusion' = the video diffusion sampler. 'auto': the tier-1 network where nothing must be generated, the
-    diffusion sampler where something must (a dropped channel, a masked A|M|R region, a local prompt, a
-    reference) and, when only some regions must be generated, tier 1 around them with a feathered seam; a model
-    without the tier-1 network renders with the diffusion sampler. The log says what ran and why."""
-    exposure: float | str = "auto"
-    """MP4 exposure in stops on the input's radiometric units, or 'auto': the shot's own irradiance
-    normalisation, i.e. what the model saw (`x2video.io.units.OutputUnits`). EXR output is always in the
-    input's units."""
-    engine: Literal["auto", "torch", "onnx", "openvino"] = "auto"
-    """What runs the diffusion tier's UNet, VAE decoder and channel encoder (`x2video.model.engine`): 'torch'
-    (PyTorch, the reference), 'onnx' (ONNX Runtime) or 'openvino' (OpenVINO) on graphs exported once per
-    window and frame size and cached under the user's cache folder; 'auto': the fastest installed on a CPU
-    (OpenVINO, then ONNX Runtime), PyTorch on a GPU or in half precision."""
-    preset: Literal["fast", "quality"] | None = None
-    """Overrides sampler and steps when set: 'fast' = LCM-2 if distilled weights are loaded, else DDIM-4;
-    'quality' = DDIM-20 (`x2video.sampling.renderer.select_steps`)."""
-    guess_unseen: bool = False
-    """Tier 1: let the net guess the light where the channels hold none (sky and backdrops through windows, what
-    shows through clear glass); its guess follows its training rooms, mostly daylight. Off: the formula there
-    (black unless the channels light it), never a daylight sky painted into a night window."""
-    working_pixels: int = 320 * 224
-    """Diffusion tier, large frames: a frame with more pixels than this runs the diffusion network at a working
-    resolution of at most this many pixels (aspect kept), near the size it was trained at, and the network's
-    residual over the formula (log space) comes back to full size on top of the full-resolution formula, whose
-    detail so stays full resolution (`x2video.sampling.working`). 0: always at full resolution (memory and time
-    grow with the frame)."""
-    residual_pixels: int = 512 * 512
-    """Tier 1, large frames: a frame with more pixels than this runs the tier-1 net at a working resolution of at
-    most this many pixels (aspect kept) and its log-space correction of the formula comes back to full size,
-    bilinearly, on top of the full-resolution formula (`x2video.sampling.tiers.residual_frames`). On 1024x1024
-    Cycles frames it scored about what the full-size pass scores (21.06 dB against 21.07, the formula 19.09), 3.0x faster there and
-    4.4x at 1920x1080 (docs/SHOT_FORMAT.md). 0: the net at full resolution, in overlapping tiles beyond 896x896."""
+__all__ = ["RenderSettings", "CancelToken", "Cancelled", "RenderStarted", "WindowStarted", "StepDone", "FramesReady", "RenderFinished",
+           "RenderCancelled", "RenderFailed", "RenderEvent", "EventCallback"]
 
 
 class CancelToken:

@@ -20,11 +20,11 @@ from x2video.sampling.events import (
     RenderCancelled,
     RenderFailed,
     RenderFinished,
-    RenderSettings,
     RenderStarted,
     StepDone,
     WindowStarted,
 )
+from x2video.sampling.settings import RenderSettings
 from x2video.shot import Shot
 
 

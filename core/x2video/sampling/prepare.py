@@ -21,7 +21,8 @@ import torch
 from x2video.conditioning import FrameConditioning
 from x2video.model.api import WindowInputs
 from x2video.sampling.cache import conditioning_key
-from x2video.sampling.events import CancelToken, RenderSettings
+from x2video.sampling.events import CancelToken
+from x2video.sampling.settings import RenderSettings
 
 if TYPE_CHECKING:
     from x2video.sampling.renderer import Renderer

@@ -37,13 +37,13 @@ from x2video.sampling.events import (
     RenderEvent,
     RenderFailed,
     RenderFinished,
-    RenderSettings,
     RenderStarted,
     StepDone,
     WindowStarted,
 )
 from x2video.sampling.planner import Window, last_use, plan, shift
 from x2video.sampling.samplers import Known, alphas_cumprod, mix_noise, sample_ddim, sample_lcm
+from x2video.sampling.settings import RenderSettings
 from x2video.sampling.timing import NoTimes, StageTimes
 from x2video.shot import Shot
 

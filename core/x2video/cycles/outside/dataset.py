@@ -52,8 +52,8 @@ def parse_scenes(text: str) -> list[str]:
 
 
 def make_outside(args: argparse.Namespace) -> int:
-    from x2video.cli.dataset import parse_size
     from x2video.cycles.dataset import require_bpy
+    from x2video.fields import parse_size
     from x2video.io.atomic import write_json_atomic
     from x2video.procedural.dataset import begin_dataset, is_done
 
