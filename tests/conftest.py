@@ -32,8 +32,8 @@ def _no_dangling_qt_threads(request):
     from PySide6.QtCore import QThreadPool
 
     problems = []
-    if "superqt.utils._qthreading" in _sys.modules:
-        from superqt.utils._qthreading import WorkerBase
+    if "superqt.utils" in _sys.modules:
+        from superqt.utils import WorkerBase
 
         running = [w for w in WorkerBase._worker_set]
         if running:

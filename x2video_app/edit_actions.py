@@ -14,7 +14,7 @@ import numpy as np
 from PySide6.QtCore import QObject, Signal
 from PySide6.QtGui import QUndoStack
 from PySide6.QtWidgets import QFileDialog, QProgressDialog, QWidget
-from superqt.utils import create_worker
+from superqt.utils import WorkerBase, create_worker
 
 from x2video.edits import Edits, Reference
 from x2video.edits.propagate import propagate_mask
@@ -162,8 +162,6 @@ class EditActions(QObject):
         w = self.propagate_worker
         if w is not None:
             w.quit()
-            from superqt.utils._qthreading import WorkerBase
-
             WorkerBase.await_workers(wait_ms)
 
     # -- masks -----------------------------------------------------------------

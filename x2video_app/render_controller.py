@@ -250,7 +250,7 @@ class RenderController(QObject):
             return renderer.render(shot, edits, settings, on_event, cancel, base_dir=base_dir)
 
         w = RenderWorker(run, shot, edits, settings)
-        w.signals.event.connect(self._on_event)
+        w.events.event.connect(self._on_event)
         w.errored.connect(self._on_error)
         w.finished.connect(self._on_finished)
         self.worker = w

@@ -1,7 +1,8 @@
 """The render worker: runs `Renderer.render` off the GUI thread (a superqt worker) and forwards its typed events.
 
 The core knows nothing of Qt: it calls `on_event(event)` from the worker thread; the worker
-re-emits each event through a Qt signal, which Qt queues onto the GUI thread. `quit()` sets
+re-emits each event through `events.event`, a signal of a QObject made on the GUI thread, so Qt queues it there
+(superqt's public API only: the worker's own signals stay superqt's). `quit()` sets
 the `CancelToken`, which the sampler checks between denoising steps.
 """
 from __future__ import annotations
@@ -9,16 +10,16 @@ from __future__ import annotations
 import logging
 from typing import Any, Callable
 
-from PySide6.QtCore import Signal
+from PySide6.QtCore import QObject, Signal
 from superqt.utils import WorkerBase
-from superqt.utils._qthreading import WorkerBaseSignals
 
-from x2video.sampling.events import CancelToken, RenderSettings
+from x2video.sampling.events import CancelToken
+from x2video.sampling.settings import RenderSettings
 
 log = logging.getLogger(__name__)
 
 
-class RenderWorkerSignals(WorkerBaseSignals):
+class RenderEvents(QObject):
     event = Signal(object)  # one typed render event (x2video.sampling.events), on the GUI thread
 
 
@@ -30,7 +31,8 @@ class RenderWorker(WorkerBase):
     """
 
     def __init__(self, render: Callable[..., Any], shot, edits, settings: RenderSettings) -> None:
-        super().__init__(SignalsClass=RenderWorkerSignals)
+        super().__init__()
+        self.events = RenderEvents()  # made here, on the GUI thread: emits from the pool thread are queued to it
         self._render = render
         self._args = (shot, edits, settings)
         self.token = CancelToken()
@@ -42,4 +44,4 @@ class RenderWorker(WorkerBase):
 
     def work(self) -> Any:
         shot, edits, settings = self._args
-        return self._render(shot, edits, settings, on_event=self.signals.event.emit, cancel=self.token)
+        return self._render(shot, edits, settings, on_event=self.events.event.emit, cancel=self.token)
