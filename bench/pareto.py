@@ -196,7 +196,8 @@ def cycles_job(shot_dir: Path, frames: int) -> dict | None:
     poses = parse_cameras_json(shot_dir / "cameras.json", int(info["num_frames"]))
     return {"dir": str(shot_dir), "seed": int(extra["room_seed"]), "gain": float(extra["light_gain"]),
             "poses": [(np.asarray(p.cam_to_world, float).tolist(), p.fov_y_deg) for p in poses[:frames]],
-            "width": int(info["width"]), "height": int(info["height"]), "samples": extra.get("samples")}
+            "width": int(info["width"]), "height": int(info["height"]), "samples": extra.get("samples"),
+            "version": 3 if str(extra.get("generator", "")).endswith("v3") else 2}
 
 
 def frames_sha256(shots: list, nframes: list[int]) -> str:
@@ -243,7 +244,7 @@ def _cycles_worker(jobs: list[dict], samples: list[int], reference: int, threads
     for job in jobs:
         poses = [CameraPose(np.array(m, float), fov) for m, fov in job["poses"]]
         t0 = time.perf_counter()
-        scene = beauty_scene(job["seed"], poses, job["width"], job["height"], job["gain"], threads=threads)
+        scene = beauty_scene(job["seed"], poses, job["width"], job["height"], job["gain"], threads=threads, version=job.get("version", 2))
         build = time.perf_counter() - t0
         if not warm:  # kernels and OIDN load on the first render of the process: untimed
             render_beauty(scene, 0, 1)

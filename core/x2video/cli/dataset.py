@@ -24,6 +24,8 @@ def make(args: argparse.Namespace) -> int:
 
     from x2video.procedural.dataset import make_dataset
 
+    if not args.out:
+        raise SystemExit("x2video dataset make --renderer raster: --out is required (only Cycles sets have a default cache folder)")
     bar = tqdm(unit="room", desc="rooms")
     t0, first = time.perf_counter(), None
 
@@ -69,13 +71,20 @@ def register(subparsers) -> None:
     m.add_argument("--frames", type=int, default=60, help="frames per shot")
     m.add_argument("--size", default="320x224", help="WIDTHxHEIGHT in pixels")
     m.add_argument("--seed", type=int, default=0, help="data set seed; room i uses scene seed seed*1000003+i")
-    m.add_argument("--out", required=True, help="output folder")
+    m.add_argument("--out", default=None, help="output folder (cycles: default a cache folder keyed by generator version, seed, size"
+                                                 " and samples, under $X2VIDEO_DATA_CACHE or ~/.cache/x2video/datasets)")
     m.add_argument("--workers", type=int, default=1, help="parallel processes (one EGL context each)")
     m.add_argument("--test-every", type=int, default=10, help="every N-th room goes to the test split (0: no test split)")
     m.add_argument("--renderer", choices=("raster", "cycles"), default="raster",
                    help="raster: the fast moderngl renderer (shot folders); cycles: Blender's path tracer through bpy (Blender"
                         " multi-layer EXR shots with a val split; needs `pip install 'x2video-studio[cycles]'`)")
     m.add_argument("--samples", type=int, default=32, help="cycles: path-tracing samples per pixel (Combined and the light passes are denoised)")
+    m.add_argument("--clips", type=int, default=1, help="cycles: clips of --frames frames per training room, each along its own camera"
+                                                         " path (the room is built once; test and validation rooms get one)")
+    m.add_argument("--minutes", type=float, default=0.0, help="cycles: build budget in minutes (0: none); no room starts after it,"
+                                                               " the same command resumes")
+    m.add_argument("--generator", type=int, default=0, help="cycles: room generator version (0: the newest, 3: textures, decor,"
+                                                            " backdrops; 2: the rooms of earlier sets)")
     m.add_argument("--splits", default=None, help="cycles: render only these splits, e.g. 'test' (comma-separated; default all)")
     m.set_defaults(func=make)
     o = sub.add_parser("outside", help="path-trace the hand-written outside test scenes into DIR/test/<scene> (Cycles, resumable)")

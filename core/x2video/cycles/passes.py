@@ -147,7 +147,9 @@ def compositor_output(scene: "bpy.types.Scene", *, denoise_passes: bool = True,
         label = "Combined" if name == "Image" else name
         if denoise_passes and name in LIGHT_PASSES:
             dn = tree.nodes.new("CompositorNodeDenoise")
-            dn.prefilter = "ACCURATE"
+            # FAST: Cycles' denoising albedo and normal are clean enough as guides; ACCURATE denoised them again for
+            # each of the six passes (0.87 -> 0.48 s of fixed cost per 160x112 frame)
+            dn.prefilter = "FAST"
             tree.links.new(sock, dn.inputs["Image"])
             tree.links.new(rl.outputs["Denoising Normal"], dn.inputs["Normal"])
             tree.links.new(rl.outputs["Denoising Albedo"], dn.inputs["Albedo"])

@@ -16,6 +16,7 @@ import bpy
 import numpy as np
 
 from x2video.cycles.passes import set_input
+from x2video.cycles.variety import Variety, add_backdrops, add_decor, apply_surface, bevel_box, decor_caption, decor_class, decor_material, variety_for
 from x2video.procedural.geometry import Part, SceneObject
 from x2video.procedural.materials import Material
 from x2video.procedural.room import WALL_T, wall_box, wall_frame
@@ -43,11 +44,14 @@ class Extras:
     glass_objects: list[int] = field(default_factory=list)
     #: multiplier on every emissive material's strength (shades and fixtures from dim to glaring)
     emit_gain: float = 1.0
+    #: generator v3's textures, decor, bevels, backdrops and large mirrors (None: a v2 room)
+    variety: Variety | None = None
 
 
-def extras_for(scene: Scene, seed: int) -> Extras:
+def extras_for(scene: Scene, seed: int, version: int = 3) -> Extras:
     """The path-traced additions of room `seed`: half the rooms glossy-floored and half with metal, drawn together
-    so that at least a third hold both (P = 0.55 * 0.8 = 0.44 with the coupling below)."""
+    so that at least a third hold both (P = 0.55 * 0.8 = 0.44 with the coupling below); from generator `version` 3
+    on, `x2video.cycles.variety` too (its own random stream: the v2 draws stay as they were)."""
     rng = np.random.default_rng([seed, 0xC7C1E5])
     ex = Extras()
     both = rng.random() < 0.55
@@ -71,6 +75,8 @@ def extras_for(scene: Scene, seed: int) -> Extras:
     if free and rng2.random() < 0.35:
         ex.glass_objects = [int(i) for i in rng2.choice(free, int(rng2.integers(1, min(2, len(free)) + 1)), replace=False)]
     ex.emit_gain = float(np.exp(rng2.uniform(np.log(0.5), np.log(4.0))))
+    if version >= 3:
+        ex.variety = variety_for(scene, seed, first_id=max(o.id for o in scene.objects) + 2)  # +1: the mirror's id
     return ex
 
 
@@ -116,9 +122,11 @@ def _pattern(mat, bsdf, m: Material) -> None:
 
 
 def make_material(m: Material, name: str, *, roughness: float | None = None, metal: int | None = None,
-                  glass: bool = False, lacquer: float | None = None, emit_gain: float = 1.0) -> "bpy.types.Material":
+                  glass: bool = False, lacquer: float | None = None, emit_gain: float = 1.0,
+                  surface: tuple[str, float, float, float] | None = None) -> "bpy.types.Material":
     """One Principled BSDF material for our `Material` (or a metal finish, glass or a dark lacquer of grey
-    `lacquer` standing in for it); `emit_gain` scales its emission."""
+    `lacquer` standing in for it); `emit_gain` scales its emission; `surface` (`x2video.cycles.variety`) textures its
+    albedo, roughness and bump instead of the rasterizer's pattern."""
     mat, bsdf = _principled(name)
     if lacquer is not None:
         bsdf.inputs["Base Color"].default_value = (*(float(lacquer) * np.asarray(m.albedo) / max(float(np.max(m.albedo)), 1e-3)), 1.0)
@@ -138,7 +146,9 @@ def make_material(m: Material, name: str, *, roughness: float | None = None, met
         bsdf.inputs["Roughness"].default_value = 0.0
         bsdf.inputs["Base Color"].default_value = (0.95, 0.97, 0.96, 1.0)
         return mat
-    if m.pattern != "flat" and m.contrast > 0:
+    if surface is not None:
+        apply_surface(mat, bsdf, np.asarray(m.albedo, float), float(m.roughness if roughness is None else roughness), surface)
+    elif m.pattern != "flat" and m.contrast > 0:
         _pattern(mat, bsdf, m)
     if float(np.max(m.emission)) > 0:
         set_input(bsdf, ("Emission Color", "Emission"), (*map(float, m.emission / max(float(np.max(m.emission)), 1e-6)), 1.0))
@@ -147,7 +157,7 @@ def make_material(m: Material, name: str, *, roughness: float | None = None, met
 
 
 # ---------------------------------------------------------------------------------------------- meshes
-def _add_part(bm: "bmesh.types.BMesh", part: Part, slot: int) -> None:
+def _add_part(bm: "bmesh.types.BMesh", part: Part, slot: int, bevel: float = 0.0) -> None:
     lo, hi = np.asarray(part.lo, float), np.asarray(part.hi, float)
     c, size = (lo + hi) / 2, np.maximum(hi - lo, 1e-4)
     # ours: y up; Blender: z up. (x, y, z)_ours -> (x, -z, y)_blender
@@ -164,6 +174,9 @@ def _add_part(bm: "bmesh.types.BMesh", part: Part, slot: int) -> None:
     scale = (size[0], size[2], size[1])
     bmesh.ops.scale(bm, vec=scale, verts=verts)
     bmesh.ops.translate(bm, vec=(c[0], -c[2], c[1]), verts=verts)
+    if part.kind == "box" and bevel > 0 and float(np.min(size)) > 4 * bevel:
+        bevel_box(bm, verts, bevel)
+        verts = [v for v in bm.verts if v.is_valid and not v.tag]
     faces = {f for v in verts for f in v.link_faces}
     for f in faces:
         f.material_index = slot
@@ -171,14 +184,17 @@ def _add_part(bm: "bmesh.types.BMesh", part: Part, slot: int) -> None:
         f.smooth = smooth and (part.kind == "sphere" or abs(f.normal.z) < 0.5)
 
 
-def add_object(name: str, obj: SceneObject, mats: list) -> "bpy.types.Object":
-    """One Blender mesh object for `obj` (all its parts), pass index = its id, one slot per material used."""
+def add_object(name: str, obj: SceneObject, mats: list, bevel: float = 0.0) -> "bpy.types.Object":
+    """One Blender mesh object for `obj` (all its parts, box edges rounded by `bevel` metres), pass index = its id,
+    one slot per material used."""
     mesh = bpy.data.meshes.new(name)
     bm = bmesh.new()
     slots: dict[int, int] = {}
     for part in obj.parts:
         slot = slots.setdefault(part.material, len(slots))
-        _add_part(bm, part, slot)
+        for v in bm.verts:
+            v.tag = True  # the parts before this one
+        _add_part(bm, part, slot, bevel)
     bm.to_mesh(mesh)
     bm.free()
     for mi in slots:
@@ -275,18 +291,20 @@ def set_world(scene: Scene, strength: float = 1.0) -> None:
 
 
 # ---------------------------------------------------------------------------------------------- the room
-def mirror_object(scene: Scene, seed: int, next_id: int, frame_mat: int) -> SceneObject | None:
-    """A wall mirror (a thin box on a wall clear of openings), or None when no wall has room."""
+def mirror_object(scene: Scene, seed: int, next_id: int, frame_mat: int, large: bool = False) -> SceneObject | None:
+    """A wall mirror (a thin box on a wall clear of openings; `large`: 1.4 to 2.4 m wide), or None when no wall has room."""
     rng = np.random.default_rng([seed, 0x1111])
     for wall in rng.permutation(4):
         o, a, n, length = wall_frame(int(wall), scene.width, scene.depth)
         wdt = float(rng.uniform(0.6, 1.2))
+        if large:
+            wdt *= 2.0
         if length < wdt + 1.0:
             continue
         u = float(rng.uniform(0.5, length - 0.5 - wdt))
         if any(op.wall == wall and op.u0 - 0.1 < u + wdt and u < op.u1 + 0.1 for op in scene.openings):
             continue
-        y0 = float(rng.uniform(0.9, 1.2))
+        y0 = float(rng.uniform(0.9, 1.2)) if not large else float(rng.uniform(0.3, 0.6))
         lo, hi = wall_box(int(wall), scene.width, scene.depth, u, u + wdt, y0, min(scene.height - 0.2, y0 + wdt * 1.3), 0.0, 0.02)
         return SceneObject(next_id, "mirror", "a wall mirror", [Part("box", lo, hi, frame_mat)], False)
     return None
@@ -307,6 +325,8 @@ def build_room(scene: Scene, extras: Extras) -> dict:
     metal_of = dict(extras.metal_objects)
     lacquer_of = {i: (grey, r) for i, grey, r in extras.lacquer}
     glass_ids = set(extras.glass_objects)
+    variety = extras.variety
+    bevel = variety.bevel if variety is not None else 0.0
     captions = {}
     classes: dict[int, str] = {}
     cache: dict[tuple, object] = {}
@@ -328,6 +348,8 @@ def build_room(scene: Scene, extras: Extras) -> dict:
             key, kw = (mi, "glass"), {"glass": True}
         elif obj.category == "floor" and extras.glossy_floor is not None:
             key, kw = (mi, "gloss"), {"roughness": extras.glossy_floor}
+        if variety is not None and mi in variety.surfaces and not ({"metal", "glass", "lacquer", "emit"} & set(map(str, key))):
+            key, kw = (*key, "surface"), {**kw, "surface": variety.surfaces[mi]}
         if key not in cache:
             cache[key] = make_material(m, f"m{'_'.join(map(str, key))}", **kw)
         return cache[key]
@@ -335,7 +357,7 @@ def build_room(scene: Scene, extras: Extras) -> dict:
     glass_mat = make_material(scene.materials[0], "glass", glass=True) if extras.glass else None
     objects = list(scene.objects)
     if extras.mirror:
-        mirror = mirror_object(scene, scene.seed, max(o.id for o in objects) + 1, 0)
+        mirror = mirror_object(scene, scene.seed, max(o.id for o in objects) + 1, 0, large=variety is not None and variety.large_mirror)
         if mirror is not None:
             objects.append(mirror)
     mirror_mat = None
@@ -354,7 +376,8 @@ def build_room(scene: Scene, extras: Extras) -> dict:
             mats: list = [None] * len(scene.materials)
             for p in parts:
                 mats[p.material] = mat_for(p.material, obj)
-            ob = add_object(f"o{obj.id}_{obj.category.replace(' ', '_')}", kept, mats)
+            ob = add_object(f"o{obj.id}_{obj.category.replace(' ', '_')}", kept, mats,
+                            bevel=bevel if obj.category not in ("floor", "wall", "ceiling", "window", "door") else 0.0)
             if any(not p.casts_shadow for p in parts) and obj.category not in ("window",):
                 ob.visible_shadow = False  # lamp shades and fixtures around their own light
         caption = obj.caption
@@ -372,9 +395,19 @@ def build_room(scene: Scene, extras: Extras) -> dict:
             pane = SceneObject(0, "glass", "", [Part("box", lo, hi, 0)], False)
             ob = add_object(f"pane_{op.wall}", pane, [glass_mat])
             ob.visible_shadow = False  # thin glass: let the sun and the sky in
+    backdrops = 0
+    if variety is not None:
+        for d in variety.decor:
+            add_decor(d, lambda d: decor_material(d, _principled))
+            captions[d.id] = decor_caption(d)
+            classes[d.id] = decor_class(d)
+        if variety.backdrop:
+            backdrops = add_backdrops(scene, scene.seed)
     add_lights(scene)
     set_world(scene)
-    return {"captions": captions, "extras": {"glossy_floor": extras.glossy_floor,
+    windows = sum(op.kind == "window" for op in scene.openings)
+    var = {**variety.summary(), "backdrops": backdrops} if variety is not None else None
+    return {"captions": captions, "extras": {"windows": int(windows), "variety": var,"glossy_floor": extras.glossy_floor,
                                              "metal": [[i, METALS[k][0]] for i, k in extras.metal_objects],
                                              "mirror": bool(extras.mirror and mirror_mat is not None), "glass": extras.glass,
                                              "lacquer": [[i, g, r] for i, g, r in extras.lacquer],

@@ -20,6 +20,7 @@ import numpy as np
 
 from x2video.cycles.passes import PASS_FLAGS, compositor_output, configure_view_layer, wire_all_materials
 from x2video.cycles.room import build_room, extras_for
+from x2video.cycles.variety import GENERATOR_VERSION
 from x2video.io.atomic import write_json_atomic
 from x2video.io.metadata import FORMAT_NAME, FORMAT_VERSION, cameras_json
 from x2video.procedural.camera import PathConfig, camera_path
@@ -28,7 +29,7 @@ from x2video.shot import CameraPose
 
 log = logging.getLogger(__name__)
 
-GENERATOR = "x2video.cycles v2"
+GENERATOR = f"x2video.cycles v{GENERATOR_VERSION}"
 
 
 @dataclass
@@ -65,6 +66,9 @@ def setup_render(width: int, height: int, cfg: CyclesConfig) -> "bpy.types.Scene
     scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = int(width), int(height), 100
     scene.render.threads_mode, scene.render.threads = "FIXED", max(1, int(cfg.threads))
     scene.render.film_transparent = False
+    # the scene stays in memory between a clip's frames (only the camera moves): no re-sync, no BVH rebuild
+    # (a 160x112 frame: 2.1 -> 1.75 s at 16 samples on this project's 2-core machine)
+    scene.render.use_persistent_data = True
     scene.view_settings.view_transform = "Standard"
     configure_view_layer(scene)
     return scene
@@ -143,6 +147,7 @@ def scale_lights(gain: float) -> None:
         if mat.use_nodes:
             for n in mat.node_tree.nodes:
                 s = n.inputs.get("Emission Strength") if n.bl_idname == "ShaderNodeBsdfPrincipled" else None
+                s = n.inputs.get("Strength") if n.bl_idname == "ShaderNodeEmission" else s
                 if s is not None:
                     s.default_value *= gain
     world = bpy.context.scene.world
@@ -157,9 +162,10 @@ def frame_path(out: Path, t: int) -> Path:
 
 
 def render_frames(scene: "bpy.types.Scene", out: Path, num_frames: int, denoise: bool,
-                  progress: Callable[[int, float], None] | None = None) -> list[float]:
-    """Render frames 0..num_frames-1 of `scene` through `compositor_output` into OUT/frame_XXXX.exr, each written
-    atomically and skipped when present (an interrupted shot resumes). Returns the seconds of the frames rendered."""
+                  progress: Callable[[int, float], None] | None = None, first: int = 0) -> list[float]:
+    """Render scene frames first..first+num_frames-1 of `scene` through `compositor_output` into OUT/frame_XXXX.exr
+    (numbered from 0), each written atomically and skipped when present (an interrupted shot resumes). Returns the
+    seconds of the frames rendered."""
     file_out = compositor_output(scene, denoise_passes=denoise)
     seconds = []
     for t in range(num_frames):
@@ -167,56 +173,87 @@ def render_frames(scene: "bpy.types.Scene", out: Path, num_frames: int, denoise:
         if dst.is_file():
             continue
         t0 = time.perf_counter()
-        scene.frame_set(t)
+        scene.frame_set(first + t)
         with tempfile.TemporaryDirectory(dir=out, prefix=".tmp_") as tmp:
             file_out.base_path = str(Path(tmp) / "frame_")
             bpy.ops.render.render(write_still=False)
-            os.replace(Path(tmp) / f"frame_{t:04d}.exr", dst)
+            os.replace(Path(tmp) / f"frame_{first + t:04d}.exr", dst)
         seconds.append(time.perf_counter() - t0)
         if progress is not None:
             progress(t, seconds[-1])
     return seconds
 
 
-def write_room_shot(out_dir: str | Path, seed: int, num_frames: int, width: int, height: int, *, cfg: CyclesConfig | None = None,
-                    path_cfg: PathConfig | None = None, fps: float = 10.0, progress: Callable[[int, float], None] | None = None) -> Path:
-    """Generate room `seed`, draw its camera path and render it with Cycles into the shot folder `out_dir` (resumable)."""
+def clip_paths(scene_desc, num_frames: int, clips: int, aspect: float, seed: int, path_cfg: PathConfig | None) -> list[list[CameraPose]]:
+    """`clips` camera paths of `num_frames` poses through one room: clip c starts at the room's c-th camera start (corners
+    and wall midpoints, in turn) with a random stream of its own, so a room's clips see it from different sides."""
+    import dataclasses
+
+    paths = []
+    for c in range(clips):
+        k = c % max(len(scene_desc.starts), 1)
+        view = dataclasses.replace(scene_desc, starts=scene_desc.starts[k:] + scene_desc.starts[:k]) if c else scene_desc
+        paths.append(camera_path(view, num_frames, aspect, seed if c == 0 else seed * 7919 + c, path_cfg))
+    return paths
+
+
+def write_room_clips(out_dirs: list[str | Path], seed: int, num_frames: int, width: int, height: int, *, cfg: CyclesConfig | None = None,
+                     path_cfg: PathConfig | None = None, fps: float = 10.0, version: int = GENERATOR_VERSION,
+                     progress: Callable[[int, float], None] | None = None) -> list[Path]:
+    """Generate room `seed` (generator `version`), build it in Blender once and render one clip of `num_frames` frames
+    along its own camera path into each shot folder of `out_dirs` (resumable per frame; a clip's shot.json is written
+    last). Scene set-up (build, shader compile, BVH, exposure probe) is paid once per room, not per clip."""
     cfg = cfg or CyclesConfig()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    outs = [Path(d) for d in out_dirs]
+    todo = [i for i, o in enumerate(outs) if not (o / "shot.json").is_file()]
+    if not todo:
+        return outs
     scene_desc = generate_scene(seed)
-    poses = camera_path(scene_desc, num_frames, width / height, seed, path_cfg)
-    extras = extras_for(scene_desc, seed)
+    paths = clip_paths(scene_desc, num_frames, len(outs), width / height, seed, path_cfg)
+    extras = extras_for(scene_desc, seed, version)
     built = build_room(scene_desc, extras)
     scene = setup_render(width, height, cfg)
-    add_camera(poses)
+    add_camera([p for path in paths for p in path])  # clip c holds scene frames c*T .. c*T + T - 1
     wire_all_materials()
-    scene.frame_start, scene.frame_end = 0, num_frames - 1
-    gain = exposure_gain(scene, sorted({0, num_frames // 2, num_frames - 1}), cfg.target)
+    scene.frame_start, scene.frame_end = 0, len(outs) * num_frames - 1
+    probe = sorted({c * num_frames + t for c in todo[:3] for t in (0, num_frames // 2, num_frames - 1)})
+    gain = exposure_gain(scene, probe, cfg.target)
     scale_lights(gain)
-    write_json_atomic(out / "cameras.json", cameras_json(blender_poses(poses)))
-    render_frames(scene, out, num_frames, cfg.denoise, progress)
     light = scene_desc.lighting
-    write_json_atomic(out / "shot.json", {
-        "format": FORMAT_NAME, "version": FORMAT_VERSION, "num_frames": num_frames, "width": width, "height": height, "fps": fps,
-        "caption": scene_desc.caption, "objects": {str(k): v for k, v in sorted(built["captions"].items())},
-        "irradiance_normalized": False,
-        "extra": {"room_seed": int(seed), "light_mood": light.mood, "room_type": scene_desc.room_type, "style": scene_desc.style,
-                  "generator": GENERATOR, "renderer": f"Cycles (Blender {bpy.app.version_string})", "samples": cfg.samples,
-                  "denoise": cfg.denoise, "light_gain": gain, "path_traced": built["extras"],
-                  "material_class": {str(k): v for k, v in built["material_class"].items()}},
-    })
-    return out
+    for c in todo:
+        out = outs[c]
+        out.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(out / "cameras.json", cameras_json(blender_poses(paths[c])))
+        render_frames(scene, out, num_frames, cfg.denoise, progress, first=c * num_frames)
+        write_json_atomic(out / "shot.json", {
+            "format": FORMAT_NAME, "version": FORMAT_VERSION, "num_frames": num_frames, "width": width, "height": height, "fps": fps,
+            "caption": scene_desc.caption, "objects": {str(k): v for k, v in sorted(built["captions"].items())},
+            "irradiance_normalized": False,
+            "extra": {"room_seed": int(seed), "clip": c, "clips": len(outs), "light_mood": light.mood, "room_type": scene_desc.room_type,
+                      "style": scene_desc.style, "generator": GENERATOR if version >= 3 else "x2video.cycles v2",
+                      "renderer": f"Cycles (Blender {bpy.app.version_string})", "samples": cfg.samples,
+                      "denoise": cfg.denoise, "light_gain": gain, "path_traced": built["extras"],
+                      "material_class": {str(k): v for k, v in built["material_class"].items()}},
+        })
+    return outs
+
+
+def write_room_shot(out_dir: str | Path, seed: int, num_frames: int, width: int, height: int, *, cfg: CyclesConfig | None = None,
+                    path_cfg: PathConfig | None = None, fps: float = 10.0, version: int = GENERATOR_VERSION,
+                    progress: Callable[[int, float], None] | None = None) -> Path:
+    """Generate room `seed`, draw its camera path and render it with Cycles into the shot folder `out_dir` (resumable)."""
+    return write_room_clips([out_dir], seed, num_frames, width, height, cfg=cfg, path_cfg=path_cfg, fps=fps, version=version,
+                            progress=progress)[0]
 
 
 def beauty_scene(seed: int, poses: list[CameraPose], width: int, height: int, light_gain: float, threads: int = 1,
-                 bounces: int = CyclesConfig.bounces) -> "bpy.types.Scene":
+                 bounces: int = CyclesConfig.bounces, version: int = GENERATOR_VERSION) -> "bpy.types.Scene":
     """Room `seed` as `write_room_shot` builds it, for rendering the picture alone, as a Blender user would: the
     camera keyed at `poses` (Blender's world, as cameras.json beside the room's frames holds them), every light
     scaled by `light_gain` (the room's shot.json records the gain its exposure probe chose), Combined only (no
     passes, AOVs or compositor), single-layer float EXR. Render frames with `render_beauty`."""
     scene_desc = generate_scene(seed)
-    build_room(scene_desc, extras_for(scene_desc, seed))
+    build_room(scene_desc, extras_for(scene_desc, seed, version))
     scene = setup_render(width, height, CyclesConfig(threads=threads, bounces=bounces))
     axes = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], float)  # ours -> Blender (orthogonal)
     add_camera([CameraPose(axes.T @ np.asarray(p.cam_to_world, float), p.fov_y_deg) for p in poses])
