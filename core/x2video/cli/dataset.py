@@ -81,6 +81,7 @@ def register(subparsers) -> None:
     m.add_argument("--samples", type=int, default=32, help="cycles: path-tracing samples per pixel (Combined and the light passes are denoised)")
     m.add_argument("--clips", type=int, default=1, help="cycles: clips of --frames frames per training room, each along its own camera"
                                                          " path (the room is built once; test and validation rooms get one)")
+    m.add_argument("--eval-frames", type=int, default=0, help="cycles: frames per validation and test room (0: --frames)")
     m.add_argument("--minutes", type=float, default=0.0, help="cycles: build budget in minutes (0: none); no room starts after it,"
                                                                " the same command resumes")
     m.add_argument("--generator", type=int, default=0, help="cycles: room generator version (0: the newest, 3: textures, decor,"

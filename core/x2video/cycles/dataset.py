@@ -140,12 +140,15 @@ def make_cycles(args: argparse.Namespace, width: int, height: int) -> int:
         raise ValueError(f"--minutes must be 0 (no budget) or more (got {minutes})")
     if version not in (2, 3):
         raise ValueError(f"--generator {version}: this build knows generator versions 2 and 3")
+    eval_frames = int(getattr(args, "eval_frames", 0) or args.frames)
+    if eval_frames < 1:
+        raise ValueError(f"--eval-frames must be at least 1 (got {eval_frames})")
     out = Path(args.out) if args.out else default_out(args.seed, width, height, args.samples, version)
-    settings = {"rooms": args.rooms, "frames": args.frames, "width": width, "height": height, "seed": args.seed,
+    settings = {"rooms": args.rooms, "frames": args.frames, "eval_frames": eval_frames, "width": width, "height": height, "seed": args.seed,
                 "test_every": args.test_every, "samples": args.samples, "renderer": "cycles", "clips": clips, "generator": version}
     old = json.loads((out / "dataset.json").read_text()) if (out / "dataset.json").is_file() else {}
     if old and "generator" not in old:  # a set from before clips and generator versions: one clip of v2 rooms
-        old_settings = {**old, "clips": 1, "generator": 2}
+        old_settings = {**old, "clips": 1, "generator": 2, "eval_frames": old.get("frames")}
         write_json_atomic(out / "dataset.json", old_settings)
     meta = begin_dataset(out, settings, FORMAT)
     deadline = time.time() + minutes * 60 if minutes else 0.0
@@ -154,7 +157,7 @@ def make_cycles(args: argparse.Namespace, width: int, height: int) -> int:
         split = room_split(i, args.test_every, True)
         room = room_dir(out, i, args.test_every, val=True)
         outs = clip_dirs(room, clips if split == "train" else 1)
-        jobs.append(CyclesJob(i, room_seed(args.seed, i), str(room), args.frames, width, height, args.samples,
+        jobs.append(CyclesJob(i, room_seed(args.seed, i), str(room), args.frames if split == "train" else eval_frames, width, height, args.samples,
                               0.05 if split != "train" else TRAIN_SPEED, [str(o) for o in outs], version, deadline))
     # test and validation rooms first: a build stopped early can still be measured
     jobs.sort(key=lambda j: (room_split(j.index, args.test_every, True) == "train", j.index))
