@@ -19,12 +19,18 @@ def test_cycles_room_renders_and_loads(tmp_path):
     from x2video.io.image import read_image
 
     out = tmp_path / "pt"
-    cmd = [sys.executable, "-m", "x2video", "dataset", "make", "--renderer", "cycles", "--rooms", "1", "--frames", "2",
+    cmd = [sys.executable, "-m", "x2video", "dataset", "make", "--renderer", "cycles", "--rooms", "1", "--frames", "2", "--clips", "2",
            "--size", "48x32", "--samples", "4", "--workers", "1", "--test-every", "0", "--seed", "3", "--out", str(out)]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     assert proc.returncode == 0, proc.stderr[-3000:]
     meta = json.loads((out / "dataset.json").read_text())
-    assert meta["complete"] and meta["renderer"] == "cycles" and meta["splits"]["train"] == ["train/room_00000"]
+    # one room built once, rendered as two clips of two frames along their own camera paths
+    assert meta["complete"] and meta["renderer"] == "cycles" and meta["splits"]["train"] == ["train/room_00000", "train/room_00000_c1"]
+    assert meta["frames"]["train"] == 4 and meta["builds"][-1]["frames"] == 4 and meta["builds"][-1]["frames_per_hour"] > 0
+    assert meta["variety"]["rooms"] == 1 and set(meta["variety"]["light"]) <= {"day", "night", "mixed", "lamp-only"}
+    c0 = json.loads((out / "train" / "room_00000" / "cameras.json").read_text())
+    c1 = json.loads((out / "train" / "room_00000_c1" / "cameras.json").read_text())
+    assert c0 != c1, "each clip follows its own camera path"
     room = out / "train" / "room_00000"
     shot = load_shot(room)
     assert shot.num_frames == 2 and shot.size == (32, 48)
@@ -54,3 +60,24 @@ def test_cycles_room_renders_and_loads(tmp_path):
     assert classes and set(classes.values()) <= set(CLASSES)
     ids = {int(i) for i in np.unique(fr["ids"]) if int(i) != 0}
     assert ids <= set(classes), sorted(ids - set(classes))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(bool(bpy_missing), reason="bpy is not installed: `pip install -e '.[cycles]'` (scripts/setup.sh does)")
+def test_cycles_clip_trains_tier1_one_step(tmp_path):
+    """A two-frame Cycles clip of a v3 room (textures, decor), read back and used for one tier-1 training step
+    with every augmentation on (noisy passes, exposure, 8-bit formats)."""
+    from x2video.train.residual_stage import ResidualTrainConfig, train
+
+    out = tmp_path / "pt"
+    cmd = [sys.executable, "-m", "x2video", "dataset", "make", "--renderer", "cycles", "--rooms", "2", "--frames", "2",
+           "--size", "32x24", "--samples", "2", "--workers", "1", "--test-every", "2", "--seed", "5", "--out", str(out)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    info = json.loads((out / "train" / "room_00000" / "shot.json").read_text())
+    assert info["extra"]["generator"] == "x2video.cycles v3" and info["extra"]["path_traced"]["variety"] is not None
+    cfg = ResidualTrainConfig(steps=1, batch=2, crop=16, val_every=1, ckpt_every=1, noisy_p=1.0, format_aug=1.0, widths=(8, 16))
+    summary = train(out, tmp_path / "run", cfg, threads=1)
+    assert summary["steps"] == 1 and summary["train_frames"] == 2 and summary["val_split"] == "test"
+    assert np.isfinite(summary["best_val_psnr"])
+    assert (tmp_path / "run" / "best" / "residual.safetensors").is_file()

@@ -643,3 +643,26 @@ def test_cli_encoder_stage_and_eval_refuses_mixed_channel_encoders(runs, tmp_pat
     assert models.info["video"]["channel_encoder"] == "distilled" and models.video.channel_encoder is not None
     assert main(["train", "encoder", "--teacher", str(tmp_path / "nope"), "--data", str(data), "--out", str(tmp_path / "x")]) == 2
     assert "nope" in capsys.readouterr().err
+
+
+def test_as_8bit_quantises_like_a_png_export():
+    """Tier-1 format augmentation: the channels as an 8-bit PNG export holds them, the log formula following."""
+    from x2video.channels import linear_to_srgb
+    from x2video.model import residual as R
+    from x2video.train.residual_stage import as_8bit
+
+    rng = np.random.default_rng(0)
+    n = rng.normal(size=(6, 5, 3))
+    ch = {"albedo": rng.uniform(0, 1, (6, 5, 3)), "normal": n / np.linalg.norm(n, axis=-1, keepdims=True),
+          "roughness": rng.uniform(0, 1, (6, 5)), "metallic": rng.uniform(0, 1, (6, 5)), "irradiance": rng.uniform(0, 3, (6, 5, 3))}
+    x, _ = R.features(ch)
+    q = x.copy()
+    as_8bit(q, irradiance=True)
+    codes = linear_to_srgb(q[0:3]) * 255
+    assert np.allclose(codes, np.round(codes), atol=1e-3), "albedo lies on sRGB code values"
+    assert np.allclose(q[6:8] * 255, np.round(q[6:8] * 255), atol=1e-4)
+    assert np.allclose(np.linalg.norm(q[3:6], axis=0), 1, atol=1e-5) and np.abs(q[3:6] - x[3:6]).max() < 0.02
+    ir = np.expm1(q[8:11])
+    assert np.allclose(q[11:14], np.log1p(q[0:3] * ir), atol=1e-5), "the log formula follows the quantised channels"
+    assert ir.max() <= np.percentile(np.expm1(x[8:11]), 99) * 1.0001, "8-bit irradiance clips above its white point"
+    assert np.abs(q - x).max() > 0, "something was quantised"

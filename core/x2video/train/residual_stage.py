@@ -54,6 +54,10 @@ class ResidualTrainConfig:
     exposure_aug: float = 2.0
     """Each crop's light is scaled by a random gain in [1/a, a] (irradiance and target alike), so the net does
     not key on the level the exposure normaliser happened to choose for a shot (1: off)."""
+    format_aug: float = 0.3
+    """Probability that a crop's channels come as other tools write them: 8-bit sRGB albedo, 8-bit normals,
+    roughness and metallic, and half the time an 8-bit sRGB irradiance (scaled to its 99th percentile), as an
+    archviz PNG export holds them (the loaders read those formats; `as_8bit`)."""
     irradiance_dropout: float = 0.0
     """Probability that a crop's irradiance is dropped (its planes and the formula's zeroed, its present flag 0).
     1 trains a net for shots without an irradiance pass, validated so (`residual_noirr`); between 0 and 1, one
@@ -135,9 +139,11 @@ class Frames:
     `noisy_p` > 0 a crop takes the frame's sampled (noisy) irradiance instead of the denoised one with
     that probability, where the shot has it (noise augmentation: users' passes are often not denoised)."""
 
-    def __init__(self, files: list[Path], noisy_p: float = 0.0, exposure_aug: float = 1.0, irradiance_dropout: float = 0.0):
+    def __init__(self, files: list[Path], noisy_p: float = 0.0, exposure_aug: float = 1.0, irradiance_dropout: float = 0.0,
+                 format_aug: float = 0.0):
         self.x, self.y, self.scale, self.shot, self.noisy = [], [], [], [], []
         self.noisy_p = noisy_p
+        self.format_aug = format_aug
         self.irradiance_dropout = irradiance_dropout
         if exposure_aug < 1:
             raise ValueError(f"exposure_aug must be >= 1 (a gain range [1/a, a]), got {exposure_aug}")
@@ -171,6 +177,8 @@ class Frames:
                 g = float(np.exp(rng.uniform(-1, 1) * np.log(self.exposure_aug)))
                 x[NOISY_PLANES] = np.log1p(g * np.expm1(x[NOISY_PLANES]))
                 y = y * g
+            if self.format_aug > 0 and rng.random() < self.format_aug:
+                as_8bit(x, irradiance=bool(rng.random() < 0.5))
             if self.irradiance_dropout > 0 and rng.random() < self.irradiance_dropout:
                 drop_irradiance(x)
             if rng.random() < 0.5:  # mirror left-right: the camera-space normal's x changes sign
@@ -179,6 +187,31 @@ class Frames:
             xs.append(x)
             ys.append(y)
         return torch.from_numpy(np.stack(xs)), torch.from_numpy(np.stack(ys))
+
+
+def _srgb8(v: np.ndarray) -> np.ndarray:
+    """Linear [0, 1] -> through an 8-bit sRGB code value -> linear (what a PNG round trip does)."""
+    from x2video.channels import linear_to_srgb, srgb_to_linear
+
+    return srgb_to_linear(np.round(linear_to_srgb(np.clip(v, 0, 1)) * 255) / 255).astype(np.float32)
+
+
+def as_8bit(x: np.ndarray, irradiance: bool = False) -> None:
+    """In place: features (C, H, W) as `residual.features` makes them from 8-bit PNG channels: sRGB albedo, normals
+    as (n + 1) / 2 code values (renormalised), roughness and metallic in 1/255 steps; with `irradiance`, an sRGB
+    8-bit irradiance scaled so its 99th percentile is white (clipped above), back in the crop's units. The log
+    formula follows the quantised albedo and irradiance."""
+    x[0:3] = _srgb8(x[0:3])
+    n = np.round((x[3:6] * 0.5 + 0.5).clip(0, 1) * 255) / 255 * 2 - 1
+    norm = np.linalg.norm(n, axis=0, keepdims=True)
+    x[3:6] = np.where(norm > 0.5, n / np.maximum(norm, 1e-6), 0)
+    x[6:8] = np.round(x[6:8].clip(0, 1) * 255) / 255
+    ir = np.expm1(x[8:11].astype(np.float32))
+    if irradiance:
+        top = max(float(np.percentile(ir, 99)), 1e-6)
+        ir = _srgb8(ir / top) * top
+        x[8:11] = np.log1p(ir)
+    x[11:14] = np.log1p(x[0:3] * ir)
 
 
 def drop_irradiance(x: np.ndarray | torch.Tensor) -> None:
@@ -224,7 +257,7 @@ def train(data: Path, out: Path, cfg: ResidualTrainConfig, *, threads: int = 2, 
         raise ValueError(f"{data}: no finished shots in train/ (make them with `x2video dataset make --renderer cycles`)")
     if not 0 <= cfg.irradiance_dropout <= 1:
         raise ValueError(f"irradiance_dropout must lie in [0, 1], got {cfg.irradiance_dropout}")
-    tr = Frames(train_files, cfg.noisy_p, cfg.exposure_aug, cfg.irradiance_dropout)
+    tr = Frames(train_files, cfg.noisy_p, cfg.exposure_aug, cfg.irradiance_dropout, cfg.format_aug)
     va = Frames(val_files) if val_files else None
     torch.manual_seed(cfg.seed)
     net = R.ResidualNet(R.ResidualConfig(widths=tuple(cfg.widths)))
