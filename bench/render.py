@@ -51,6 +51,7 @@ from x2video.sampling.events import FramesReady, RenderSettings, StepDone
 from x2video.sampling.planner import plan
 from x2video.sampling.prepare import warm_engine
 from x2video.sampling.renderer import Renderer, select_steps
+from x2video.sampling.setup import resolve
 from x2video.sampling.sink import FrameSink
 from x2video.sampling.timing import StageTimes
 from x2video.shot import ArrayShot, Shot, ShotInfo
@@ -275,7 +276,7 @@ def main(argv: list[str] | None = None) -> None:
         r = renderers[select_steps(s, base).sampler if s.preset else s.sampler]
         if (s.engine, s.sampler, s.preset, s.scheme) not in warmed and s.quality == "diffusion":
             warmed.add((s.engine, s.sampler, s.preset, s.scheme))  # graphs exported/compiled and run once, outside the timing
-            valid = r._validate(shot, s)
+            valid = resolve(s, r.model)
             r.render(shot, None, RenderSettings(**{**valid.__dict__, "frames": (0, min(args.frames, args.window)), "steps": 1, "preset": None}))
             warm_engine(r, r.plan(shot, valid), valid, (-(-height // base.downsample), -(-width // base.downsample)))
         keep = args.frames <= 65

@@ -81,6 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         from x2video.sampling.events import FramesReady, RenderSettings
         from x2video.sampling.prepare import warm_engine
         from x2video.sampling.renderer import Renderer
+        from x2video.sampling.setup import resolve
         from x2video.weights import load_model
 
         shot = load_shot(folder)
@@ -92,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
         for entry in args.runs.split(","):
             preset, quality = entry.split(":")
             s = RenderSettings(preset=preset, quality=quality, engine=args.engine)
-            valid = renderer._validate(shot, s)
+            valid = resolve(s, renderer.model)
             renderer.render(shot, None, RenderSettings(**{**valid.__dict__, "frames": (0, 2), "steps": 1, "preset": None}))  # text encoder, tiers
             if renderer.last_tier.tier == "diffusion":
                 f = renderer.model.downsample

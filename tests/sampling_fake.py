@@ -25,6 +25,16 @@ class FakeModel:
     latent_channels = 4
     num_train_timesteps = 1000
     residual_prior = False
+    residual_net = None  # no tier-1 network: quality auto renders with the sampler
+    residual_auto = True
+    text_encoder = None
+
+    @property
+    def cond_channels(self) -> int:
+        return self.latent_channels
+
+    def set_engine(self, engine: str) -> str:
+        return "torch"  # no exported graphs
 
     def __init__(self, has_lcm: bool = False, key: str = "fake-v1") -> None:
         self.has_lcm = has_lcm

@@ -332,3 +332,50 @@ def test_residual_features_clamp_roughness_and_metallic():
           "irradiance": np.ones((8, 8, 3), np.float32)}
     hostile = {**ch, "roughness": np.full((8, 8, 1), -0.5, np.float32), "metallic": np.full((8, 8, 1), 3.0, np.float32)}
     assert np.array_equal(R.features(hostile)[0], R.features(ch)[0])
+
+
+def test_a_toy_tier_is_one_new_class():
+    """Adding a tier takes one class (`x2video.sampling.tier`): the registry, `decide`, `plan_render` and `Renderer`
+    (with no model, as it needs none) take it as they are."""
+    from x2video.sampling.tier import TIERS, PerFrameTier
+
+    class HalfGreyTier(PerFrameTier):
+        name = "toy-grey"
+        needs_model = False
+        channels = ()
+
+        def frames(self, job, conds):
+            return [np.full((*c.size, 3), 0.5, np.float32) for c in conds]
+
+    try:
+        shot = make_shot(5, 16, 24)
+        settings = RenderSettings(frames=(1, 4))
+        settings.quality = "toy-grey"  # the field's Literal lists the built-in tiers (the CLI's choices); the library takes any registered one
+        assert tiers.plan_render(shot, None, settings, None).per_frame
+        events, frames = render(None, shot, settings)
+        started = next(e for e in events if isinstance(e, RenderStarted))
+        assert started.tier == "toy-grey" and started.per_frame and sorted(frames) == [1, 2, 3]
+        assert all(np.all(f == 0.5) for f in frames.values())
+    finally:
+        TIERS.pop("toy-grey", None)
+    with pytest.raises(ValueError, match="unknown quality 'toy-grey'"):
+        tiers.choose_tier("toy-grey", [], False, False)
+
+
+def test_plan_render_is_what_the_render_runs():
+    """`plan_render` (pure) names the tier and, for the diffusion tier, the windows and steps the render runs; the
+    formula needs no model."""
+    shot = make_shot(9)
+    model = FakeModel(has_lcm=True)
+    settings = RenderSettings(preset="fast", quality="diffusion")
+    planned = tiers.plan_render(shot, None, settings, model)
+    assert (planned.tier, planned.sampler, planned.steps, planned.per_frame) == ("diffusion", "lcm", 2, False)
+    events, _ = render(model, shot, settings)
+    started = next(e for e in events if isinstance(e, RenderStarted))
+    assert started.num_windows == len(planned.windows) and list(planned.windows) == Renderer(model).plan(shot, settings)
+    assert sum(planned.windows_per_level().values()) == len(planned.windows)
+    assert sum(isinstance(e, StepDone) for e in events) == len(planned.windows) * planned.steps
+    formula = tiers.plan_render(shot, None, RenderSettings(quality="formula"), None)
+    assert formula.per_frame and formula.tier == "formula" and formula.windows == ()
+    with pytest.raises(ValueError, match="needs a model"):
+        tiers.plan_render(shot, None, RenderSettings(quality="diffusion"), None)

@@ -19,6 +19,7 @@ from superqt.utils import create_worker
 
 from x2video.sampling.events import CancelToken, FramesReady, RenderEvent, RenderStarted
 from x2video.sampling.settings import RenderSettings
+from x2video.sampling.tier import RenderPlan
 from x2video_app.document import Document
 from x2video_app.model_source import ModelChoice, load_model
 from x2video_app.preview import PreviewReady, preview_frame, preview_frames, preview_order
@@ -54,6 +55,16 @@ def engine_threads() -> int:
 
     env = os.environ.get("X2VIDEO_TORCH_THREADS")
     return int(env) if env else (os.cpu_count() or 1)
+
+
+def needs_model(quality: str) -> bool:
+    """Whether a render at `quality` needs the model, without importing torch: tier 0's module is torch-free and
+    registers itself; a quality not registered yet ('auto', or a tier whose module torch must load) is taken to."""
+    from x2video.sampling import tier_formula  # noqa: F401 - registers tier 0
+    from x2video.sampling.tier import TIERS
+
+    cls = TIERS.get(quality)
+    return cls is None or cls.needs_model
 
 
 def is_out_of_memory(exc: BaseException) -> bool:
@@ -223,23 +234,18 @@ class RenderController(QObject):
         self._quit_preview()
         self._render_id += 1
         model = getattr(self.renderer, "model", None)
-        if model is not None:
-            from x2video.sampling.renderer import select_steps  # torch: imported by the built model already
-
-            steps = select_steps(settings, model).steps  # the Renderer's own rule: fast = LCM-2 or DDIM-4
-        else:  # model still loading: an ETA estimate until StepDone says
-            steps = 20 if settings.preset == "quality" else 4
-        per_level: dict[int, int] = {}
-        try:
-            from x2video.sampling.planner import plan
-
-            for w in plan(settings.scheme, self.doc.num_frames, settings.window, None, settings.seams, settings.max_levels):
-                per_level[w.level] = per_level.get(w.level, 0) + 1
-        except Exception as e:  # a plan we cannot show must not stop the render; the Renderer reports the error
-            log.warning("could not plan for the progress bars: %s", e)
-        self.doc.render.begin(steps, per_level)
         shot, edits = self.doc.shot, copy.deepcopy(self.doc.edits)  # the person keeps editing during the render
-        if settings.quality != "formula":
+        planned = None
+        if model is not None:  # else still loading: importing the tier modules here would wait for torch on the GUI thread
+            from x2video.sampling import tiers  # torch: imported by the built model already
+
+            try:  # the progress bars follow the library's plan (windows per level, steps per window), not a guess of it
+                planned = tiers.plan_render(shot, edits, settings, model)
+            except Exception as e:  # a plan we cannot show must not stop the render; the Renderer reports the error
+                log.warning("could not plan for the progress bars: %s", e)
+        # without a plan, RenderStarted and StepDone fill in the windows and steps as the render starts
+        self.doc.render.begin(planned.steps if planned else 0, planned.windows_per_level() if planned else {})
+        if needs_model(settings.quality):  # a render that needs no model is about as fast as the preview
             self._preview(shot, edits, model is not None)
         base_dir = self.doc.project_path.parent if self.doc.project_path is not None else None
 
@@ -247,6 +253,11 @@ class RenderController(QObject):
             renderer = self._get_renderer()
             if cancel.cancelled:
                 return None
+            if planned is None:  # the model was still loading when Render was pressed: its plan, before the render's events
+                try:
+                    on_event(renderer.plan_render(shot, edits, settings))
+                except Exception as e:  # the render reports real errors
+                    log.warning("could not plan for the progress bars: %s", e)
             return renderer.render(shot, edits, settings, on_event, cancel, base_dir=base_dir)
 
         w = RenderWorker(run, shot, edits, settings)
@@ -315,7 +326,10 @@ class RenderController(QObject):
         return not busy()
 
     # -- slots (GUI thread) ----------------------------------------------------
-    def _on_event(self, ev: RenderEvent | PreviewReady) -> None:
+    def _on_event(self, ev: RenderEvent | PreviewReady | RenderPlan) -> None:
+        if isinstance(ev, RenderPlan):  # planned in the worker (the model was still loading): what the progress bars show
+            self.doc.render.windows_per_level, self.doc.render.steps_per_window = ev.windows_per_level(), ev.steps
+            return
         self.doc.render.apply(ev)
         if isinstance(ev, RenderStarted) and self.doc.render.per_frame:
             # a per-frame tier fills the shot about as fast as the preview and would share the CPU with it

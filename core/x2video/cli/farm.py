@@ -85,7 +85,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {len(paths)} Open Job Description template(s) to {args.openjd} "
               f" (run one here: openjd run {paths[0]} -p file://{paths[0].with_name(paths[0].name.replace('.template.', '.params.'))})")
         return 0
-    if settings.quality != "formula" and not options.untrained and options.weights is None:
+    from x2video.sampling.tiers import needs_model
+
+    if needs_model(settings.quality) and not options.untrained and options.weights is None:
         from x2video.weights import HOW_TO_GET_WEIGHTS, shipped_weights, where_weights_are_looked_for
 
         if shipped_weights() is None:

@@ -67,8 +67,9 @@ def load_inputs(args: argparse.Namespace) -> tuple[Any, Any, Path | None]:
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from x2video.sampling import tiers
     from x2video.sampling.planner import plan
-    from x2video.sampling.renderer import Renderer, select_steps
+    from x2video.sampling.renderer import Renderer
     from x2video.sampling.sink import FrameSink
     from x2video.weights import load_model, shipped_weights
 
@@ -80,11 +81,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--frames: frame range [{start}, {stop}) outside the shot's {shot.num_frames} frames")
     units = OutputUnits.for_shot(shot, settings.exposure)
     log.info("%s: %s", args.out, units.describe())
-    if settings.quality == "formula":  # no network, no weights: albedo x irradiance frame by frame
-        from x2video.sampling.formula import formula_frames
-
-        render, steps_label, steps = formula_frames, "formula", 1
-    else:
+    model = None
+    if tiers.needs_model(settings.quality):  # the formula needs no network and no weights
         plan(settings.scheme, stop - start, settings.window, max_levels=settings.max_levels)  # bad window sizes or levels fail before the model loads
         if options.untrained and options.weights is not None:
             raise ValueError("--untrained and --weights exclude each other")
@@ -94,31 +92,32 @@ def run(args: argparse.Namespace) -> int:
             raise FileNotFoundError(HOW_TO_GET_WEIGHTS.format(where=where_weights_are_looked_for())
                                     + "; or pass --weights DIR, or add --untrained for a smoke render with random weights")
         model = load_model(**dataclasses.asdict(options))
-        resolved = select_steps(settings, model)
-        render, steps_label, steps = Renderer(model, retain=False).render, f"{resolved.sampler}-{resolved.steps}", resolved.steps
+    renderer = Renderer(model, retain=False)
+    planned = renderer.plan_render(shot, edits, settings)
+    steps_label = planned.tier if planned.per_frame else f"{planned.sampler}-{planned.steps}"
     t0 = time.perf_counter()
     bar = tqdm(unit="step", desc=f"render {steps_label}", dynamic_ncols=True)
     with FrameSink(args.out, fps=args.fps or shot.info.fps, expected=list(range(start, stop)), units=units) as sink:
 
         def on_event(event: RenderEvent) -> None:
             if isinstance(event, RenderStarted):
-                if event.tier == "diffusion":
-                    bar.reset(total=event.num_windows * steps)
-                else:  # tiers 0 and 1: one pass per frame
+                if event.per_frame:  # tiers 0 and 1: one pass per frame
                     bar.unit, bar.desc = "frame", f"render {event.tier}"
                     bar.reset(total=event.num_frames)
+                else:
+                    bar.reset(total=event.num_windows * planned.steps)
                 if event.reason:
                     log.info("tier %s: %s", event.tier, event.reason)
             elif isinstance(event, StepDone):
                 bar.update(1)
             elif isinstance(event, FramesReady):
-                if event.mode in ("residual", "formula"):
+                if planned.per_frame:
                     bar.update(len(event.frames))
                 bar.set_postfix(level=event.level, frames=len(event.frames))
             sink(event)
 
         try:
-            render(shot, edits, settings, on_event=on_event, base_dir=base_dir)
+            renderer.render(shot, edits, settings, on_event=on_event, base_dir=base_dir)
         finally:
             bar.close()
     seconds = time.perf_counter() - t0

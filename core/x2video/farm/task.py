@@ -11,20 +11,28 @@ import dataclasses
 import logging
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from x2video.farm import state
 from x2video.farm.jobs import Job
 
+if TYPE_CHECKING:
+    from x2video.edits.model import Edits
+    from x2video.model.api import RenderModel
+    from x2video.sampling.renderer import Renderer
+    from x2video.sampling.settings import RenderSettings
+    from x2video.shot import Shot
+    from x2video.weights import ModelOptions
+
 log = logging.getLogger(__name__)
 
 #: per worker process: model options -> loaded model (a worker renders many shots with one model)
-_MODELS: dict[str, Any] = {}
+_MODELS: dict[str, RenderModel] = {}
 
 
-def _model(options: Any) -> Any:
+def _model(options: ModelOptions) -> RenderModel:
     import x2video
 
     key = repr(sorted(dataclasses.asdict(options).items()))
@@ -34,7 +42,15 @@ def _model(options: Any) -> Any:
     return _MODELS[key]
 
 
-def load_job(job: Job) -> tuple[Any, Any, Path | None]:
+def _renderer(settings: RenderSettings, options: ModelOptions, retain: bool = True) -> Renderer:
+    """A Renderer for `settings`: with this worker's model, or none when the tier needs none (the formula: no weights)."""
+    from x2video.sampling import tiers
+    from x2video.sampling.renderer import Renderer
+
+    return Renderer(_model(options) if tiers.needs_model(settings.quality) else None, retain=retain)
+
+
+def load_job(job: Job) -> tuple[Shot, Edits | None, Path | None]:
     """(shot, edits or None, folder that resolves the edits' relative paths) of a job."""
     import x2video
 
@@ -46,7 +62,7 @@ def load_job(job: Job) -> tuple[Any, Any, Path | None]:
     return x2video.load_shot(job.source), None, None
 
 
-def frame_range(job: Job, shot: Any, settings: Any) -> tuple[int, int]:
+def frame_range(job: Job, shot: Shot, settings: RenderSettings) -> tuple[int, int]:
     start, stop = settings.frames or (0, shot.num_frames)
     if not 0 <= start < stop <= shot.num_frames:
         raise ValueError(f"{job.source}: frame range [{start}, {stop}) outside the shot's {shot.num_frames} frames")
@@ -60,36 +76,27 @@ def _threads(threads: int | None) -> None:
         torch.set_num_threads(threads)
 
 
-def plan_job(job: Job, settings: Any, options: Any, threads: int | None = None) -> dict[str, Any]:
+def plan_job(job: Job, settings: RenderSettings, options: ModelOptions, threads: int | None = None) -> dict[str, Any]:
     """What a shot's render needs, decided on a worker (which keeps the model for the shot's tasks): its tier
     (`Renderer.choose_tier`), frame range, frame rate, and for the diffusion tier its windows (`Renderer.render_plan`).
     Tiers 0 and 1 ('formula', 'residual') are per frame: the farm splits them into frame chunks (`render_chunk`); a
     diffusion render into its windows (`render_window`), or one task (`render_job`)."""
-    import x2video
 
     _threads(threads)
     shot, edits, base_dir = load_job(job)
     start, stop = frame_range(job, shot, settings)
-    windows = None
-    if settings.quality == "formula":
-        tier, reason = "formula", "forced by the user"
-    else:
-        renderer = x2video.Renderer(_model(options))
-        choice = renderer.choose_tier(shot, edits, settings)
-        tier, reason = choice.tier, choice.reason
-        if tier == "diffusion":
-            windows = [{"frames": list(w.frames), "generate": list(w.generate), "refs": list(w.refs), "level": w.level}
-                       for w in renderer.render_plan(shot, edits, settings, base_dir=base_dir)]
-    return {"tier": tier, "reason": reason, "per_frame": tier in ("formula", "residual"), "start": start, "stop": stop,
+    planned = _renderer(settings, options).plan_render(shot, edits, settings)
+    windows = None if planned.per_frame else [{"frames": list(w.frames), "generate": list(w.generate), "refs": list(w.refs), "level": w.level}
+                                              for w in planned.windows]
+    return {"tier": planned.tier, "reason": planned.reason, "per_frame": planned.per_frame, "start": start, "stop": stop,
             "fps": shot.info.fps, "windows": windows}
 
 
-def render_chunk(job: Job, out: Path, settings: Any, options: Any, fmt: state.OutputFormat, frames: tuple[int, int], key_digest: str,
+def render_chunk(job: Job, out: Path, settings: RenderSettings, options: ModelOptions, fmt: state.OutputFormat, frames: tuple[int, int], key_digest: str,
                  run: str = "", threads: int | None = None) -> dict[str, Any]:
     """Render frames [a, b) of a per-frame tier's shot into its staging folder (`x2video.farm.chunks`) with the same
     render call as a single process (`Renderer.render` with `RenderSettings.frames` = (a, b): a tier-0/1 frame depends
     on its own channels and the shot's exposure only), then mark the chunk done; returns its record."""
-    import x2video
     from x2video.farm import chunks
     from x2video.io.units import OutputUnits
 
@@ -110,12 +117,7 @@ def render_chunk(job: Job, out: Path, settings: Any, options: Any, fmt: state.Ou
 
     staged = chunks.StagedFrames(out, job.name, fmt, OutputUnits.for_shot(shot, settings.exposure), progress=progress)
     sub = dataclasses.replace(settings, frames=(a, b))
-    if settings.quality == "formula":
-        from x2video.sampling.formula import formula_frames
-
-        formula_frames(shot, edits, sub, on_event=staged, base_dir=base_dir)
-    else:
-        x2video.Renderer(_model(options), retain=False).render(shot, edits, sub, on_event=staged, base_dir=base_dir)
+    _renderer(settings, options, retain=False).render(shot, edits, sub, on_event=staged, base_dir=base_dir)
     if staged.written != set(range(a, b)):
         raise RuntimeError(f"{job.source}: the render of frames [{a}, {b}) made frames {sorted(staged.written)[:10]}...")
     seconds = time.perf_counter() - t0
@@ -123,7 +125,7 @@ def render_chunk(job: Job, out: Path, settings: Any, options: Any, fmt: state.Ou
     return {"task": task, "attempt": attempt, "frames": b - a, "seconds": seconds}
 
 
-def render_window(job: Job, out: Path, settings: Any, options: Any, fmt: state.OutputFormat, index: int, keep: list[int], key_digest: str,
+def render_window(job: Job, out: Path, settings: RenderSettings, options: ModelOptions, fmt: state.OutputFormat, index: int, keep: list[int], key_digest: str,
                   run: str, threads: int | None, ref_from: dict[int, int], *produced: dict[str, Any]) -> dict[str, Any]:
     """Render window `index` of a diffusion shot's plan (`Renderer.render_windows`) and stage the frames it is the last
     to make (`keep`; the seam pass makes some frames again later). Its reference latents come from the results of the
@@ -131,7 +133,6 @@ def render_window(job: Job, out: Path, settings: Any, options: Any, fmt: state.O
     Saves its latents beside its record (a later run reuses a finished window); returns its record with them."""
     import torch
 
-    import x2video
     from x2video.farm import chunks
     from x2video.io.units import OutputUnits
 
@@ -144,7 +145,7 @@ def render_window(job: Job, out: Path, settings: Any, options: Any, fmt: state.O
     refs = {int(f): torch.from_numpy(np.asarray(produced[k]["latents"][f])) for f, k in ref_from.items()}
     staged = chunks.StagedFrames(out, job.name, fmt, OutputUnits.for_shot(shot, settings.exposure), keep=set(keep),
                                  progress=lambda n: chunks.update_task(out, job.name, task, frames_done=n))
-    made = x2video.Renderer(_model(options), retain=False).render_windows(shot, edits, settings, [index], refs, on_event=staged, base_dir=base_dir)[index]
+    made = _renderer(settings, options, retain=False).render_windows(shot, edits, settings, [index], refs, on_event=staged, base_dir=base_dir)[index]
     if staged.written != set(keep):
         raise RuntimeError(f"{job.source}: window {index} made frames {sorted(staged.written)}, expected {sorted(keep)}")
     latents = {f: v.float().cpu().numpy() for f, v in made.items()}
@@ -173,7 +174,7 @@ def finish_job(job: Job, out: Path, key: dict[str, Any], exposure: Any, fmt: sta
     return {**marker, "skipped": False}
 
 
-def render_job(job: Job, out: Path, settings: Any, options: Any, fmt: state.OutputFormat = "exr", fps: float | None = None,
+def render_job(job: Job, out: Path, settings: RenderSettings, options: ModelOptions, fmt: state.OutputFormat = "exr", fps: float | None = None,
                run: str = "", threads: int | None = None) -> dict[str, Any]:
     """Render `job` to `out` (see `x2video.farm.state` for the layout) and write its done marker; returns the marker.
 
@@ -196,10 +197,7 @@ def render_job(job: Job, out: Path, settings: Any, options: Any, fmt: state.Outp
         start, stop = frame_range(job, shot, settings)
         total = stop - start
         state.write_status(out, job.name, frames_total=total)
-        if settings.quality == "formula":  # no network, no weights (as `x2video render --quality formula`)
-            from x2video.sampling.formula import formula_frames as render
-        else:
-            render = x2video.Renderer(_model(options), retain=False).render
+        render = _renderer(settings, options, retain=False).render
         target = state.output_path(out, job.name, fmt)
         units = OutputUnits.for_shot(shot, settings.exposure)
         frames: set[int] = set()

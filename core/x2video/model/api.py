@@ -6,12 +6,15 @@ small fakes. Shapes: N frames of a window travel in the batch dimension.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, Sequence
+from typing import TYPE_CHECKING, Any, Protocol, Sequence
 
 import numpy as np
 import torch
 
 from x2video.conditioning import FrameConditioning
+
+if TYPE_CHECKING:
+    from x2video.model.residual import ResidualNet
 
 
 @dataclass
@@ -42,6 +45,19 @@ class RenderModel(Protocol):
     has_lcm: bool
     #: whether the sampler's output is a residual over the shading prior (see `sample_to_latents`, `detail`)
     residual_prior: bool
+    #: channels of `encode_frames`' output (C_cond)
+    cond_channels: int
+    #: the tier-1 network (`x2video.model.residual`) the residual tier runs, or None (that tier is then unavailable)
+    residual_net: ResidualNet | None
+    #: whether quality 'auto' may render with `residual_net` (its record says it beat the formula); else auto keeps the formula
+    residual_auto: bool
+    #: the prompt encoder, or None for a model that loads it on first `encode_prompts` (`prepare` warms it when set)
+    text_encoder: Any
+
+    def set_engine(self, engine: str) -> str:
+        """Run the UNet, decoder and channel encoder on `engine` (`RenderSettings.engine`: 'auto', 'torch', 'onnx',
+        'openvino'); returns what runs them ('torch' for a model without exported graphs)."""
+        ...
 
     def alphas_cumprod(self) -> torch.Tensor:
         """(num_train_timesteps,) float64 cumulative alphas (zero-terminal-SNR rescaled)."""

@@ -97,6 +97,8 @@ class X2VideoModel:
         #: the tier-1 network (`x2video.model.residual`), or None; `from_pretrained` loads the folder's
         #: residual.safetensors. The Renderer runs it for frames with nothing to generate (`x2video.sampling.tiers`).
         self.residual_net = None
+        #: whether auto may render with `residual_net` (residual.json's 'auto': it beat the formula on the outside check)
+        self.residual_auto = True
         #: what runs the UNet, the decoder and the channel encoder: 'torch', or an exported graph's runtime
         #: ('onnx', 'openvino'); see `set_engine` and `x2video.model.engine`
         self.engine = "torch"

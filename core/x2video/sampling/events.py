@@ -38,8 +38,9 @@ class RenderStarted:
     num_frames: int
     num_windows: int
     levels: list[int]  # levels in the order they will run (top level = keyframes first)
-    tier: str = "diffusion"  # what renders (`x2video.sampling.tiers`): formula, residual or diffusion
+    tier: str = "diffusion"  # what renders: a tier's name (`x2video.sampling.tier.TIERS`)
     reason: str = ""  # why that tier (quality 'auto'), for the log and the status bar
+    per_frame: bool = False  # the tier renders every frame on its own (`x2video.sampling.tier.PerFrameTier`): progress in frames
 
 
 @dataclass

@@ -10,52 +10,43 @@ prepare for them.
 """
 from __future__ import annotations
 
-import functools
 import logging
 import time
-from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import torch
 
-from x2video.conditioning import FrameConditioning
 from x2video.model.api import WindowInputs
+from x2video.sampling import setup
 from x2video.sampling.cache import conditioning_key
 from x2video.sampling.events import CancelToken
+from x2video.sampling.planner import Window
 from x2video.sampling.settings import RenderSettings
+from x2video.sampling.tier_diffusion import DiffusionTier, diffusion_windows, reference_frame
 
 if TYPE_CHECKING:
+    from x2video.edits.model import Edits
     from x2video.sampling.renderer import Renderer
     from x2video.shot import Shot
 
 log = logging.getLogger(__name__)
 
 
-def prepare(renderer: "Renderer", shot: "Shot", settings: RenderSettings, edits: Any = None, cancel: CancelToken | None = None, *,
-            base_dir: str | Path | None = None) -> int:
+def prepare(renderer: Renderer, shot: Shot, settings: RenderSettings, edits: Edits | None = None, cancel: CancelToken | None = None) -> int:
     """See the module docstring; returns how many frames were encoded now (0 when the cache had them all,
-    the tier needs no encoding, or `cancel` was set before any)."""
-    from x2video.sampling.renderer import pad_amounts, pad_conditioning, plain_conditioning
-
+    the tier needs no encoding, or `cancel` was set before any). The conditioning is the diffusion tier's own
+    (`x2video.sampling.setup.network_frames`: padded, or at the working size for large frames)."""
     model = renderer.model
     choice = renderer.choose_tier(shot, edits, settings)
-    if choice.tier != "diffusion":
+    if model is None or choice.tier != DiffusionTier.name:
         return 0
     t0 = time.perf_counter()
-    if edits is None:
-        conditioning: Callable[[int], FrameConditioning] = functools.partial(plain_conditioning, shot)
-    else:
-        from x2video.edits import apply_edits
-
-        conditioning = functools.partial(apply_edits, shot, edits)
-    ph, pw = pad_amounts(shot.size, model.downsample)
-    if ph or pw:
-        unpadded = conditioning
-        conditioning = lambda t: pad_conditioning(unpadded(t), ph, pw)  # noqa: E731
-    settings = renderer._validate(shot, settings)
-    renderer._use_engine(settings)
-    windows = renderer.plan(shot, settings)
-    text = model.encode_prompts([""]) if getattr(model, "text_encoder", None) is not None else None  # loads the text encoder
+    conditioning = setup.network_frames(shot.size, setup.frame_conditioning(shot, edits), model.downsample, settings.working_pixels).conditioning
+    settings = setup.resolve(settings, model)
+    renderer.engine = setup.use_engine(model, settings.engine)
+    windows = diffusion_windows(setup.frame_range(shot, settings), settings, reference_frame(edits))
+    text = model.encode_prompts([""]) if model.text_encoder is not None else None  # loads the text encoder
+    encoder = setup.Encoder(model, renderer.cache, renderer.clock)
     model_key = model.content_key()
     encoded = ready = 0
     with torch.inference_mode():
@@ -66,10 +57,10 @@ def prepare(renderer: "Renderer", shot: "Shot", settings: RenderSettings, edits:
             conds = [conditioning(f) for f in window.frames]
             keys = [conditioning_key(c, model_key) for c in conds]
             before = renderer.cache.stats().entries
-            cond = renderer._encode(conds, keys)  # (n, C_cond, h, w)
+            cond = encoder.encode(conds, keys)  # (n, C_cond, h, w)
             if settings.detail:
                 gen = list(window.generate_positions)
-                renderer._detail([conds[p] for p in gen], [keys[p] for p in gen], cond[gen])
+                encoder.detail([conds[p] for p in gen], [keys[p] for p in gen], cond[gen])
             encoded += max(0, renderer.cache.stats().entries - before)
             if index == 0 and text is not None:  # the first keyframe window is encoded: now every graph the render runs
                 warm_engine(renderer, windows, settings, (cond.shape[-2], cond.shape[-1]), text, cancel)
@@ -78,15 +69,15 @@ def prepare(renderer: "Renderer", shot: "Shot", settings: RenderSettings, edits:
     return encoded
 
 
-def warm_engine(renderer: "Renderer", windows: Sequence[Any], settings: RenderSettings, latent_size: tuple[int, int],
+def warm_engine(renderer: Renderer, windows: Sequence[Window], settings: RenderSettings, latent_size: tuple[int, int],
                 text: torch.Tensor | None = None, cancel: CancelToken | None = None) -> int:
     """Build (export or read from the disk cache, compile) and run once on zeros the engine's graph of every UNet
     variant `windows` use, in plan order and as many as the engine keeps at once (`engine.UNET_GRAPHS`: a long
     shot's later levels come back from the blob cache when reached), and the decoder's, so no render call pays
     for them; nothing for PyTorch. Returns the variants built. `settings` must be validated
-    (`Renderer._validate`: the sampler resolved)."""
+    (`x2video.sampling.setup.resolve`: the sampler resolved)."""
     model = renderer.model
-    if renderer.engine == "torch":
+    if model is None or renderer.engine == "torch":
         return 0
     from x2video.model.engine import UNET_GRAPHS, unet_variant
 

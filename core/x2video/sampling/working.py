@@ -32,6 +32,7 @@ import math
 import numpy as np
 
 from x2video.conditioning import FrameConditioning
+from x2video.sampling.tier_formula import formula_frame
 
 
 def working_size(size: tuple[int, int], factor: int, max_pixels: int) -> tuple[int, int] | None:
@@ -117,8 +118,6 @@ def guided_upsample(low: np.ndarray, guide: np.ndarray, radius: int | None = Non
 def to_full(frame: np.ndarray, cond_full: FrameConditioning, upsample: str = "bilinear") -> np.ndarray:
     """(H, W, 3) full-resolution linear frame from a diffusion frame (h, w, 3) made at working size for the frame
     whose full-resolution conditioning is `cond_full` (see the module docstring)."""
-    from x2video.sampling.tiers import formula_frame
-
     if upsample not in UPSAMPLE:
         raise ValueError(f"unknown upsampling {upsample!r} (use one of {', '.join(UPSAMPLE)})")
     base = formula_frame(cond_full)  # (H, W, 3) albedo x irradiance, zero inside A|M|R regions
@@ -130,7 +129,7 @@ def to_full(frame: np.ndarray, cond_full: FrameConditioning, upsample: str = "bi
 def onto_formula(r: np.ndarray, base: np.ndarray, guide: np.ndarray | None = None) -> np.ndarray:
     """(H, W, 3) linear: a working-size log-space residual `r` (h, w, 3) upsampled (bilinear; then the guided filter
     by `guide` when one is given) and added to log1p of the full-resolution formula `base` (H, W, 3). The
-    diffusion tier's `to_full` and tier 1's working size (`x2video.sampling.tiers.residual_frames`) both end here."""
+    diffusion tier's `to_full` and tier 1's working size (`x2video.sampling.tier_residual.residual_frames`) both end here."""
     import cv2
 
     H, W = base.shape[:2]
