@@ -71,7 +71,7 @@ class Shot(ABC):
         return name in self.info.channels
 
     def channel(self, name: str, t: int) -> np.ndarray:
-        """One channel of frame t: float32 (H, W, C) (int32 for ids), in the DESIGN.md convention."""
+        """One channel of frame t: float32 (H, W, C) (int32 for ids), in the convention of docs/ARCHITECTURE.md."""
         if name not in self.info.channels:
             raise KeyError(f"shot {self.info.source!r} has no channel {name!r} (has {', '.join(self.info.channels)})")
         if not 0 <= t < self.info.num_frames:

@@ -54,7 +54,7 @@ def shading_available(channels: Mapping[str, np.ndarray | None]) -> bool:
 
 
 def classical_shading(channels: Mapping[str, np.ndarray | None], amr_mask: np.ndarray | None = None) -> np.ndarray:
-    """Classical shading of one frame's channels (DESIGN.md memory convention) -> (H, W, 3) linear RGB float32.
+    """Classical shading of one frame's channels (the memory convention of docs/ARCHITECTURE.md) -> (H, W, 3) linear RGB float32.
 
     `channels` maps albedo/normal/roughness/metallic/irradiance to arrays or None (dropped).
     All present channels must share one (H, W). See the module docstring for the model."""

@@ -57,7 +57,7 @@ def unit_to_irradiance(y: np.ndarray) -> np.ndarray:
 
 
 def to_vae_range(name: str, x: np.ndarray) -> np.ndarray:
-    """One channel (H, W, C) in DESIGN.md memory convention -> (H, W, 3) float32 in [-1, 1] for the VAE."""
+    """One channel (H, W, C) in the memory convention of docs/ARCHITECTURE.md -> (H, W, 3) float32 in [-1, 1] for the VAE."""
     x = np.asarray(x, np.float32)
     if x.ndim == 2:
         x = x[..., None]

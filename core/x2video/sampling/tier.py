@@ -1,4 +1,4 @@
-"""`Tier`: one way of rendering frames (DESIGN.md "Tiers", docs/ARCHITECTURE.md "Adding a tier"), and the registry of them.
+"""`Tier`: one way of rendering frames (docs/ARCHITECTURE.md, "Adding a tier"), and the registry of them.
 
 A tier is one class: its `name` (what `RenderSettings.quality` forces), whether it needs a model
 (`needs_model`), the channels it reads (`channels`), the plan of a render it runs (`plan`: windows and steps,
