@@ -215,11 +215,13 @@ def test_presets_and_lcm() -> None:
 
 
 def test_bad_input_fails_with_event() -> None:
+    with pytest.raises(ValueError, match="steps must be at least 1"):
+        RenderSettings(steps=0)  # refused where the settings are made, whichever tier would run (issue 44)
     events: list = []
     shot = make_shot(5)
-    with pytest.raises(ValueError, match="steps must be at least 1"):
-        Renderer(FakeModel()).render(shot, None, RenderSettings(steps=0), on_event=events.append)
-    assert isinstance(events[-1], RenderFailed) and "steps" in events[-1].error
+    with pytest.raises(ValueError, match="frame range"):
+        Renderer(FakeModel()).render(shot, None, RenderSettings(steps=1, frames=(0, 9)), on_event=events.append)
+    assert isinstance(events[-1], RenderFailed) and "frame range" in events[-1].error
 
 
 @pytest.mark.parametrize("size", [(12, 24), (37, 53)])

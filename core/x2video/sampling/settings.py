@@ -2,8 +2,16 @@
 panel, the farm's job templates and the `Renderer` all read these fields."""
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
+
+
+@functools.cache
+def _hints(cls: type) -> dict[str, Any]:
+    import typing
+
+    return typing.get_type_hints(cls)
 
 
 @dataclass
@@ -91,3 +99,69 @@ class RenderSettings:
     bilinearly, on top of the full-resolution formula (`x2video.sampling.tiers.residual_frames`). On 1024x1024
     Cycles frames it scored about what the full-size pass scores (21.06 dB against 21.07, the formula 19.09), 3.0x faster there and
     4.4x at 1920x1080 (docs/SHOT_FORMAT.md). 0: the net at full resolution, in overlapping tiles beyond 896x896."""
+
+    def __post_init__(self) -> None:
+        self.validate()  # `RenderSettings(steps=0)` and `dataclasses.replace(s, steps=0)` fail where they are written
+
+    def validate(self) -> "RenderSettings":
+        """Check every field on its own (the model and the shot are not needed), before any tier is chosen: a value no
+        tier accepts is refused by all, even by the tiers that do not read it (`--steps 0` under quality 'formula').
+        ValueError naming the field and its value; returns self. It runs when the settings are made (`__post_init__`:
+        the CLI's flags, the farm's jobs, the editor's panel, the Python API); call it again after changing a field in
+        place. What depends on the shot (a frame range past its end) or the model (LCM without distilled weights) is
+        checked where those are known."""
+        import math
+        import numbers
+        import typing
+
+        hints = _hints(type(self))
+        for name, tp in hints.items():
+            value = getattr(self, name)
+            options = [a for a in typing.get_args(tp) if a is not type(None)]
+            if typing.get_origin(tp) is Literal or (options and all(typing.get_origin(o) is Literal for o in options)):
+                allowed = [v for o in (options if typing.get_origin(tp) is not Literal else [tp]) for v in typing.get_args(o)]
+                if type(None) in typing.get_args(tp) and value is None:
+                    continue
+                if value not in allowed:
+                    label = {"noise": "noise seeding", "scheme": "sampling scheme", "preset": "render preset"}.get(name, name)
+                    raise ValueError(f"unknown {label} {value!r} (use {', '.join(map(repr, allowed[:-1]))} or {allowed[-1]!r})")
+            elif tp is int or (tp is not bool and int in options and value is not None):
+                if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+                    raise ValueError(f"{name}: expected an integer, got {value!r}")
+            elif tp is float:
+                if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+                    raise ValueError(f"{name}: expected a finite number, got {value!r}")
+        if self.steps < 1:
+            raise ValueError(f"steps must be at least 1, got {self.steps} (under every quality, also where a tier takes no steps)")
+        if self.window < 2:
+            raise ValueError(f"window size must be at least 2 frames, got {self.window}")
+        if self.resample < 1:
+            raise ValueError(f"resample must be at least 1 (1 = off), got {self.resample}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be 0 or more, got {self.seed}")
+        for name in ("working_pixels", "residual_pixels"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be 0 (full resolution) or more, got {getattr(self, name)}")
+        if not 0.0 <= self.noise_shared <= 1.0:
+            raise ValueError(f"noise_shared must lie in [0, 1], got {self.noise_shared}")
+        if not 0.0 <= self.ref_dc <= 1.0:
+            raise ValueError(f"ref_dc must lie in [0, 1] (0 = off), got {self.ref_dc}")
+        if self.max_levels is not None and self.max_levels < 1:
+            raise ValueError(f"max_levels must be at least 1 (unset: as many as the shot needs), got {self.max_levels}")
+        if self.frames is not None:
+            if (not isinstance(self.frames, (tuple, list)) or len(self.frames) != 2
+                    or not all(isinstance(v, numbers.Integral) and not isinstance(v, bool) for v in self.frames)):
+                raise ValueError(f"frames: expected (START, STOP) integers, got {self.frames!r}")
+            start, stop = self.frames
+            if start < 0:
+                raise ValueError(f"frames: START must be 0 or more, got {start}:{stop}")
+            if stop <= start:
+                raise ValueError(f"frames: the range {start}:{stop} is empty (STOP must be greater than START)")
+        if isinstance(self.exposure, str):
+            if self.exposure != "auto":
+                from x2video.io.units import parse_exposure
+
+                parse_exposure(self.exposure)  # ValueError naming it
+        elif isinstance(self.exposure, bool) or not isinstance(self.exposure, numbers.Real) or not math.isfinite(self.exposure):
+            raise ValueError(f"exposure: expected 'auto' or a finite number of stops, got {self.exposure!r}")
+        return self
