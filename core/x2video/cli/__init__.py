@@ -38,3 +38,11 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"x2video {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        # The machine, not the input: a full disk (x2video.io.atomic.DiskFullError names the folder and the space
+        # needed), a folder we may not write, a file that vanished while we read it. Exit 1, no traceback.
+        if args.verbose:
+            raise
+        text = f"{exc.filename}: {exc.strerror}" if exc.filename is not None else (exc.strerror if type(exc) is OSError and exc.strerror else str(exc))
+        print(f"x2video {args.command}: error: {text}", file=sys.stderr)
+        return 1

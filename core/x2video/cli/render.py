@@ -64,6 +64,19 @@ def load_inputs(args: argparse.Namespace) -> tuple[Any, Any, Path | None]:
     return shot, project.edits, args.project.parent
 
 
+def _resume_key(args: argparse.Namespace, shot: Any, settings: RenderSettings, options: ModelOptions, fps: float) -> str:
+    """What decides the frames of this render (`x2video.sampling.sink.resume_key`): a re-run with the same key takes
+    over the frames a failed run staged; the shot's and the project's files are part of it, so a shot re-rendered
+    meanwhile starts over."""
+    from x2video import __version__
+    from x2video.sampling.sink import files_identity, resume_key
+
+    paths = [shot.info.source, args.project]
+    inputs = [files_identity(p) for p in paths if p and Path(p).exists()]
+    return resume_key(version=__version__, settings=dataclasses.asdict(settings), options=dataclasses.asdict(options), fps=fps,
+                      inputs=[str(p) for p in paths], files=inputs, out=Path(args.out).name)
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -97,7 +110,8 @@ def run(args: argparse.Namespace) -> int:
     steps_label = planned.tier if planned.per_frame else f"{planned.sampler}-{planned.steps}"
     t0 = time.perf_counter()
     bar = tqdm(unit="step", desc=f"render {steps_label}", dynamic_ncols=True)
-    with FrameSink(args.out, fps=args.fps or shot.info.fps, expected=list(range(start, stop)), units=units) as sink:
+    fps = args.fps if args.fps is not None else shot.info.fps
+    with FrameSink(args.out, fps=fps, expected=list(range(start, stop)), units=units, resume=_resume_key(args, shot, settings, options, fps)) as sink:
 
         def on_event(event: RenderEvent) -> None:
             if isinstance(event, RenderStarted):
@@ -116,8 +130,15 @@ def run(args: argparse.Namespace) -> int:
                 bar.set_postfix(level=event.level, frames=len(event.frames))
             sink(event)
 
-        try:
-            renderer.render(shot, edits, settings, on_event=on_event, base_dir=base_dir)
+        try:  # a re-run after a failure (a full disk) resumes: the formula renders only the frames not kept, other tiers
+            # render again and write only those (a tier-1 batch of other frames may differ in the last bit)
+            runs = sink.missing_runs() if sink.kept and planned.tier == "formula" else [(start, stop)]
+            if sink.kept:
+                log.info("%s: %d of %d frames kept from the last attempt", args.out, len(sink.kept), stop - start)
+            for a, b in runs:
+                renderer.render(shot, edits, dataclasses.replace(settings, frames=(a, b)), on_event=on_event, base_dir=base_dir)
+            if sink.result is None:
+                sink.finish()
         finally:
             bar.close()
     seconds = time.perf_counter() - t0

@@ -7,8 +7,10 @@ the right format.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
+import shutil
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator
@@ -24,6 +26,62 @@ def _umask() -> int:
 _FILE_MODE = 0o666 & ~_umask()
 #: folders we create with mkdtemp and rename into place get the usual permissions too (mkdtemp makes them 0700)
 DIR_MODE = 0o777 & ~_umask()
+
+
+#: errno values that mean "the folder's device (or the user's quota) is full"
+DISK_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
+
+
+def format_bytes(n: float) -> str:
+    """A byte count for people: 950 B, 12.3 KB, 4.1 MB, 2.0 GB (powers of 1000, as `df -H`)."""
+    for unit in ("B", "KB", "MB", "GB", "TB"):
+        if abs(n) < 1000 or unit == "TB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000
+    return f"{n:.1f} TB"
+
+
+def free_bytes(folder: str | Path) -> int | None:
+    """Bytes free to this user on the device holding `folder` (its nearest existing parent); None when unknown."""
+    p = Path(folder)
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    try:
+        return shutil.disk_usage(p).free
+    except OSError:
+        return None
+
+
+class DiskFullError(OSError):
+    """No space left where we write: names the folder, the space the write still needs and what is free, and
+    what was kept. An OSError with errno ENOSPC, so code that catches OSError still catches it."""
+
+    def __init__(self, folder: str | Path, needed: int | None = None, *, what: str = "the write", kept: str = "",
+                 at_most: bool = False) -> None:
+        """`needed`: bytes the write still needs (an estimate; `at_most`: an upper bound)."""
+        self.folder, self.needed, self.free = Path(folder), needed, free_bytes(folder)
+        need = f"{'up to' if at_most else 'about'} {format_bytes(needed)} is needed" if needed else "more space is needed"
+        free = f", {format_bytes(self.free)} free" if self.free is not None else ""
+        msg = f"no space left in {self.folder} ({what}): {need}{free}"
+        if kept:
+            msg += f"; {kept}"
+        super().__init__(errno.ENOSPC, msg)
+        self.what, self.kept = what, kept
+
+    def __str__(self) -> str:  # OSError's str would prefix "[Errno 28]"
+        return str(self.strerror)
+
+
+def is_disk_full(exc: BaseException) -> bool:
+    """Whether `exc` says the device or quota is full (errno ENOSPC/EDQUOT, or a `DiskFullError`)."""
+    return isinstance(exc, DiskFullError) or (isinstance(exc, OSError) and exc.errno in DISK_FULL_ERRNOS)
+
+
+def looks_full(folder: str | Path | None, needed: int) -> bool:
+    """Whether the device of `folder` has less than `needed` bytes free: how a write error without an errno (numpy's,
+    a library's) is told to be a full disk."""
+    free = None if folder is None else free_bytes(folder)
+    return free is not None and free < needed
 
 
 def temp_path_for(path: str | Path) -> Path:

@@ -19,7 +19,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from x2video.io.atomic import atomic_path
+from x2video.io.atomic import DiskFullError, atomic_path, free_bytes
 
 
 class _Missing:
@@ -236,15 +236,46 @@ def write_ldr(path: str | Path, pixels: np.ndarray, bits: int = 8) -> None:
     _write(path, spec, np.ascontiguousarray(data))
 
 
+def _write_failed(path: str | Path, data: np.ndarray, detail: str) -> OSError:
+    """The error of a failed OpenImageIO write: OpenImageIO reports no errno, so a write that failed with less space
+    free than the image's uncompressed size counts as a full disk (`DiskFullError`, naming the folder)."""
+    folder = Path(path).parent
+    free = free_bytes(folder)
+    if free is not None and free < data.nbytes + 4096:
+        return DiskFullError(folder, data.nbytes, what=f"writing {Path(path).name}", at_most=True)
+    return OSError(f"{path}: write failed ({detail})")
+
+
 def _write(path: str | Path, spec: oiio.ImageSpec, data: np.ndarray) -> None:
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None:
             raise ValueError(f"{path}: no image writer for this extension ({oiio.geterror()})")
+        closed = False
         try:
             if not out.open(str(tmp), spec):
-                raise OSError(f"{path}: cannot open for writing ({out.geterror()})")
+                raise _write_failed(path, data, f"cannot open for writing: {out.geterror()}")
             if not out.write_image(data):
-                raise OSError(f"{path}: write failed ({out.geterror()})")
+                raise _write_failed(path, data, out.geterror())
+            closed = True
+            if not out.close():  # the last of the file is flushed here: a full disk can fail it too
+                raise _write_failed(path, data, f"cannot finish the file: {out.geterror()}")
         finally:
-            out.close()
+            if not closed:
+                out.close()
+        _check_written(tmp, path, data)
+
+
+def _check_written(tmp: Path, path: str | Path, data: np.ndarray) -> None:
+    """OpenImageIO reports success for an image the disk had no room for (found with a full tmpfs: a 17 KB EXR
+    written as its first 16 KB, write_image and close both True). On a nearly full disk (less free than twice the
+    file, plus 1 MB) read the file back; a file that does not read is a `DiskFullError`, and no file is left."""
+    free = free_bytes(tmp.parent)
+    if free is None or free >= 2 * tmp.stat().st_size + (1 << 20):
+        return
+    inp = oiio.ImageInput.open(str(tmp))
+    ok = inp is not None and inp.read_image(0, 0, 0, inp.spec().nchannels, "float") is not None
+    if inp is not None:
+        inp.close()
+    if not ok:
+        raise DiskFullError(Path(path).parent, data.nbytes, what=f"writing {Path(path).name}, cut short", at_most=True)
