@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from x2video.model.api import RenderModel
 from x2video.sampling.events import Cancelled, CancelToken, FramesReady, RenderCancelled
 from x2video.sampling.renderer import Renderer
 from x2video.sampling.settings import RenderSettings
+
+if TYPE_CHECKING:
+    from x2video.edits.model import Edits
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +76,8 @@ class EvalProgress:
     what: str
 
 
-def render_shot(renderer: Renderer, shot: EvalShot, edits: Any, settings: RenderSettings, cancel: CancelToken | None = None) -> tuple[list[np.ndarray], float]:
+def render_shot(renderer: Renderer, shot: EvalShot, edits: Edits | None, settings: RenderSettings,
+                cancel: CancelToken | None = None) -> tuple[list[np.ndarray], float]:
     """(T linear frames, wall seconds) of one full render, conditioning cache emptied first
     (`renderer.encode_seconds` then holds the part of it spent encoding the channels)."""
     frames: dict[int, np.ndarray] = {}

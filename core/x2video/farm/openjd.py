@@ -8,17 +8,21 @@ relative to the template's folder, and shots live elsewhere): `NAME.params.json`
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from x2video.farm import state
 from x2video.farm.jobs import Job
 from x2video.fields import to_flags
 from x2video.io.atomic import write_json_atomic
 
+if TYPE_CHECKING:
+    from x2video.sampling.settings import RenderSettings
+    from x2video.weights import ModelOptions
+
 SPECIFICATION = "jobtemplate-2023-09"
 
 
-def job_template(job: Job, output: Path, settings: Any, options: Any, fps: float | None = None) -> dict[str, Any]:
+def job_template(job: Job, output: Path, settings: RenderSettings, options: ModelOptions, fps: float | None = None) -> dict[str, Any]:
     """The job template (a dict, JSON-ready) that renders `job` to `output` with `settings` and `options`
     (`x2video.RenderSettings`, `x2video.weights.ModelOptions`): parameters for the shot or project and the output
     (`job_parameters` gives their values) and the `x2video` command on the worker, and one step 'Render'."""
@@ -57,7 +61,7 @@ def job_parameters(job: Job, output: Path) -> dict[str, str]:
     return {"Project" if job.kind == "project" else "Shot": str(job.source), "Output": str(output)}
 
 
-def write_templates(jobs: list[Job], folder: str | Path, out: str | Path, settings: Any, options: Any, fmt: state.OutputFormat = "exr",
+def write_templates(jobs: list[Job], folder: str | Path, out: str | Path, settings: RenderSettings, options: ModelOptions, fmt: state.OutputFormat = "exr",
                     fps: float | None = None) -> list[Path]:
     """Write `folder/NAME.template.json` and its parameter values `folder/NAME.params.json` for each job (rendering into
     the farm output folder `out`); returns the templates' paths."""

@@ -23,11 +23,15 @@ import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from x2video.farm import chunks, state
 from x2video.farm.chunks import CHUNK_FRAMES
 from x2video.farm.jobs import Job
+
+if TYPE_CHECKING:
+    from x2video.sampling.settings import RenderSettings
+    from x2video.weights import ModelOptions
 
 log = logging.getLogger(__name__)
 
@@ -118,7 +122,7 @@ class _Shot:
     finishing: bool = False
 
 
-def run_farm(jobs: list[Job], out: str | Path, settings: Any, options: Any, *, fmt: state.OutputFormat = "exr", fps: float | None = None,
+def run_farm(jobs: list[Job], out: str | Path, settings: RenderSettings, options: ModelOptions, *, fmt: state.OutputFormat = "exr", fps: float | None = None,
              address: str | None = None, local_cpus: int | None = None, cpus_per_shot: float = 1, retries: int = 3, redo: bool = False,
              chunk_frames: int = CHUNK_FRAMES, split: bool = True, write: Callable[[str], None] = print, poll_seconds: float = 0.5) -> FarmResult:
     """Render `jobs` into the shared folder `out` on Ray (see the module docstring); returns what became of each.

@@ -17,10 +17,14 @@ import shutil
 import socket
 import time
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from x2video.farm.jobs import Job
 from x2video.io.atomic import write_json_atomic
+
+if TYPE_CHECKING:
+    from x2video.sampling.settings import RenderSettings
+    from x2video.weights import ModelOptions
 
 MARKER_FORMAT = "x2video-farm-done"
 OutputFormat = Literal["exr", "mp4"]
@@ -50,7 +54,7 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def job_key(job: Job, settings: Any, options: Any, fmt: OutputFormat, fps: float | None) -> dict[str, Any]:
+def job_key(job: Job, settings: RenderSettings, options: ModelOptions, fmt: OutputFormat, fps: float | None) -> dict[str, Any]:
     """What decides a job's output: its source, the render settings, the model options, the output format."""
     return {"source": str(job.source), "kind": job.kind, "settings": _plain(settings), "model": _plain(options), "format": fmt, "fps": fps}
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 import torch
@@ -28,8 +28,11 @@ from x2video.sampling.samplers import Known, sample_ddim, sample_lcm
 from x2video.sampling.settings import RenderSettings
 from x2video.sampling.tier import TIERS, Emit, PerFrameTier, RenderJob, RenderPlan, Tier, TierChoice
 
+if TYPE_CHECKING:
+    from x2video.edits.model import Edits
 
-def reference_frame(edits: Any) -> int | None:
+
+def reference_frame(edits: Edits | None) -> int | None:
     """The shot frame the edits' reference sits at (a shot frame, or where an image is placed), or None; read from the
     edits' structure (no image is read), so planning stays pure."""
     ref = None if edits is None else edits.reference
