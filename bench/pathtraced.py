@@ -7,7 +7,7 @@ drop_irradiance` the irradiance dropped) and scored in the shot's own units (the
 divided by the shot's exposure normalisation) against its ground truth:
 
 - PSNR and SSIM on display images (`x2video.channels.tonemap`), TC with OpenCV DIS flow on the
-  ground truth (as for outside footage: DESIGN.md "Measuring it");
+  ground truth (as for outside footage: docs/ARCHITECTURE.md "Measuring it");
 - PSNR per material class, from Cycles' own passes where the file has them: window/sky (no
   geometry), emitter (Emit), glass (TransCol), metal (metallic AOV > 0.5), glossy (roughness < 0.25),
   diffuse (the rest);

@@ -4,7 +4,7 @@ A shot's frames are compared in the shot's own units: the renderer's frames are 
 exposure (the shot's irradiance normalisation), so they are divided by `shot.info.irradiance_scale`
 before display; the ground truth (Cycles' Combined) and any Cycles re-render are already in those
 units. PSNR and SSIM are on display images (`x2video.channels.tonemap`: clip, sRGB), TC is the
-warping error over the ground truth's (DIS flow on the ground truth: DESIGN.md "Measuring it").
+warping error over the ground truth's (DIS flow on the ground truth: docs/ARCHITECTURE.md "Measuring it").
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Intrinsic channel names, their in-memory conventions, and colour transfer functions (DESIGN.md table)."""
+"""Intrinsic channel names, their in-memory conventions, and colour transfer functions (docs/ARCHITECTURE.md "Channel convention")."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -12,7 +12,7 @@ from x2video.channels import INTRINSIC
 class FrameConditioning:
     """The edited intrinsic channels of one frame plus its masks.
 
-    channels: name -> float32 (H, W, C) in DESIGN.md convention, or None when the channel is
+    channels: name -> float32 (H, W, C) in the channel convention (docs/ARCHITECTURE.md), or None when the channel is
         dropped (missing from the shot, or dropped by an edit). Regions masked out by a
         "Mask A|M|R" edit are already zero in albedo/roughness/metallic.
     amr_mask: float32 (H, W) in {0, 1}: union of the regions where A|M|R was masked out

@@ -38,8 +38,8 @@ class ShotInfo:
     object_captions: dict[int, str] = field(default_factory=dict)
     #: one pose per frame, or None when the source has none
     poses: list[CameraPose] | None = None
-    #: the irradiance exposure normalisation applied to every frame of this shot (DESIGN.md:
-    #: computed once per shot). 1.0 when no normalisation was applied.
+    #: the irradiance exposure normalisation applied to every frame of this shot (docs/ARCHITECTURE.md
+    #: "Channel convention": computed once per shot). 1.0 when no normalisation was applied.
     irradiance_scale: float = 1.0
     source: str = ""
     extra: dict[str, Any] = field(default_factory=dict)

@@ -12,7 +12,7 @@ TABLES = ("a", "b", "c", "d")
 
 @dataclass
 class EvalConfig:
-    """Settings of one evaluation run (paper Sec. Experimental Results, DESIGN.md "Measuring it")."""
+    """Settings of one evaluation run (paper Sec. Experimental Results, docs/ARCHITECTURE.md "Measuring it")."""
 
     tables: tuple[str, ...] = TABLES
     """which tables: a = image vs video model, b = controls, c = recursive vs sequential, d = DDIM vs LCM"""

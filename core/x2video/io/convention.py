@@ -1,4 +1,4 @@
-"""Turning decoded image data into the in-memory channel convention of DESIGN.md (and back for writers).
+"""Turning decoded image data into the in-memory channel convention of docs/ARCHITECTURE.md (and back for writers).
 
 Conversions, per channel, for float (EXR) and integer (PNG/JPG/TIFF, "LDR") files:
 

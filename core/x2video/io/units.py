@@ -1,7 +1,7 @@
 """Units in = units out: the one place that turns rendered frames (in the model's exposure) into what is written.
 
 Loaders may normalise a shot's irradiance exposure once per shot (`ShotInfo.irradiance_scale`:
-loaded irradiance = file irradiance x scale, DESIGN.md). The model renders in that normalised
+loaded irradiance = file irradiance x scale, docs/ARCHITECTURE.md "Channel convention"). The model renders in that normalised
 exposure, so a rendered frame is ``scale x`` the radiance the input's units would give. Every
 writer of rendered frames (the CLI's `FrameSink`, the editor's exporter) goes through
 `OutputUnits`:

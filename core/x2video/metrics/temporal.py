@@ -1,7 +1,7 @@
-"""Temporal consistency (TC): flow-warping error of a video relative to its ground truth (DESIGN.md "Measuring it").
+"""Temporal consistency (TC): flow-warping error of a video relative to its ground truth (docs/ARCHITECTURE.md "Measuring it").
 
 Flow-warping error (Lai et al. 2018, "Learning Blind Video Temporal Consistency", E_warp,
-with the absolute instead of the squared difference as DESIGN.md asks): for each pair of
+with the absolute instead of the squared difference, as "Measuring it" asks): for each pair of
 consecutive frames, warp frame t+1 back onto frame t with the ground-truth flow F_t (pixel x
 of frame t moves to x + F_t(x) in frame t+1), and average |I_t(x) - I_{t+1}(x + F_t(x))| over
 the colour channels and the non-occluded pixels x; the video's error is the mean over pairs.

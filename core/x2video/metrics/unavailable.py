@@ -1,6 +1,6 @@
 """LPIPS and FVD: the paper reports them, but their network weights cannot be had offline here.
 
-DESIGN.md: a metric whose weights cannot be had offline is reported as missing, never replaced
+docs/ARCHITECTURE.md "Measuring it": a metric whose weights cannot be had offline is reported as missing, never replaced
 by a look-alike under its name. These are the reasons, checked against the PyPI packages.
 """
 from __future__ import annotations

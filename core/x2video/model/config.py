@@ -13,7 +13,7 @@ from typing import Any, Literal
 
 from x2video.channels import VAE_ENCODED
 
-#: Channels that go through the VAE and carry their own latent scaling factor (DESIGN.md).
+#: Channels that go through the VAE and carry their own latent scaling factor (docs/ARCHITECTURE.md "The model").
 LATENT_SCALE_KEYS = (*VAE_ENCODED, "rgb")
 #: what encodes the conditioning channels (`X2VideoModel.from_pretrained(channel_encoder=...)`, `--channel-encoder`):
 #: the VAE's encoder, the folder's distilled `channel_encoder.safetensors`, or the distilled one when present.

@@ -1,6 +1,6 @@
 """UNet builders: the XRGB image UNet (23 inputs) and its conversion to the X2Video video UNet (28/32 inputs).
 
-Input layout (DESIGN.md, XRGB release order, extended):
+Input layout (docs/ARCHITECTURE.md "The model"; XRGB release order, extended):
 
     [noisy 4 | albedo 4 | normal 4 | roughness 4 | metallic 4 | irradiance 3 | reference R 4 | union mask 1 | shading 4]
      \\________________________ image UNet: 23 _______________________/ \\__ video: 28 __________/ \\ +prior: 32 /

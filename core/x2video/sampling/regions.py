@@ -1,4 +1,4 @@
-"""Where a regional render keeps the diffusion sampler's pixels, and the feathered seam around them (DESIGN.md "Tiers")."""
+"""Where a regional render keeps the diffusion sampler's pixels, and the feathered seam around them (docs/ARCHITECTURE.md "Tiers")."""
 from __future__ import annotations
 
 import numpy as np

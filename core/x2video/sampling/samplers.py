@@ -56,7 +56,7 @@ class Known:
         x[list(self.positions)] = (a.sqrt() * self.x0.float() + (1 - a).sqrt() * self.eps.float()).to(x.dtype)
         return x
 
-#: The diffusion schedule the model is trained with (DESIGN.md: SD 2.1 betas, zero-terminal SNR).
+#: The diffusion schedule the model is trained with (docs/ARCHITECTURE.md "The model": SD 2.1 betas, zero-terminal SNR).
 SCHEDULE: dict[str, Any] = dict(
     num_train_timesteps=1000,
     beta_start=0.00085,

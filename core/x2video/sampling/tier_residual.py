@@ -1,6 +1,6 @@
 """Tier 1, the residual: one deterministic pass of the tier-1 net (`x2video.model.residual`) over the formula.
 
-It adds what albedo x irradiance misses and its channels show: the glossy term, metals, emitters, windows (DESIGN.md,
+It adds what albedo x irradiance misses and its channels show: the glossy term, metals, emitters, windows (docs/ARCHITECTURE.md,
 "Path-traced ground truth"); per frame, so it cannot flicker. Large frames run the net at a working size
 (`RenderSettings.residual_pixels`) and bring its log-space correction back onto the full-resolution formula.
 """

@@ -1,4 +1,4 @@
-"""Which tier a render runs (DESIGN.md "Tiers": no more model than a scene needs), and the plan it will run.
+"""Which tier a render runs (docs/ARCHITECTURE.md "Tiers": no more model than a scene needs), and the plan it will run.
 
     0 formula    albedo x irradiance of the (edited) channels, exact for diffuse light, free (`tier_formula`);
     1 residual   one deterministic pass of the tier-1 net over it: the glossy term, metals, emitters,
