@@ -18,7 +18,7 @@ import textwrap
 import types
 import typing
 from pathlib import Path
-from typing import Any, Callable, Iterable, Literal
+from typing import Any, Callable, Iterable, Literal, Mapping
 
 
 @functools.cache
@@ -87,6 +87,22 @@ def _unwrap_optional(tp: Any) -> Any:
     return tp
 
 
+def _is_optional(cls: type, name: str) -> bool:
+    tp = typing.get_type_hints(cls)[name]
+    return typing.get_origin(tp) in (typing.Union, types.UnionType) and type(None) in typing.get_args(tp)
+
+
+def on_off(text: str) -> bool:
+    """argparse type of a `bool | None` field: 'on' -> True, 'off' -> False (no flag: None)."""
+    if text not in ("on", "off"):
+        raise argparse.ArgumentTypeError(f"wants on or off, got {text!r}")
+    return text == "on"
+
+
+def _on_off(value: bool) -> str:
+    return "on" if value else "off"
+
+
 def _default_text(value: Any) -> str:
     if value is None:
         return "unset"
@@ -105,6 +121,9 @@ def field_kwargs(cls: type, name: str, default: Any = dataclasses.MISSING) -> di
         default = getattr(cls(), name)
     doc = field_docs(cls).get(name, "").rstrip(".").replace("%", "%%")  # argparse %-formats help
     kwargs: dict[str, Any] = {"dest": name, "default": default}
+    if tp is bool and _is_optional(cls, name):  # three states: --x on, --x off, or left unset (None)
+        kwargs.update(type=on_off, metavar="{on,off}", help=f"{doc} (default: {'unset' if default is None else _on_off(default)})")
+        return kwargs
     if tp is bool:
         kwargs["action"] = argparse.BooleanOptionalAction
         kwargs["help"] = f"{doc} (default: {'on' if default else 'off'})"
@@ -121,14 +140,24 @@ def field_kwargs(cls: type, name: str, default: Any = dataclasses.MISSING) -> di
 
 
 def add_fields(parser: argparse.ArgumentParser | argparse._ArgumentGroup, cls: type, *, only: Iterable[str] | None = None,
-               skip: Iterable[str] = (), defaults: Any = None) -> list[str]:
+               skip: Iterable[str] = (), defaults: Any = None, aliases: Mapping[str, str | Iterable[str]] | None = None,
+               overrides: Mapping[str, Mapping[str, Any]] | None = None) -> list[str]:
     """Add one flag `--field-name` per field of the dataclass `cls` (all, or `only` those, less `skip`; see
-    `field_kwargs`) and return their names. `defaults` (an instance) overrides the class's defaults."""
+    `field_kwargs`) and return their names. `defaults` (an instance) overrides the class's defaults; `aliases`
+    (field -> option strings) adds other names for a field's flag (`--ema` for `ema_decay`; the dest stays the
+    field's, so `from_args` reads it); `overrides` (field -> `add_argument` keywords) replaces any of the
+    generated ones (`type=size_arg` for a WxH size)."""
     instance = defaults if defaults is not None else cls()
+    aliases, overrides = aliases or {}, overrides or {}
     names = [f.name for f in dataclasses.fields(cls)] if only is None else list(only)
     names = [n for n in names if n not in set(skip)]
+    unknown = (set(aliases) | set(overrides)) - set(names)
+    if unknown:
+        raise ValueError(f"{cls.__name__}: aliases/overrides for fields without a flag: {sorted(unknown)}")
     for name in names:
-        parser.add_argument(flag(name), **field_kwargs(cls, name, getattr(instance, name)))
+        other = aliases.get(name, ())
+        options = [flag(name), *([other] if isinstance(other, str) else other)]
+        parser.add_argument(*options, **{**field_kwargs(cls, name, getattr(instance, name)), **overrides.get(name, {})})
     return names
 
 
@@ -171,7 +200,9 @@ def to_flags(cls: type, instance: Any, *, only_changed: bool = True) -> list[str
             if base is None:
                 continue
             raise ValueError(f"{cls.__name__}.{f.name} is None, which no flag {flag(f.name)} can say")
-        if isinstance(value, bool):
+        if isinstance(value, bool) and _is_optional(cls, f.name):
+            out += [flag(f.name), _on_off(value)]
+        elif isinstance(value, bool):
             out.append(flag(f.name) if value else "--no-" + f.name.replace("_", "-"))
         else:
             out += [flag(f.name), flag_value(value)]

@@ -9,89 +9,84 @@ from pathlib import Path
 from typing import Callable
 
 from x2video.cli.args import size_arg
-from x2video.cli.fields import add_field
-from x2video.train.config import AugmentConfig, LoopConfig, WindowConfig
+from x2video.fields import add_fields, from_args
+from x2video.train.config import (
+    AugmentConfig,
+    EncoderStageConfig,
+    ImageStageConfig,
+    LCMStageConfig,
+    LoopConfig,
+    VAEStageConfig,
+    VideoStageConfig,
+    WindowConfig,
+)
 
 log = logging.getLogger(__name__)
 
 
-def _ints(text: str) -> tuple[int, ...]:
-    try:
-        return tuple(int(v) for v in text.split(","))
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of integers") from e
+#: a WxH size field reads as 'WxH' (`size_arg`), not as a frame range
+_SIZE = {"size": {"type": size_arg, "metavar": "WxH"}}
+#: today's flag names of the per-room frame counts
+_POOL = {"pool_frames_per_room": "--pool-frames", "eval_frames_per_room": "--eval-frames"}
+#: stage fields whose flag another group adds (--seed: the loop's) or that are whole configs of their own
+_NOT_STAGE = ("seed", "augment", "window")
+
+
+def _stage_args(p: argparse.ArgumentParser, cls: type, **kwargs) -> None:
+    """The flags of a stage's own settings dataclass (`x2video.train.config`), one per field."""
+    add_fields(p.add_argument_group(f"stage ({cls.__name__})"), cls, skip=_NOT_STAGE, **kwargs)
 
 
 def _loop_args(p: argparse.ArgumentParser, steps: int, lr: float, ema: float = LoopConfig.ema_decay) -> None:
     """The optimisation flags (`LoopConfig`), with this stage's steps, learning rate and EMA decay."""
     g = p.add_argument_group("optimisation (resumes from the newest step-* checkpoint in --out)")
-    add_field(g, "--steps", LoopConfig, "steps", default=steps)
-    add_field(g, "--lr", LoopConfig, "lr", default=lr)
-    add_field(g, "--warmup", LoopConfig, "warmup")
-    add_field(g, "--lr-half-every", LoopConfig, "lr_half_every")
-    add_field(g, "--ema", LoopConfig, "ema_decay", default=ema)
-    add_field(g, "--ckpt-every", LoopConfig, "ckpt_every")
-    add_field(g, "--keep", LoopConfig, "keep_ckpts")
+    add_fields(g, LoopConfig, skip=("time_limit_s",), defaults=LoopConfig(steps=steps, lr=lr, ema_decay=ema),
+               aliases={"ema_decay": "--ema", "keep_ckpts": "--keep"})
     g.add_argument("--time-limit", type=float, default=LoopConfig.time_limit_s / 60,
                    help="stop with a checkpoint after this many minutes (0 = none)")
-    add_field(g, "--seed", LoopConfig, "seed")
-    add_field(g, "--mixed-precision", LoopConfig, "mixed_precision")
     g.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch's default; 1 is fastest on a busy machine)")
-    add_field(g, "--workers", LoopConfig, "workers")
 
 
 def _aug_args(p: argparse.ArgumentParser) -> None:
     """The conditioning augmentation flags (`AugmentConfig`)."""
-    g = p.add_argument_group("conditioning augmentation")
-    add_field(g, "--channel-drop", AugmentConfig, "channel_drop_p")
-    add_field(g, "--prompt-drop", AugmentConfig, "prompt_drop_p")
-    add_field(g, "--mask-p", AugmentConfig, "mask_p")
-    add_field(g, "--max-masks", AugmentConfig, "max_masks")
-    add_field(g, "--ref-shift-p", AugmentConfig, "ref_shift_p")
-    add_field(g, "--ref-shift-std", AugmentConfig, "ref_shift_std")
+    add_fields(p.add_argument_group("conditioning augmentation"), AugmentConfig,
+               aliases={"channel_drop_p": "--channel-drop", "prompt_drop_p": "--prompt-drop"})
 
 
 def _window_args(p: argparse.ArgumentParser) -> None:
     """The video window flags (`WindowConfig`)."""
-    g = p.add_argument_group("windows")
-    add_field(g, "--frames", WindowConfig, "frames")
-    add_field(g, "--levels", WindowConfig, "levels")
-    add_field(g, "--ref-p", WindowConfig, "ref_p_key", help="probability a window carries its reference frame(s) "
-              f"(default: {WindowConfig.ref_p_key:g})")
-    g.add_argument("--ref-p-interp", type=float, default=None,
-                   help="the same for interpolation windows (default: --ref-p; at inference they always carry both)")
-    add_field(g, "--interp-p", WindowConfig, "interp_p")
+    add_fields(p.add_argument_group("windows"), WindowConfig, aliases={"ref_p_key": "--ref-p"}, overrides={
+        "ref_p_key": {"help": f"probability a window carries its reference frame(s) (default: {WindowConfig.ref_p_key:g})"},
+        "ref_p_interp": {"default": None, "help": "the same for interpolation windows (default: --ref-p; at inference they always carry both)"}})
 
 
-def _loop_cfg(a: argparse.Namespace):
+def _loop_cfg(a: argparse.Namespace) -> LoopConfig:
     if a.threads:
         import torch
 
         torch.set_num_threads(a.threads)
     if a.steps < 1:
         raise ValueError("--steps must be >= 1")
-    return LoopConfig(steps=a.steps, lr=a.lr, warmup=a.warmup, lr_half_every=a.lr_half_every, ema_decay=a.ema,
-                      ckpt_every=a.ckpt_every, keep_ckpts=a.keep, time_limit_s=a.time_limit * 60, seed=a.seed,
-                      mixed_precision=a.mixed_precision, workers=a.workers)
+    return from_args(LoopConfig, a, time_limit_s=a.time_limit * 60)
 
 
-def _aug(a: argparse.Namespace):
-    for flag, v in (("--channel-drop", a.channel_drop), ("--prompt-drop", a.prompt_drop), ("--mask-p", a.mask_p),
-                    ("--ref-shift-p", a.ref_shift_p)):
+def _aug(a: argparse.Namespace) -> AugmentConfig:
+    aug = from_args(AugmentConfig, a)
+    for flag, v in (("--channel-drop", aug.channel_drop_p), ("--prompt-drop", aug.prompt_drop_p), ("--mask-p", aug.mask_p),
+                    ("--ref-shift-p", aug.ref_shift_p), ("--local-prompt-p", aug.local_prompt_p)):
         if not 0.0 <= v <= 1.0:
             raise ValueError(f"{flag} must be a probability in [0, 1], got {v}")
-    if a.ref_shift_std < 0:
-        raise ValueError(f"--ref-shift-std must be >= 0, got {a.ref_shift_std}")
-    return AugmentConfig(channel_drop_p=a.channel_drop, prompt_drop_p=a.prompt_drop, mask_p=a.mask_p, max_masks=a.max_masks,
-                         ref_shift_p=a.ref_shift_p, ref_shift_std=a.ref_shift_std)
+    if aug.ref_shift_std < 0:
+        raise ValueError(f"--ref-shift-std must be >= 0, got {aug.ref_shift_std}")
+    return aug
 
 
-def _window(a: argparse.Namespace):
-    for flag, v in (("--ref-p", a.ref_p), ("--ref-p-interp", a.ref_p_interp), ("--interp-p", a.interp_p)):
+def _window(a: argparse.Namespace) -> WindowConfig:
+    for flag, v in (("--ref-p", a.ref_p_key), ("--ref-p-interp", a.ref_p_interp), ("--interp-p", a.interp_p),
+                    ("--reverse-p", a.reverse_p), ("--short-p", a.short_p)):
         if v is not None and not 0.0 <= v <= 1.0:
             raise ValueError(f"{flag} must be a probability in [0, 1], got {v}")
-    return WindowConfig(frames=a.frames, levels=a.levels, interp_p=a.interp_p, ref_p_key=a.ref_p,
-                        ref_p_interp=a.ref_p if a.ref_p_interp is None else a.ref_p_interp)
+    return from_args(WindowConfig, a, ref_p_interp=a.ref_p_key if a.ref_p_interp is None else a.ref_p_interp)
 
 
 class Progress:
@@ -134,15 +129,13 @@ def _print_result(result: dict) -> None:
 # -- stages -------------------------------------------------------------------------
 def cmd_vae(a: argparse.Namespace) -> int:
     from x2video.train.data import open_dataset
-    from x2video.train.vae_stage import VAEStageConfig, run_vae_stage
+    from x2video.train.vae_stage import run_vae_stage
 
     loop = _loop_cfg(a)
     if loop.workers:
         raise ValueError("--workers applies to the image, video and lcm stages (the VAE stage crops from frames in memory)")
     ds = open_dataset(a.data)
-    stage = VAEStageConfig(preset=a.preset, vae_channels=a.vae_channels, layers_per_block=a.vae_layers, size=a.size, crop=a.crop,
-                           batch=a.batch, kl_weight=a.kl_weight, pool_frames_per_room=a.pool_frames, eval_frames_per_room=a.eval_frames,
-                           seed=a.seed)
+    stage = from_args(VAEStageConfig, a)  # seed: --seed
     _print_result(_run("vae", loop.steps, lambda bar: run_vae_stage(ds["train"], ds["test"], a.out, stage, loop, bar)))
     return 0
 
@@ -180,36 +173,28 @@ def cmd_cache(a: argparse.Namespace) -> int:
 
 
 def cmd_image(a: argparse.Namespace) -> int:
-    from x2video.train.diffusion_stages import ImageStageConfig, run_image_stage
+    from x2video.train.diffusion_stages import run_image_stage
 
     loop = _loop_cfg(a)
-    stage = ImageStageConfig(preset=a.preset, unet_channels=a.unet_channels, shading_prior=not a.no_shading_prior,
-                             residual_prior=not a.no_residual_prior, init=None if a.init is None else str(a.init),
-                             prediction=a.prediction, batch=a.batch,
-                             seed=a.seed, heldout_batches=a.heldout_batches, augment=_aug(a))
+    stage = from_args(ImageStageConfig, a, augment=_aug(a))
     _print_result(_run("image", loop.steps, lambda bar: run_image_stage(a.cache, a.out, stage, loop, bar)))
     return 0
 
 
 def cmd_video(a: argparse.Namespace) -> int:
-    from x2video.train.diffusion_stages import VideoStageConfig, run_video_stage
+    from x2video.train.diffusion_stages import run_video_stage
 
     loop = _loop_cfg(a)
-    sp = None if a.shading_prior is None else a.shading_prior == "on"
-    rp = None if a.residual_prior is None else a.residual_prior == "on"
-    stage = VideoStageConfig(batch=a.batch, shading_prior=sp, residual_prior=rp, prediction=a.prediction, seed=a.seed, heldout_batches=a.heldout_batches,
-                             augment=_aug(a), window=_window(a), alpha_lr_mult=a.alpha_lr_mult, train_only=a.train_only,
-                             noise_shared=a.noise_shared)
+    stage = from_args(VideoStageConfig, a, augment=_aug(a), window=_window(a))
     _print_result(_run("video", loop.steps, lambda bar: run_video_stage(a.init, a.cache, a.out, stage, loop, bar)))
     return 0
 
 
 def cmd_lcm(a: argparse.Namespace) -> int:
-    from x2video.train.lcm_stage import LCMStageConfig, run_lcm_stage
+    from x2video.train.lcm_stage import run_lcm_stage
 
     loop = _loop_cfg(a)
-    stage = LCMStageConfig(batch=a.batch, target_ema=a.target_ema, seed=a.seed, noise_shared=a.noise_shared, augment=_aug(a),
-                           window=_window(a))
+    stage = from_args(LCMStageConfig, a, augment=_aug(a), window=_window(a))
     _print_result(_run("lcm", loop.steps, lambda bar: run_lcm_stage(a.teacher, a.cache, a.out, stage, loop, bar, student_init=a.student_init)))
     return 0
 
@@ -217,7 +202,7 @@ def cmd_lcm(a: argparse.Namespace) -> int:
 def cmd_encoder(a: argparse.Namespace) -> int:
     from x2video.eval.data import training_size
     from x2video.train.data import open_dataset
-    from x2video.train.encoder_stage import EncoderStageConfig, run_encoder_stage
+    from x2video.train.encoder_stage import run_encoder_stage
     from x2video.train.runs import model_dir
 
     loop = _loop_cfg(a)
@@ -225,8 +210,7 @@ def cmd_encoder(a: argparse.Namespace) -> int:
         raise ValueError("--workers applies to the image, video and lcm stages (the encoder stage trains on frames in memory)")
     ds = open_dataset(a.data)
     size = a.size or training_size(model_dir(a.teacher))
-    stage = EncoderStageConfig(batch=a.batch, size=size, pool_frames_per_room=a.pool_frames,
-                               eval_frames_per_room=a.eval_frames, seed=a.seed)
+    stage = from_args(EncoderStageConfig, a, size=size)
     _print_result(_run("encoder", loop.steps, lambda bar: run_encoder_stage(a.teacher, ds["train"], ds["test"], a.out, stage, loop, bar)))
     return 0
 
@@ -241,7 +225,6 @@ def cmd_ship(a: argparse.Namespace) -> int:
 
 
 def cmd_residual(args: argparse.Namespace) -> int:
-    from x2video.cli.fields import from_args
     from x2video.train.residual_stage import ResidualTrainConfig, train
 
     cfg = from_args(ResidualTrainConfig, args)
@@ -266,15 +249,7 @@ def register(subparsers) -> None:
     s = sub.add_parser("vae", help="train the AutoencoderKL on rgb/albedo/normal/roughness/metallic crops")
     s.add_argument("--data", type=Path, required=True, help="data set folder with train/ and test/ rooms")
     s.add_argument("--out", type=Path, required=True, help="run folder")
-    s.add_argument("--preset", default="tiny", help="model preset giving the default VAE sizes (tiny, small, sd21)")
-    s.add_argument("--vae-channels", type=_ints, default=None, help="VAE block widths, e.g. 32,64,128 (f = 2^(n-1) = 4)")
-    s.add_argument("--vae-layers", type=int, default=None, help="ResNet layers per VAE block")
-    s.add_argument("--size", type=size_arg, default=None, help="resize frames to WxH first (the diffusion size, e.g. 160x112)")
-    s.add_argument("--crop", type=int, default=64, help="square crop side")
-    s.add_argument("--batch", type=int, default=16, help="crops per batch")
-    s.add_argument("--kl-weight", type=float, default=1e-6, help="KL weight per pixel")
-    s.add_argument("--pool-frames", type=int, default=16, help="frames per training room held in memory")
-    s.add_argument("--eval-frames", type=int, default=2, help="held-out frames per test room for the PSNR report")
+    _stage_args(s, VAEStageConfig, aliases={"layers_per_block": "--vae-layers", **_POOL}, overrides=_SIZE)
     _loop_args(s, steps=2000, lr=2e-4)
     s.set_defaults(func=cmd_vae)
 
@@ -290,16 +265,7 @@ def register(subparsers) -> None:
     s = sub.add_parser("image", help="XRGB-style image UNet on cached latents")
     s.add_argument("--cache", type=Path, required=True)
     s.add_argument("--out", type=Path, required=True)
-    s.add_argument("--preset", default="tiny", help="UNet preset (tiny, small, sd21)")
-    s.add_argument("--unet-channels", type=_ints, default=None, help="UNet block widths overriding the preset, e.g. 32,64,128")
-    s.add_argument("--no-shading-prior", action="store_true", help="the paper's layout: no classical shading input")
-    s.add_argument("--no-residual-prior", action="store_true",
-                   help="with the shading prior: learn the RGB latent itself, not the residual over the prior's latent")
-    s.add_argument("--init", type=Path, default=None, help="start from this image run or model folder (same architecture)")
-    s.add_argument("--prediction", choices=("v", "sample"), default=None,
-                   help="UNet output: v, or sample (x0; a new x0 head starts at zero). Default: sample with the residual prior, else v")
-    s.add_argument("--batch", type=int, default=16, help="frames per batch")
-    s.add_argument("--heldout-batches", type=int, default=4, help="test-room batches for the final held-out v-loss (0: skip)")
+    _stage_args(s, ImageStageConfig)
     _aug_args(s)
     _loop_args(s, steps=2000, lr=1e-4)
     s.set_defaults(func=cmd_image)
@@ -309,21 +275,7 @@ def register(subparsers) -> None:
                    help="image run (newest checkpoint) or image model folder, converted; or a video run/model, continued")
     s.add_argument("--cache", type=Path, required=True)
     s.add_argument("--out", type=Path, required=True)
-    s.add_argument("--batch", type=int, default=2, help="windows per batch")
-    s.add_argument("--shading-prior", choices=("on", "off"), default=None, help="default: as the image model")
-    s.add_argument("--residual-prior", choices=("on", "off"), default=None,
-                   help="learn the residual over the shading prior's latent (default: as the --init model)")
-    s.add_argument("--prediction", choices=("v", "sample"), default=None,
-                   help="UNet output (default: as the --init model); sample on a v model starts a zero x0 head")
-    s.add_argument("--heldout-batches", type=int, default=4, help="test-room batches for the final held-out v-loss (0: skip)")
-    s.add_argument("--alpha-lr-mult", type=float, default=100.0,
-                   help="learning-rate multiplier of the zero-initialised Hybrid Self-Attention alphas (scalars; default 100)")
-    s.add_argument("--train-only", choices=("all", "interp"), default="all",
-                   help="interp: train only the interpolation-mode LoRA branches (temporal interp1..K, end-frame reference r1) "
-                        "of a video model, so keyframe-mode and sequential renders stay bit-identical; needs --interp-p 1")
-    s.add_argument("--noise-shared", type=float, default=0.0,
-                   help="fraction of the noise's variance a window's frames share, in [0, 1]: train with the mixed noise prior the "
-                        "renderer samples with by default (RenderSettings.noise_shared); 0 (default): independent per frame")
+    _stage_args(s, VideoStageConfig)
     _aug_args(s)
     _window_args(s)
     _loop_args(s, steps=2000, lr=5e-5)
@@ -336,11 +288,7 @@ def register(subparsers) -> None:
                         "instead of from the teacher")
     s.add_argument("--cache", type=Path, required=True)
     s.add_argument("--out", type=Path, required=True)
-    s.add_argument("--batch", type=int, default=2, help="windows per batch")
-    s.add_argument("--target-ema", type=float, default=0.95, help="EMA decay of the target network")
-    s.add_argument("--noise-shared", type=float, default=0.0,
-                   help="fraction of the noise's variance a window's frames share, in [0, 1]: distil with the mixed noise prior "
-                        "the renderer samples with by default (RenderSettings.noise_shared); 0 (default): independent per frame")
+    _stage_args(s, LCMStageConfig)
     _aug_args(s)
     _window_args(s)
     _loop_args(s, steps=1000, lr=1e-5, ema=0.99)
@@ -354,10 +302,8 @@ def register(subparsers) -> None:
     s.add_argument("--teacher", type=Path, required=True, help="video (or LCM) run or model folder whose VAE is distilled")
     s.add_argument("--data", type=Path, required=True, help="data set folder with train/ and test/ rooms")
     s.add_argument("--out", type=Path, required=True, help="run folder")
-    s.add_argument("--batch", type=int, default=16, help="whole-frame images per batch")
-    s.add_argument("--size", type=size_arg, default=None, help="resize frames to WxH (default: the teacher's training size)")
-    s.add_argument("--pool-frames", type=int, default=16, help="frames per training room held in memory")
-    s.add_argument("--eval-frames", type=int, default=8, help="held-out frames per test room for the error report")
+    _stage_args(s, EncoderStageConfig, aliases=_POOL, overrides={
+        "size": {**_SIZE["size"], "help": "resize frames to WxH (default: the teacher's training size)"}})
     _loop_args(s, steps=2000, lr=3e-4, ema=0.995)
     s.set_defaults(func=cmd_encoder)
 
@@ -365,7 +311,6 @@ def register(subparsers) -> None:
     s.add_argument("--data", required=True, help="data set with train/ and val/ (or test/) shot folders holding the five channels and rgb")
     s.add_argument("--out", required=True, help="run folder (resumes from its checkpoint.pt)")
     s.add_argument("--threads", type=int, default=2, help="torch CPU threads")
-    from x2video.cli.fields import add_fields
     from x2video.train.residual_stage import ResidualTrainConfig
 
     add_fields(s, ResidualTrainConfig)

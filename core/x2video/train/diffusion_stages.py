@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -23,68 +22,13 @@ from x2video.model.checkpoint import load_into, read_config, save_checkpoint
 from x2video.model.config import ModelConfig, UNetConfig, preset
 from x2video.model.hybrid_attention import REF_BRANCHES, temporal_branches
 from x2video.model.unet import build_unet, convert_image_to_video, hybrid_processors
-from x2video.train.batches import AugmentConfig, LatentData, WindowConfig, image_batches, video_batches
+from x2video.train.batches import AugmentConfig, LatentData, image_batches, video_batches
+from x2video.train.config import ImageStageConfig, VideoStageConfig
 from x2video.train.diffusion import check_noise_shared, diffusion_batch, heldout_v_loss, noise_scheduler, v_loss
 from x2video.train.loop import LoopConfig, StepLog, process_index, train
 from x2video.train.runs import check_same_vae, load_vae, model_dir, write_results
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class ImageStageConfig:
-    """The image stage (field docstrings are CLI help)."""
-
-    preset: str = "tiny"
-    """Model preset of the UNet (tiny: 32/64/128 channels)."""
-    unet_channels: tuple[int, ...] | None = None
-    """UNet block widths overriding the preset's (attention on all but the first level)."""
-    shading_prior: bool = True
-    """Feed the classical shading latent (our addition); the paper's layout is off."""
-    residual_prior: bool = True
-    """With the shading prior: learn the residual over the prior's latent (ignored without the prior)."""
-    init: str | None = None
-    """Start from this image model (a run or model folder of the same architecture) instead of random weights."""
-    prediction: str | None = None
-    """What the UNet outputs: "v" or "sample" (x0). None: "sample" for a residual model, else "v". A
-    "sample" head that is new (fresh weights, or an --init trained for v) starts at zero."""
-    batch: int = 16
-    """Frames per batch."""
-    seed: int = 0
-    heldout_batches: int = 4
-    """Batches of held-out (test) frames for the final held-out v-loss (0: skip)."""
-    augment: AugmentConfig = field(default_factory=AugmentConfig)
-
-
-@dataclass
-class VideoStageConfig:
-    """The video stage (field docstrings are CLI help)."""
-
-    batch: int = 2
-    """Windows per batch (each of `window.frames` frames)."""
-    shading_prior: bool | None = None
-    """None: as the image model was trained."""
-    residual_prior: bool | None = None
-    """None: as the --init model was trained; True continues an absolute-target model as a residual one."""
-    prediction: str | None = None
-    """None: as the --init model; "sample" continues a v model with a zero-initialised x0 head."""
-    alpha_lr_mult: float = 100.0
-    """Learning-rate multiplier of the Hybrid Self-Attention alphas. They start at 0 and are single
-    scalars, so at the UNet's rate Adam moves each by at most ~lr per step: after 2,458 steps at
-    <= 1e-4 they sat at 0.01-0.05 and the reference and temporal branches were nearly off."""
-    train_only: str = "all"
-    """"all": every parameter trains. "interp": only the interpolation-mode LoRA branches (the temporal
-    branches interp1..K and the end-frame reference branch r1) of a video --init; everything keyframe-mode
-    and sequential windows use (the UNet, the alphas, the "key" and "r0" branches) stays bit-identical."""
-    noise_shared: float = 0.0
-    """Fraction of the noise's variance the frames of a training window share (the mixed noise prior
-    the Renderer samples with by default, `RenderSettings.noise_shared`); 0: independent per frame, as
-    the shipped weights were trained. The held-out v-loss uses the same noise."""
-    seed: int = 0
-    heldout_batches: int = 4
-    """Batches of held-out (test) windows for the final held-out v-loss (0: skip)."""
-    augment: AugmentConfig = field(default_factory=AugmentConfig)
-    window: WindowConfig = field(default_factory=WindowConfig)
 
 
 def zero_output_layer(unet: UNet2DConditionModel) -> None:

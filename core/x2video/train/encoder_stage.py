@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
@@ -35,6 +34,7 @@ from x2video.model.config import ModelConfig
 from x2video.model.shading import classical_shading
 from x2video.model.vae import encode_mode, to_vae_range
 from x2video.shot import Shot
+from x2video.train.config import EncoderStageConfig
 from x2video.train.data import even_frames, read_frame
 from x2video.train.loop import LoopConfig, StepLog, process_index, train
 from x2video.train.runs import load_vae, model_dir, write_results
@@ -44,21 +44,6 @@ log = logging.getLogger(__name__)
 #: the images the student learns, and the latent scale each is multiplied by in the UNet's input
 IMAGES = {"albedo": "albedo", "normal": "normal", "roughness": "roughness", "metallic": "metallic", "shading": "rgb"}
 _READ = INTRINSIC
-
-
-@dataclass
-class EncoderStageConfig:
-    """What the encoder stage trains and on what (field docstrings are CLI help)."""
-
-    batch: int = 16
-    """Whole-frame images per batch."""
-    size: tuple[int, int] | None = None
-    """(width, height) frames are resized to (the teacher's training size); None: native."""
-    pool_frames_per_room: int = 16
-    """Frames per training room held in memory (evenly spaced); five to six images each."""
-    eval_frames_per_room: int = 8
-    """Held-out frames per test room for the error report."""
-    seed: int = 0
 
 
 def frame_images(channels: dict[str, np.ndarray], rng: np.random.Generator) -> list[tuple[str, np.ndarray]]:

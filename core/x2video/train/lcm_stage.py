@@ -19,7 +19,6 @@ import copy
 import dataclasses
 import json
 import logging
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -29,33 +28,13 @@ from diffusers import UNet2DConditionModel
 from x2video.model.checkpoint import load_into, read_config, save_checkpoint
 from x2video.model.unet import build_unet
 from x2video.sampling.samplers import lcm_scheduler
-from x2video.train.batches import AugmentConfig, Batch, LatentData, WindowConfig, video_batches
+from x2video.train.batches import Batch, LatentData, video_batches
+from x2video.train.config import LCMStageConfig
 from x2video.train.diffusion import check_noise_shared, diffusion_batch, noise_scheduler, predict, window_noise
 from x2video.train.loop import LoopConfig, StepLog, train
 from x2video.train.runs import check_same_vae, load_vae, model_dir, write_results
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class LCMStageConfig:
-    """LCM distillation (field docstrings are CLI help)."""
-
-    batch: int = 2
-    """Windows per batch."""
-    ddim_steps: int = 50
-    """Teacher DDIM grid (skipping interval 1000 / ddim_steps); must match LCMScheduler's original_inference_steps (50)."""
-    target_ema: float = 0.95
-    """EMA decay of the target network theta- (LCM: 0.95)."""
-    huber_c: float = 0.001
-    """Pseudo-Huber constant (LCM-LoRA training script: 0.001)."""
-    noise_shared: float = 0.0
-    """Fraction of the noise's variance a window's frames share, in [0, 1]: distil with the mixed noise prior
-    the Renderer samples with by default (`RenderSettings.noise_shared`), as `x2video train video
-    --noise-shared` trains the teacher; 0: independent per frame, as the shipped LCM UNet was distilled."""
-    seed: int = 0
-    augment: AugmentConfig = field(default_factory=AugmentConfig)
-    window: WindowConfig = field(default_factory=WindowConfig)
 
 
 def x0_eps_from_v(x_t: torch.Tensor, v: torch.Tensor, a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterator, Sequence
 
@@ -20,9 +19,9 @@ import torch
 from diffusers import AutoencoderKL
 
 from x2video.model.checkpoint import save_checkpoint
-from x2video.model.config import ModelConfig, VAEConfig, preset
 from x2video.model.vae import build_vae, encode_mode, to_vae_range
 from x2video.shot import Shot
+from x2video.train.config import VAEStageConfig
 from x2video.train.data import even_frames, read_frame
 from x2video.train.loop import LoopConfig, StepLog, process_index, train
 from x2video.train.runs import write_results
@@ -31,39 +30,6 @@ log = logging.getLogger(__name__)
 
 #: the images the VAE learns (its latents condition the UNet or are its target)
 VAE_CHANNELS = ("rgb", "albedo", "normal", "roughness", "metallic")
-
-
-@dataclass
-class VAEStageConfig:
-    """What the VAE stage trains and on what (field docstrings are CLI help)."""
-
-    preset: str = "tiny"
-    """Model preset whose VAE sizes are the default (tiny: f=8)."""
-    vae_channels: tuple[int, ...] | None = None
-    """VAE block widths, e.g. (32, 64, 128): latent factor f = 2**(len-1). None: the preset's."""
-    layers_per_block: int | None = None
-    """ResNet layers per VAE block. None: the preset's."""
-    size: tuple[int, int] | None = None
-    """(width, height) frames are resized to before cropping (the diffusion training size); None: native."""
-    crop: int = 64
-    """Square crop side in pixels (a multiple of f)."""
-    batch: int = 16
-    kl_weight: float = 1e-6
-    """Weight of the KL term per pixel (SD's autoencoder: 1e-6)."""
-    pool_frames_per_room: int = 16
-    """Frames per training room held in memory (evenly spaced)."""
-    eval_frames_per_room: int = 2
-    """Held-out frames per test room for the PSNR report."""
-    seed: int = 0
-
-    def model_config(self) -> ModelConfig:
-        base = preset(self.preset)
-        v = base.vae
-        widths = tuple(self.vae_channels) if self.vae_channels else v.block_out_channels
-        groups = math.gcd(v.norm_num_groups, *widths)
-        vae = VAEConfig(block_out_channels=widths, layers_per_block=self.layers_per_block or v.layers_per_block,
-                        latent_channels=v.latent_channels, norm_num_groups=groups)
-        return dataclasses.replace(base, vae=vae)
 
 
 def build_pool(shots: Sequence[Shot], frames_per_room: int, size: tuple[int, int] | None) -> dict[str, np.ndarray]:
