@@ -139,6 +139,18 @@ def test_render_state_tracks_levels_keyframes_and_eta():
     assert len(seen) == 7
 
 
+def test_render_state_is_per_frame_when_its_tier_says_so():
+    """Per frame is what RenderStarted says (any tier's `per_frame`), not a list of tier names."""
+    st = RenderState()
+    st.begin(steps_per_window=1, windows_per_level={1: 3})
+    st.apply(RenderStarted(num_frames=3, num_windows=0, levels=[0], tier="toy-grey", per_frame=True))
+    assert st.per_frame and st.windows_per_level == {} and st.level_order == [0]
+    st.begin(steps_per_window=2)
+    assert not st.per_frame
+    st.apply(RenderStarted(num_frames=9, num_windows=3, levels=[2, 1], tier="diffusion"))
+    assert not st.per_frame
+
+
 def test_render_state_seam_pass_replaces_keyframes():
     """The seam pass makes keyframe 4 again in an interpolation window, and frame 0 in a lower-level
     keyframe-mode window: neither is a keyframe any more, and the viewer shows the new frames."""

@@ -379,3 +379,15 @@ def test_plan_render_is_what_the_render_runs():
     assert formula.per_frame and formula.tier == "formula" and formula.windows == ()
     with pytest.raises(ValueError, match="needs a model"):
         tiers.plan_render(shot, None, RenderSettings(quality="diffusion"), None)
+
+
+def test_a_tier_exact_in_part_renders_any_part_of_a_range_to_the_same_bytes():
+    """`Tier.exact_in_part` (what lets `x2video render` resume a failed render with only the missing frames) holds
+    for the formula; the tiers that batch frames or run windows do not claim it."""
+    from x2video.sampling.tier import TIERS
+
+    assert TIERS["formula"].exact_in_part and not TIERS["residual"].exact_in_part and not TIERS["diffusion"].exact_in_part
+    shot = full_shot(6)
+    _, whole = render(None, shot, RenderSettings(quality="formula"))
+    _, part = render(None, shot, RenderSettings(quality="formula", frames=(2, 5)))
+    assert sorted(part) == [2, 3, 4] and all(np.array_equal(part[t], whole[t]) for t in part)

@@ -173,14 +173,17 @@ class RenderPanel(QWidget):
         }
 
     def set_residual_available(self, available: bool | None) -> None:
-        """Grey out quality 'residual' (with the reason as its tooltip) unless the model has the tier-1 network;
-        a selected 'residual' falls back to auto. None: no model yet, so nothing to say."""
-        i = self.quality.findData("residual")
-        item = self.quality.model().item(i)
-        on = available is not False
-        item.setEnabled(on)
-        self.quality.setItemData(i, QUALITY_ITEMS[i][2] if on else NO_RESIDUAL, Qt.ItemDataRole.ToolTipRole)
-        if not on and self.quality.currentData() == "residual":
+        """Grey out quality 'residual' unless the model has the tier-1 network (`set_tier_available`). None: no
+        model yet, so nothing to say."""
+        self.set_tier_available("residual", NO_RESIDUAL if available is False else None)
+
+    def set_tier_available(self, tier: str, reason: str | None) -> None:
+        """Grey out the quality `tier` with `reason` as its tooltip (None: offer it again); a selected one that
+        cannot run falls back to auto."""
+        i = self.quality.findData(tier)
+        self.quality.model().item(i).setEnabled(reason is None)
+        self.quality.setItemData(i, QUALITY_ITEMS[i][2] if reason is None else reason, Qt.ItemDataRole.ToolTipRole)
+        if reason is not None and self.quality.currentIndex() == i:
             self.quality.setCurrentIndex(self.quality.findData("auto"))
 
     def set_devices(self, cuda: bool) -> None:

@@ -21,9 +21,6 @@ from x2video.sampling.events import (
 from x2video_app.preview import PreviewReady
 from x2video_app.signals import Signal
 
-#: tiers that render each frame on its own in one pass (no windows, no levels): progress counts frames
-PER_FRAME_TIERS = ("formula", "residual")
-
 
 @dataclass
 class WindowRecord:
@@ -62,6 +59,9 @@ class RenderState:
     error: str = ""
     tier: str = ""  # what renders (RenderStarted.tier): formula, residual or diffusion; "" before it says
     reason: str = ""  # why that tier (RenderStarted.reason)
+    #: the tier renders every frame on its own in one pass (RenderStarted.per_frame: formula, residual): no windows
+    #: or levels, progress in frames
+    per_frame: bool = False
     started_at: float = 0.0
     first_frame_at: float | None = None
     first_keyframe_at: float | None = None  # the render's first frame (a keyframe in the recursive scheme)
@@ -88,6 +88,7 @@ class RenderState:
         self.in_flight = []
         self.status = "running"
         self.error = self.tier = self.reason = ""
+        self.per_frame = False
         self.started_at = time.perf_counter()
         self.first_frame_at = self.first_keyframe_at = self.finished_at = None
         self.changed.emit(None)
@@ -97,11 +98,6 @@ class RenderState:
         self.preview.clear()
         self.levels.clear()
         self.keyframes.clear()
-
-    @property
-    def per_frame(self) -> bool:
-        """The render runs a per-frame tier (formula, residual): no windows or levels, progress in frames."""
-        return self.tier in PER_FRAME_TIERS
 
     def image(self, t: int) -> np.ndarray | None:
         """What the viewer shows for frame `t`: the render's frame, else its preview, else None."""
@@ -124,7 +120,7 @@ class RenderState:
                 self.first_frame_at = now
         elif isinstance(ev, RenderStarted):
             self.num_frames, self.num_windows, self.level_order = ev.num_frames, ev.num_windows, list(ev.levels)
-            self.tier, self.reason = ev.tier, ev.reason
+            self.tier, self.reason, self.per_frame = ev.tier, ev.reason, ev.per_frame
             if self.per_frame:  # the window plan the controller guessed does not apply
                 self.windows_per_level, self.level_order = {}, [0]
         elif isinstance(ev, WindowStarted):

@@ -130,9 +130,9 @@ def run(args: argparse.Namespace) -> int:
                 bar.set_postfix(level=event.level, frames=len(event.frames))
             sink(event)
 
-        try:  # a re-run after a failure (a full disk) resumes: the formula renders only the frames not kept, other tiers
-            # render again and write only those (a tier-1 batch of other frames may differ in the last bit)
-            runs = sink.missing_runs() if sink.kept and planned.tier == "formula" else [(start, stop)]
+        try:  # a re-run after a failure (a full disk) resumes: a tier exact in part (the formula) renders only the frames
+            # not kept, other tiers render again and write only those (a tier-1 batch of other frames may differ in the last bit)
+            runs = sink.missing_runs() if sink.kept and tiers.TIERS[planned.tier].exact_in_part else [(start, stop)]
             if sink.kept:
                 log.info("%s: %d of %d frames kept from the last attempt", args.out, len(sink.kept), stop - start)
             for a, b in runs:

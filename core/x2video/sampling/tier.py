@@ -108,6 +108,9 @@ class Tier:
     per_frame: ClassVar[bool] = False
     #: reads the user's reference frame (`RenderJob.reference` is resolved only for such tiers)
     reads_reference: ClassVar[bool] = False
+    #: a render of any part of a frame range gives its frames the same bytes as a render of the whole range (no batch
+    #: or window touches another frame's pixels), so a resumed render may render only the frames it lacks
+    exact_in_part: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)

@@ -30,6 +30,7 @@ class FormulaTier(PerFrameTier):
     name = "formula"
     needs_model = False
     channels = ("albedo", "irradiance")
+    exact_in_part = True
 
     def frames(self, job: RenderJob, conds: Sequence[FrameConditioning]) -> list[np.ndarray]:
         return [np.asarray(formula_frame(c), np.float32) for c in conds]
