@@ -42,6 +42,9 @@ class Document:
         self.hidden: set[str] = set()
         self.colours: dict[str, tuple[int, int, int]] = {}
         self._cond_cache: dict[int, tuple[int, FrameConditioning]] = {}
+        #: the live preview's frame on screen (`x2video_app.live_preview.LiveResult`: `.t`, `.image`), newer than the
+        #: render's frame of it; None when there is none (no edit since the render)
+        self.live = None
         self._stroke: tuple[int, int, np.ndarray, np.ndarray] | None = None  # (mask, t, before, working)
         self._last_pt: tuple[float, float] | None = None
         # signals
@@ -176,6 +179,11 @@ class Document:
         return None if r is None else r[1]
 
     # -- painting --------------------------------------------------------------
+    @property
+    def stroking(self) -> bool:
+        """Whether a brush/eraser stroke is under way (its undo step is pushed when it ends)."""
+        return self._stroke is not None
+
     def begin_stroke(self, x: float, y: float, radius: float, erase: bool) -> bool:
         """Start a brush/eraser stroke on the selected mask at frame `self.frame`; False when no mask is selected."""
         if self.selected_mask < 0 or self.shot is None:
@@ -244,7 +252,8 @@ class Document:
         return out
 
     def rendered_u8(self, t: int) -> np.ndarray:
-        img = self.render.image(t)  # the render's frame, else the formula's preview of it
+        live = self.live
+        img = live.image if live is not None and live.t == t else self.render.image(t)  # else the render's frame, or its formula preview
         return checker(self.size) if img is None else channel_to_u8("rgb", img.astype(np.float32), self.size)
 
     def display_image(self) -> np.ndarray:

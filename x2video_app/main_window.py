@@ -30,6 +30,7 @@ from x2video_app.display import VIEW_MODES
 from x2video_app.document import Document
 from x2video_app.edit_actions import EditActions
 from x2video_app.edit_panel import EditPanel
+from x2video_app.live_preview import LivePreview
 from x2video_app.mask_panel import MaskPanel
 from x2video_app.model_source import ModelChoice, cuda_available, has_weights, resolve_device, weights_dir, weights_hint
 from x2video_app.preview import PreviewReady
@@ -130,6 +131,8 @@ class MainWindow(QMainWindow):
         self.render_ctl = RenderController(self.doc, self)
         self.edits = EditActions(self.doc, self.undo, host=self, parent=self)
         self.project = ProjectController(self.doc, self.undo, self.render_ctl, host=self, parent=self, autosave_ms=autosave_ms)
+        self.live = LivePreview(self)  # the frame on screen re-renders while an edit changes (issue 43)
+        bar.insertWidget(bar.indexOf(self.follow_box) + 1, self.live.controls)
         self._build_menus()
         self._connect()
         self.choose_default_model()
@@ -456,6 +459,7 @@ class MainWindow(QMainWindow):
             where = "" if lvl is None else " (one pass)" if lvl <= 0 else f" (level {lvl})"
             self.info_label.setText(f"frame {t}/{s.num_frames - 1}: {rendered}{where}")
             self.info_label.setToolTip(f"{s.size[1]}×{s.size[0]} pixels, {s.num_frames} frames at {s.info.fps:g} fps; {s.info.source}")
+        self.live.mark(self.info_label)
 
     def refresh_timeline(self) -> None:
         st = self.doc.render
@@ -512,6 +516,7 @@ class MainWindow(QMainWindow):
                 or self.render_ctl.prepare_worker is not None):
             self.render_ctl.cancel()
             self.render_ctl.wait(120000)
+        self.live.shutdown()
         self.project.shutdown()
         ev.accept()
 
@@ -550,7 +555,8 @@ def launch(argv: list[str]) -> tuple[QApplication, MainWindow]:
             win.render_ctl.preload()
 
     def start() -> None:
-        ok = win.project.open_path(args.path) if args.path else win.project.open_demo()
+        ok = (not args.smoke_test and win.project.offer_crashed()) or (  # an editor killed before: its autosave first
+            win.project.open_path(args.path) if args.path else win.project.open_demo())
         # The model builds in the background once the shot is painted: importing torch in a thread holds
         # the GIL through whole shared-library loads, which stalled opening the demo by seconds here.
         QTimer.singleShot(100, build_model)

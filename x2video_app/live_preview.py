@@ -1,0 +1,410 @@
+"""Live preview (issue 43): while an edit control changes, the frame on screen re-renders off the GUI thread.
+
+Every edit (slider drag, colour pick, brush stroke, mask-out toggle, exposure, tint, prompt, undo) asks
+`LivePreviewer` for the frame on screen with the fastest tier auto trusts (`x2video.sampling.live.preview_choice`:
+tier 1 where the render would use it, else the formula). The previewer is latest-wins: it holds at most one request
+waiting, which the next one replaces (the stale one is dropped, never queued), and one superqt generator worker
+drains it, so a preview in progress always finishes and shows while a newer one waits. When the edits rest for
+`DEBOUNCE_MS`, the frame gets its full quality: the preview's own frame where the render's tier is per-frame, else
+the sampler's window around it (`x2video.sampling.live.render_frame`). A whole-shot render starts only on Render, or
+on settling when "Auto re-render" is ticked. The frame shows in the rendered and side-by-side views, over the last
+render's frame, with a badge on the viewer saying it is a preview and which tier made it.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import logging
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from PySide6.QtCore import QObject, QTimer, Signal
+from PySide6.QtWidgets import QCheckBox, QHBoxLayout, QLabel, QWidget
+from superqt.utils import WorkerBase, create_worker
+
+from x2video.edits import Edits, Mask
+from x2video.sampling.events import CancelToken
+from x2video.sampling.settings import RenderSettings
+
+log = logging.getLogger(__name__)
+
+#: quiet edits for this long = the person stopped: the frame on screen gets its full quality
+DEBOUNCE_MS = 250
+#: while a whole-shot render or its preparation runs, a settled frame that needs the sampler waits this long again
+BUSY_RETRY_MS = 1000
+#: the views that show rendered frames (`Document.rendered_u8`), where a live frame shows
+LIVE_VIEWS = ("rendered", "side-by-side")
+#: names the tiers go by on the badge
+TIER_NAMES = {"formula": "formula", "residual": "tier 1", "diffusion": "diffusion"}
+
+
+def snapshot_edits(edits: Edits) -> Edits:
+    """A copy of `edits` a worker may read while the person keeps editing: new containers, the masks' painted arrays
+    shared (a `Mask` never modifies an array in place: painting stores a new one), so a stroke copies no pixels."""
+    masks = {name: Mask(frames=dict(m.frames), ids=list(m.ids), hold=m.hold) for name, m in edits.masks.items()}
+    return dataclasses.replace(edits, masks=masks, ops=copy.deepcopy(edits.ops), dropped=set(edits.dropped),
+                               local_prompts=dict(edits.local_prompts), reference=copy.copy(edits.reference))
+
+
+@dataclass(frozen=True)
+class LiveRequest:
+    """Frame `t` of `shot` under `edits` (the Document's `version` of them), as a preview or at full quality (`final`).
+    `choice`: the tiers (`x2video.sampling.live.LiveChoice`), decided on the GUI thread once the model is built;
+    None before (the worker decides, with no model: the formula)."""
+
+    id: int
+    t: int
+    version: int
+    final: bool
+    shot: Any
+    edits: Edits
+    settings: RenderSettings
+    model: Any
+    choice: Any
+    asked_at: float
+
+
+@dataclass
+class LiveResult:
+    """What the worker made of `request`: `frame` (`x2video.sampling.live.LiveFrame`; None when cancelled or failed,
+    `error` says which), the tiers it ran under, and `newest`: the newest request's id when this one was taken (equal
+    to its own id: no newer request was waiting behind it)."""
+
+    request: LiveRequest
+    frame: Any
+    choice: Any
+    newest: int
+    error: str = ""
+    done_at: float = 0.0
+
+    @property
+    def t(self) -> int:
+        return self.request.t
+
+    @property
+    def image(self) -> np.ndarray:
+        return self.frame.image
+
+
+class _QuietHere(logging.Filter):
+    """Drops the Renderer's per-render INFO lines logged by a live preview's thread (20 a second while dragging)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.local = threading.local()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.levelno > logging.INFO or not getattr(self.local, "on", False)
+
+
+_QUIET = _QuietHere()
+for _name in ("x2video.sampling.renderer", "x2video.sampling.tier_residual", "x2video.sampling.tier_diffusion"):
+    logging.getLogger(_name).addFilter(_QUIET)
+
+
+class LivePreviewer(QObject):
+    """Latest-wins rendering of single frames in a superqt generator worker; sigResult(LiveResult) on the GUI thread.
+
+    `submit` replaces the waiting request (counted in `dropped`) and cancels a full-quality sampler frame in progress
+    (a per-frame preview in progress finishes: it is what keeps frames coming while a slider moves). `taken` records
+    (request id, newest id) as each request starts, so tests can check nothing stale ran."""
+
+    sigResult = Signal(object)
+
+    def __init__(self, parent: QObject | None = None) -> None:
+        super().__init__(parent)
+        self._lock = threading.Lock()
+        self._pending: LiveRequest | None = None
+        self._active = False  # a worker is draining (set and cleared under the lock, so no request is stranded)
+        self._newest = 0
+        self._token: CancelToken | None = None  # the running full-quality request's
+        self._workers: set[Any] = set()
+        self._renderer: Any = None
+        #: the conditioning cache the sampler's frames share with the window's Renderer (thread-safe), or None
+        self.cache: Any = None
+        self.submitted = 0
+        self.dropped = 0
+        self.taken: deque[tuple[int, int]] = deque(maxlen=10_000)
+
+    @property
+    def active(self) -> bool:
+        """A request is waiting or rendering."""
+        with self._lock:
+            return self._active
+
+    def submit(self, req: LiveRequest) -> None:
+        with self._lock:
+            self.submitted += 1
+            if self._pending is not None:
+                self.dropped += 1
+            self._pending, self._newest = req, req.id
+            if self._token is not None:
+                self._token.cancel()
+            start, self._active = not self._active, True
+        if start:
+            w = create_worker(self._drain)
+            w.yielded.connect(self.sigResult.emit)
+            w.finished.connect(lambda: self._workers.discard(w))
+            self._workers.add(w)
+            w.start()
+
+    def cancel_final(self) -> None:
+        """Stop a full-quality sampler frame in progress (a whole-shot render is starting) and drop what waits."""
+        with self._lock:
+            if self._pending is not None:
+                self.dropped += 1
+            self._pending = None
+            if self._token is not None:
+                self._token.cancel()
+
+    def shutdown(self, wait_ms: int = 30_000) -> None:
+        """Drop what waits, stop what runs, and wait for the worker's thread."""
+        self.cancel_final()
+        for w in list(self._workers):
+            w.quit()
+        if self._workers:
+            WorkerBase.await_workers(wait_ms)
+
+    # -- the worker thread -------------------------------------------------------
+    def _take(self) -> tuple[LiveRequest | None, int, CancelToken | None]:
+        with self._lock:
+            req, self._pending = self._pending, None
+            if req is None:
+                self._active, self._token = False, None
+                return None, self._newest, None
+            self._token = CancelToken() if req.final else None
+            self.taken.append((req.id, self._newest))
+            return req, self._newest, self._token
+
+    def _drain(self):
+        while True:
+            req, newest, token = self._take()
+            if req is None:
+                return
+            yield self._run(req, newest, token)
+
+    def _run(self, req: LiveRequest, newest: int, token: CancelToken | None) -> LiveResult:
+        from x2video.sampling.live import preview_choice, render_frame  # torch: loaded by the model build already
+
+        choice = req.choice if req.choice is not None else preview_choice(req.settings.quality, req.shot, req.edits, req.model)
+        full = req.final and choice.full is not None and not choice.same
+        settings = req.settings if full else dataclasses.replace(req.settings, quality=choice.preview.tier)
+        _QUIET.local.on = True
+        try:
+            frame = render_frame(self._renderer_for(req.model), req.shot, req.edits, settings, req.t, token)
+            return LiveResult(req, frame, choice, newest, "" if frame is not None else "cancelled", time.perf_counter())
+        except Exception as e:  # noqa: BLE001 - a preview never takes the editor down; the status bar says why
+            log.warning("live preview of frame %d failed: %s", req.t, e)
+            return LiveResult(req, None, choice, newest, f"{type(e).__name__}: {e}", time.perf_counter())
+        finally:
+            _QUIET.local.on = False
+
+    def _renderer_for(self, model: Any) -> Any:
+        from x2video.sampling.renderer import Renderer
+
+        if self._renderer is None or self._renderer.model is not model:
+            self._renderer = Renderer(model, cache=self.cache) if self.cache is not None else Renderer(model)
+        return self._renderer
+
+
+class LivePreview(QObject):
+    """The editor's live preview: `controls` (Live, Auto re-render) for the view bar, the debounce, the badge.
+
+    `win` is the main window; it reads its `doc`, `render_ctl`, `render_panel`, `viewer`, and calls `refresh_view`
+    and `start_render`. sigShown(LiveResult) after the viewer shows a live frame (tests and bench.editor_latency)."""
+
+    sigShown = Signal(object)
+
+    def __init__(self, win: Any) -> None:
+        super().__init__(win)
+        self.win, self.doc, self.render_ctl = win, win.doc, win.render_ctl
+        self.previewer = LivePreviewer(self)
+        self.previewer.sigResult.connect(self._on_result)
+        self.timer = QTimer(self)
+        self.timer.setSingleShot(True)
+        self.timer.setInterval(DEBOUNCE_MS)
+        self.timer.timeout.connect(self.settle)
+        self.live_box = QCheckBox("Live")
+        self.live_box.setChecked(True)
+        self.live_box.setToolTip("While you edit, re-render the frame on screen (tier 1 or the formula) in the rendered and "
+                                 "side-by-side views; when you stop, it gets its full quality")
+        self.live_box.toggled.connect(self._live_toggled)
+        self.auto_box = QCheckBox("Auto re-render")
+        self.auto_box.setToolTip("When you stop editing, render the whole shot again")
+        self.controls = QWidget()
+        lay = QHBoxLayout(self.controls)
+        lay.setContentsMargins(0, 0, 0, 0)
+        lay.addWidget(self.live_box)
+        lay.addWidget(self.auto_box)
+        self.badge = QLabel(win.viewer.viewport())
+        self.badge.move(8, 8)
+        self.badge.hide()
+        self.shown: LiveResult | None = None  # what the viewer shows
+        #: (seconds, LiveResult) of every live frame shown, for tests and the bench
+        self.history: deque[tuple[float, LiveResult]] = deque(maxlen=10_000)
+        self.errors = 0
+        self._next_id = 0
+        self._asked: tuple[int, int, bool] | None = None  # (frame, version, final) of the last request
+        self._settled: tuple[int, int] | None = None  # (frame, version) whose per-frame preview is its full quality
+        self._parked = False  # an edit waits for the model build
+        self._opening = False
+        self._render_version = -1  # the edits' version when the last whole-shot render started
+        self.doc.edits_changed.connect(self._edits_changed)
+        self.doc.frame_changed.connect(self._frame_changed)
+        self.doc.shot_changed.connect(self._shot_changed)
+        self.render_ctl.sigRunning.connect(self._running)
+        self.render_ctl.sigPreload.connect(self._preloaded)
+        self.previewer.cache = getattr(self.render_ctl.renderer, "cache", None)
+
+    # -- when to ask -------------------------------------------------------------
+    @property
+    def idle(self) -> bool:
+        """Nothing waits: no debounce pending, no request waiting or rendering."""
+        return not self.timer.isActive() and not self.previewer.active and not self._parked
+
+    def _edits_changed(self, kind: str) -> None:
+        if kind == "display":  # a mask hidden or shown: nothing renders differently
+            return
+        if kind == "all" and self._opening:  # the shot (or project) just opened: nothing edited yet
+            self._opening = False
+            return
+        self.poke()
+
+    def _frame_changed(self, _t: int) -> None:
+        if self.doc.live is not None:  # edited since the last render: the new frame on screen follows the edits too
+            self.poke()
+
+    def _shot_changed(self) -> None:
+        self.previewer.cancel_final()
+        self.timer.stop()
+        self.doc.live = self.shown = None
+        self._asked = self._settled = None
+        self._opening, self._parked = True, False
+
+    def _live_toggled(self, on: bool) -> None:
+        if not on:
+            self.previewer.cancel_final()
+            self.timer.stop()
+            self.doc.live = self.shown = None
+            self.win.refresh_view()
+
+    def poke(self) -> None:
+        """The edits or the frame changed: a preview of the frame on screen now, its full quality once they rest."""
+        if not self.live_box.isChecked() or self.doc.shot is None:
+            return
+        self.ask(final=False)
+        self.timer.start(DEBOUNCE_MS)
+
+    def _model(self) -> Any:
+        return getattr(self.render_ctl.renderer, "model", None)  # None until built (a new model choice clears it)
+
+    def _choice(self, settings: RenderSettings, model: Any) -> Any:
+        if model is None:  # the worker decides (the tier modules import torch, which the window has not loaded)
+            return None
+        from x2video.sampling.live import preview_choice
+
+        return preview_choice(settings.quality, self.doc.shot, self.doc.edits, model)
+
+    def ask(self, final: bool) -> bool:
+        """Submit frame on screen under the current edits (a preview, or `final`: its full quality); False when it waits."""
+        doc, model = self.doc, self._model()
+        if model is None and (self.render_ctl.preload_worker is not None or "torch" not in sys.modules):
+            # until a model is built: the tier modules import torch, which in a thread of ours would hold the GIL (the
+            # window stalls) for seconds, and race a model build importing it too
+            if not self._parked and self.render_ctl.preload_worker is None:
+                self.win.status("Live preview starts once a model is loaded (Render menu: the untrained model for a smoke test).", 8000)
+            self._parked = True
+            return False
+        settings = self.render_ctl.settings(**self.win.render_panel.values())
+        self._next_id += 1
+        self.previewer.cache = getattr(self.render_ctl.renderer, "cache", None)
+        self.previewer.submit(LiveRequest(self._next_id, doc.frame, doc.version, final, doc.shot, snapshot_edits(doc.edits), settings,
+                                          model, self._choice(settings, model), time.perf_counter()))
+        self._asked = (doc.frame, doc.version, final)
+        return True
+
+    def settle(self) -> None:
+        """The edits rested: the frame on screen at full quality (and the whole shot, with Auto re-render)."""
+        doc = self.doc
+        if doc.shot is None or not self.live_box.isChecked():
+            return
+        if self.auto_box.isChecked():
+            if not self.render_ctl.running:
+                self.win.start_render()
+            return
+        key = (doc.frame, doc.version)
+        model = self._model()
+        settings = self.render_ctl.settings(**self.win.render_panel.values())
+        choice = self._choice(settings, model)
+        if choice is None or choice.full is None or choice.same:  # the preview's frame is all there is, or is the full one
+            self._settled = key if choice is not None and choice.same else None
+            if self._asked is None or self._asked[:2] != key:
+                self.ask(final=False)
+            self.win.refresh_view()
+            return
+        if self.render_ctl.running or self.render_ctl.prepare_worker is not None:  # the sampler is busy: later
+            self.timer.start(BUSY_RETRY_MS)
+            return
+        self.ask(final=True)
+
+    def _preloaded(self, busy: bool) -> None:
+        if not busy and self._parked:
+            self._parked = False
+            self.poke()
+
+    def _running(self, running: bool) -> None:
+        if running:  # a whole-shot render: its frames are the edits' now
+            self.previewer.cancel_final()
+            self.timer.stop()
+            self._render_version = self.doc.version
+            self.doc.live = self.shown = None
+
+    # -- showing -----------------------------------------------------------------
+    def _on_result(self, res: LiveResult) -> None:
+        req, doc = res.request, self.doc
+        if res.frame is None:
+            if res.error != "cancelled":
+                self.errors += 1
+                self.win.status(f"Live preview failed: {res.error}", 8000)
+            return
+        stale = self.shown is not None and req.id < self.shown.request.id
+        if stale or req.version <= self._render_version or doc.shot is not req.shot or req.t != doc.frame or not self.live_box.isChecked():
+            return
+        self.shown = doc.live = res
+        if doc.view in LIVE_VIEWS:
+            self.win.refresh_view()
+        self.history.append((time.perf_counter(), res))
+        self.sigShown.emit(res)
+
+    def is_full(self, res: LiveResult) -> bool:
+        """Whether `res` is its frame at full quality (what the render's own tier makes)."""
+        return (res.request.final and res.choice.full is not None) or (res.choice.same and self._settled == (res.t, res.request.version))
+
+    def describe(self, res: LiveResult) -> str:
+        tier = TIER_NAMES.get(res.frame.tier, res.frame.tier)
+        return f"{tier}, full quality" if self.is_full(res) else f"live preview ({tier})"
+
+    def mark(self, info_label: QLabel) -> None:
+        """After the window refreshed the viewer: the badge, and the info label, say when a live frame is on screen."""
+        res, doc = self.shown, self.doc
+        if res is None or doc.live is not res or res.t != doc.frame or doc.view not in LIVE_VIEWS:
+            self.badge.hide()
+            return
+        full = self.is_full(res)
+        self.badge.setText(("" if full else "PREVIEW · ") + self.describe(res))
+        self.badge.setToolTip(res.choice.preview.reason if not full else (res.choice.full or res.choice.preview).reason)
+        self.badge.setStyleSheet("QLabel { background: %s; color: #111; padding: 2px 6px; border-radius: 3px; }"
+                                 % ("#9fd49f" if full else "#ffb347"))
+        self.badge.adjustSize()
+        self.badge.show()
+        edited = "" if doc.version == res.request.version else " (your latest edit is on its way)"
+        info_label.setText(f"frame {doc.frame}/{doc.num_frames - 1}: {self.describe(res)}{edited}")
+
+    def shutdown(self) -> None:
+        self.timer.stop()
+        self.previewer.shutdown()
