@@ -402,7 +402,7 @@ def build_room(scene: Scene, extras: Extras) -> dict:
             captions[d.id] = decor_caption(d)
             classes[d.id] = decor_class(d)
         if variety.backdrop:
-            backdrops = add_backdrops(scene, scene.seed)
+            backdrops = add_backdrops(scene, scene.seed, add_object)
     add_lights(scene)
     set_world(scene)
     windows = sum(op.kind == "window" for op in scene.openings)

@@ -310,9 +310,10 @@ def decor_material(d: Decor, principled) -> "object":
     return mat
 
 
-def add_backdrops(scene: Scene, seed: int) -> int:
+def add_backdrops(scene: Scene, seed: int, add_object) -> int:
     """An emissive picture plane 1.5 m outside every window: a facade of lit and dark panes or foliage, as bright as the
-    sky it hides (the room's daylight now comes from it). It casts no shadow, so the sun still shines in. Returns how many."""
+    sky it hides (the room's daylight now comes from it). It casts no shadow, so the sun still shines in. `add_object` is
+    `x2video.cycles.room.add_object` (passed in: room imports this module). Returns how many."""
     import bpy
 
     from x2video.procedural.room import WALL_T, wall_box
@@ -354,8 +355,6 @@ def add_backdrops(scene: Scene, seed: int) -> int:
         links.new(colour, em.inputs["Color"])
         em.inputs["Strength"].default_value = 1.0
         links.new(em.outputs["Emission"], out.inputs["Surface"])
-        from x2video.cycles.room import add_object
-
         ob = add_object(f"backdrop_{op.wall}", SceneObject(0, "backdrop", "", [Part("box", lo, hi, 0)], False), [mat])
         ob.visible_shadow = False
         n_added += 1

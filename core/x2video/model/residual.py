@@ -1,7 +1,7 @@
 """Tier 1 of "no more model than a scene needs": one deterministic network pass for what the formula misses.
 
 The formula albedo x irradiance is exact for diffuse light; what a path tracer adds is mostly
-the glossy term (reflections, metals, mirrors), emitters and windows (DESIGN.md, "Path-traced
+the glossy term (reflections, metals, mirrors), emitters and windows (docs/ARCHITECTURE.md, "Path-traced
 ground truth"). `ResidualNet` predicts that remainder in log space from the five channels, at
 full resolution, in one pass:
 
