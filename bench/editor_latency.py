@@ -19,13 +19,27 @@ the shipped weights built in the background) and measures, on the wall clock:
   gui_tick_gap_ms             while the render runs, the gaps between 10 ms timer ticks of the GUI's event loop
                               (median, 95th percentile, max): how long a click or a repaint waits
 
+--drag auto,formula adds the slider-drag scenario (issue 43), once per quality listed, after the renders: with the
+rendered view on screen it drags the Exposure slider through --drag-hz values a second for --drag-seconds (a mouse
+drag's rate) and releases it; the editor's live preview re-renders the frame on screen as it moves. It records
+
+  preview_fps                 live frames the viewer showed while the slider moved, per second (at most the input rate)
+  last_input_to_frame_s       the last value -> the viewer showed the frame made with it
+  input_to_frame_s            each frame shown: its value's input -> shown (median, 95th percentile)
+  frame_seconds               the worker's time per frame (median, 95th percentile)
+  gui_tick_gap_ms             while dragging, as above, and `busy`: min(gap, the process's CPU time in it), the part of each
+                              gap this process ran (on a machine loaded by higher-priority work most of a long gap is others')
+  requests / frames_rendered / dropped / stale_runs  latest-wins: a request waiting when a newer one came was dropped;
+                              stale_runs counts renders of a request that was no longer the newest (0: nothing queued)
+  settled_to_full_quality_s   the last value -> its frame at full quality on screen
+
 The first render encodes every frame's conditioning; later ones reuse the Renderer's cache unless
 --cold (cleared before each press). --tier1-standin adds an UNTRAINED tier-1 network of the default
 architecture beside (links to) the shipped weights, so quality auto runs tier 1 as it will once
 residual.safetensors ships (its cost does not depend on its weights); it is prepared in a child process,
 outside the measured start-up. The machine is shared: the JSON keeps the load average before and after
 and `x2video.eval.machine.machine_info`. Writes bench/results/editor_latency/editor_latency.json
-(editor_latency_tier1_standin.json with --tier1-standin).
+(editor_latency_tier1_standin.json with --tier1-standin; editor_latency_drag.json with --drag and no renders).
 """
 from __future__ import annotations
 
@@ -48,6 +62,9 @@ from bench.common import command, results_path  # noqa: E402
 TICK_MS = 10
 #: issue 31's targets, seconds
 TARGETS = {"startup_to_demo_visible_s": 5.0, "press_to_frame_on_screen_s": 0.5, "press_to_first_network_s": 1.5}
+#: issue 43's targets for the slider drag at 320x224: preview frames/s by the tier that previews, the last input -> its
+#: frame on screen, and the GUI's tick gaps while dragging
+DRAG_TARGETS = {"preview_fps": {"residual": 10.0, "formula": 30.0}, "last_input_to_frame_s": 0.15, "gui_tick_gap_p95_ms": 30.0}
 
 
 def process_age() -> float:
@@ -77,6 +94,75 @@ def tier1_standin(folder: Path) -> None:
     subprocess.run([sys.executable, "-c", STANDIN, str(folder)], check=True)
 
 
+def drag_scenario(win, quality: str, seconds: float, hz: float, pump: Callable[[float], None],
+                  pump_until: Callable[[Callable[[], bool], str], None]) -> dict:
+    """Drag the Exposure slider of `win` (the editor, model built) at `quality` for `seconds` at `hz` values a second,
+    release it, wait until the live preview settles; what the viewer showed and when (see the module docstring)."""
+    import numpy as np
+
+    from x2video_app.tick_probe import TickProbe
+
+    i = win.render_panel.quality.findData(quality)
+    win.render_panel.quality.setCurrentIndex(i)
+    win.doc.set_view("rendered")
+    pump_until(lambda: win.render_ctl.prepare_worker is None and win.live.idle, "the editor at rest before the drag")
+    live, slider = win.live, win.edit_panel.exposure
+    shown: list = []
+    on_shown = lambda res: shown.append((time.perf_counter(), res))  # noqa: E731
+    live.sigShown.connect(on_shown)
+    p = live.previewer
+    before = (p.submitted, p.dropped, len(p.taken))
+    n = max(2, int(round(seconds * hz)))
+    lo, hi = (-2.0, 2.0) if slider.value() > 0 else (2.0, -2.0)  # the first value differs from the one set
+    values = [round(lo + (hi - lo) * k / (n - 1), 2) for k in range(n)]
+    inputs: list[tuple[float, int]] = []  # (when, the edits' version it made)
+    probe = TickProbe(TICK_MS)
+    probe.start()
+    slider.setSliderDown(True)
+    t0 = time.perf_counter()
+    for k, v in enumerate(values):
+        slider.setValue(v)
+        inputs.append((time.perf_counter(), win.doc.version))
+        pump(t0 + (k + 1) / hz)
+    t_last, v_last = inputs[-1]
+    probe.stop()
+    slider.setSliderDown(False)
+    pump_until(lambda: live.idle and live.shown is not None and live.shown.request.version == win.doc.version, "the live preview to settle")
+    pump(time.perf_counter() + 0.1)
+    live.sigShown.disconnect(on_shown)
+    during = [(at, r) for at, r in shown if inputs[0][0] <= at <= t_last]
+    reflect = next((at for at, r in shown if r.request.version >= v_last), None)
+    full = next((at for at, r in shown if r.request.version >= v_last and r.request.final), None)  # the sampler's frame
+    if full is None and live.shown is not None and live.is_full(live.shown) and reflect is not None:
+        full = max(reflect, live.settled_at or reflect)  # a per-frame tier's frame is its full quality once the edits rest
+    lat = np.array([at - r.request.asked_at for at, r in shown]) if shown else np.zeros(1)
+    secs = np.array([r.frame.seconds for _, r in shown]) if shown else np.zeros(1)
+    taken = list(p.taken)[before[2]:]
+    tier = shown[-1][1].frame.tier if shown else None
+    row = {
+        "quality": quality,
+        "preview_tier": during[-1][1].frame.tier if during else tier,
+        "full_quality_tier": tier,
+        "why": shown[-1][1].choice.preview.reason if shown else None,
+        "inputs": n, "input_hz": hz, "drag_s": round(t_last - inputs[0][0], 3),
+        "frames_shown_while_dragging": len(during),
+        "preview_fps": round(len(during) / max(1e-9, t_last - inputs[0][0]), 1),
+        "last_input_to_frame_s": None if reflect is None else round(reflect - t_last, 3),
+        "settled_to_full_quality_s": None if full is None else round(full - t_last, 3),
+        "input_to_frame_s": {"median": round(float(np.median(lat)), 3), "p95": round(float(np.percentile(lat, 95)), 3)},
+        "frame_seconds": {"median": round(float(np.median(secs)), 4), "p95": round(float(np.percentile(secs, 95)), 4)},
+        "requests": p.submitted - before[0], "frames_rendered": len(taken), "dropped": p.dropped - before[1],
+        "stale_runs": sum(rid != newest for rid, newest in taken),
+        "gui_tick_gap_ms": probe.summary(),
+        "load_average": [round(v, 2) for v in os.getloadavg()],
+    }
+    want = DRAG_TARGETS["preview_fps"].get(row["preview_tier"])
+    row["met"] = {"preview_fps": None if want is None else row["preview_fps"] >= want,
+                  "last_input_to_frame_s": reflect is not None and row["last_input_to_frame_s"] <= DRAG_TARGETS["last_input_to_frame_s"],
+                  "gui_tick_gap_p95_ms": row["gui_tick_gap_ms"].get("p95", 1e9) <= DRAG_TARGETS["gui_tick_gap_p95_ms"]}
+    return row
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("shot", nargs="?", help="a shot or project the editor opens (default: the demo shot)")
@@ -88,10 +174,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--full", action="store_true", help="let each render finish (default: cancel once its first frame shows)")
     ap.add_argument("--preview-frame-only", action="store_true", help="preview only the frame on screen (RenderController.preview_all off)")
     ap.add_argument("--no-wait-prepare", action="store_true", help="press Render without waiting for the shot's background preparation")
+    ap.add_argument("--drag", default="", help="the slider-drag scenario at these qualities, comma-separated (e.g. auto,formula)")
+    ap.add_argument("--drag-seconds", type=float, default=2.0, help="how long each drag moves the slider (default 2)")
+    ap.add_argument("--drag-hz", type=float, default=60.0, help="slider values a second while dragging (default 60, a mouse's rate)")
+    ap.add_argument("--note", default="", help="a note kept in the JSON (what else loaded the machine)")
     ap.add_argument("--timeout", type=float, default=600.0, help="seconds to wait for any one stage")
     ap.add_argument("--out", type=Path, help="default bench/results/editor_latency/editor_latency[_tier1_standin].json")
     args = ap.parse_args(argv)
-    out = args.out or results_path("editor_latency", "editor_latency_tier1_standin" if args.tier1_standin else None)
+    drags = [q for q in args.drag.split(",") if q]
+    name = "editor_latency_tier1_standin" if args.tier1_standin else "editor_latency_drag" if drags and not args.renders else None
+    out = args.out or results_path("editor_latency", name)
     started_before_import = process_age() - (time.perf_counter() - T_IMPORT)  # interpreter start -> this module
     tmp = tempfile.TemporaryDirectory(prefix="x2video-latency-")
     if args.tier1_standin:
@@ -201,6 +293,23 @@ def main(argv: list[str] | None = None) -> int:
               f"{row['press_to_first_network_s']} s, render {row['render_s']} s ({row['tier']}: {row['reason']}); GUI tick gaps "
               f"{row['gui_tick_gap_ms']} ms; load {load}", flush=True)
 
+    def pump(until: float) -> None:
+        """Run the event loop until `until`, at least once (as between two mouse events, however late they come)."""
+        while True:
+            QCoreApplication.processEvents(QEventLoop.ProcessEventsFlag.AllEvents, 2)
+            if time.perf_counter() >= until:
+                return
+            time.sleep(0.001)
+
+    drag_rows = []
+    for q in drags:
+        row = drag_scenario(win, q, args.drag_seconds, args.drag_hz, pump, pump_until)
+        drag_rows.append(row)
+        print(f"drag at quality {q}: {row['preview_fps']} preview frames/s ({row['preview_tier']}), last input -> frame "
+              f"{row['last_input_to_frame_s']} s, full quality ({row['full_quality_tier']}) after {row['settled_to_full_quality_s']} s; "
+              f"{row['frames_rendered']} of {row['requests']} requests rendered, {row['stale_runs']} stale; GUI tick gaps "
+              f"{row['gui_tick_gap_ms']} ms; load {row['load_average']}", flush=True)
+
     from x2video.eval.machine import machine_info
     from x2video.io.atomic import write_json_atomic
 
@@ -226,6 +335,9 @@ def main(argv: list[str] | None = None) -> int:
         "targets": TARGETS,
         "met": {k: (summary[k] is not None and summary[k] <= v) for k, v in TARGETS.items()},
         "renders": renders,
+        "drag_targets": DRAG_TARGETS,
+        "drags": drag_rows,
+        "note": args.note,
         "load_average_before_after": [load_before, [round(v, 2) for v in os.getloadavg()]],
     }
     out.parent.mkdir(parents=True, exist_ok=True)

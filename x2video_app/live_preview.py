@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 from PySide6.QtCore import QObject, QTimer, Signal
-from PySide6.QtWidgets import QCheckBox, QHBoxLayout, QLabel, QWidget
+from PySide6.QtWidgets import QCheckBox, QLabel
 from superqt.utils import WorkerBase, create_worker
 
 from x2video.edits import Edits, Mask
@@ -213,7 +213,7 @@ class LivePreviewer(QObject):
 
 
 class LivePreview(QObject):
-    """The editor's live preview: `controls` (Live, Auto re-render) for the view bar, the debounce, the badge.
+    """The editor's live preview: its toolbar (Live, Auto re-render), the debounce, the badge on the viewer.
 
     `win` is the main window; it reads its `doc`, `render_ctl`, `render_panel`, `viewer`, and calls `refresh_view`
     and `start_render`. sigShown(LiveResult) after the viewer shows a live frame (tests and bench.editor_latency)."""
@@ -236,11 +236,10 @@ class LivePreview(QObject):
         self.live_box.toggled.connect(self._live_toggled)
         self.auto_box = QCheckBox("Auto re-render")
         self.auto_box.setToolTip("When you stop editing, render the whole shot again")
-        self.controls = QWidget()
-        lay = QHBoxLayout(self.controls)
-        lay.setContentsMargins(0, 0, 0, 0)
-        lay.addWidget(self.live_box)
-        lay.addWidget(self.auto_box)
+        self.toolbar = win.addToolBar("Live preview")
+        self.toolbar.setObjectName("Live preview")
+        self.toolbar.addWidget(self.live_box)
+        self.toolbar.addWidget(self.auto_box)
         self.badge = QLabel(win.viewer.viewport())
         self.badge.move(8, 8)
         self.badge.hide()
@@ -252,6 +251,7 @@ class LivePreview(QObject):
         self._asked: tuple[int, int, bool] | None = None  # (frame, version, final) of the last request
         self._settled: tuple[int, int] | None = None  # (frame, version) whose per-frame preview is its full quality
         self._parked = False  # an edit waits for the model build
+        self.settled_at: float | None = None  # when the edits last rested (perf_counter)
         self._opening = False
         self._render_version = -1  # the edits' version when the last whole-shot render started
         self.doc.edits_changed.connect(self._edits_changed)
@@ -338,6 +338,7 @@ class LivePreview(QObject):
                 self.win.start_render()
             return
         key = (doc.frame, doc.version)
+        self.settled_at = time.perf_counter()
         model = self._model()
         settings = self.render_ctl.settings(**self.win.render_panel.values())
         choice = self._choice(settings, model)
