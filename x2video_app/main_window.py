@@ -26,6 +26,7 @@ from shiboken6 import isValid
 
 from x2video.sampling.events import FramesReady, RenderStarted, WindowStarted
 from x2video_app.charts import Charts, pareto_key, pareto_path
+from x2video_app.compare import Compare
 from x2video_app.display import VIEW_MODES
 from x2video_app.document import Document
 from x2video_app.edit_actions import EditActions
@@ -132,7 +133,7 @@ class MainWindow(QMainWindow):
         self.edits = EditActions(self.doc, self.undo, host=self, parent=self)
         self.project = ProjectController(self.doc, self.undo, self.render_ctl, host=self, parent=self, autosave_ms=autosave_ms)
         self.live = LivePreview(self)  # the frame on screen re-renders while an edit changes (issue 43)
-        bar.insertWidget(bar.indexOf(self.follow_box) + 1, self.live.controls)
+        self.compare = Compare(self)  # A/B wipe, side by side, difference; PSNR vs ground truth (issue 43)
         self._build_menus()
         self._connect()
         self.choose_default_model()
@@ -450,7 +451,7 @@ class MainWindow(QMainWindow):
         self.project.update_title()
 
     def refresh_view(self) -> None:
-        self.viewer.set_image(self.doc.display_image())
+        self.viewer.set_image(self.compare.image_or(self.doc.display_image))
         s = self.doc.shot
         if s is not None:
             st, t = self.doc.render, self.doc.frame
@@ -517,6 +518,7 @@ class MainWindow(QMainWindow):
             self.render_ctl.cancel()
             self.render_ctl.wait(120000)
         self.live.shutdown()
+        self.compare.shutdown()
         self.project.shutdown()
         ev.accept()
 
@@ -555,7 +557,8 @@ def launch(argv: list[str]) -> tuple[QApplication, MainWindow]:
             win.render_ctl.preload()
 
     def start() -> None:
-        ok = win.project.open_path(args.path) if args.path else win.project.open_demo()
+        ok = (not args.smoke_test and win.project.offer_crashed()) or (  # an editor killed before: its autosave first
+            win.project.open_path(args.path) if args.path else win.project.open_demo())
         # The model builds in the background once the shot is painted: importing torch in a thread holds
         # the GIL through whole shared-library loads, which stalled opening the demo by seconds here.
         QTimer.singleShot(100, build_model)
