@@ -70,14 +70,14 @@ def test_cycles_clip_trains_tier1_one_step(tmp_path):
     from x2video.train.residual_stage import ResidualTrainConfig, train
 
     out = tmp_path / "pt"
-    cmd = [sys.executable, "-m", "x2video", "dataset", "make", "--renderer", "cycles", "--rooms", "2", "--frames", "2",
-           "--size", "32x24", "--samples", "2", "--workers", "1", "--test-every", "2", "--seed", "5", "--out", str(out)]
+    cmd = [sys.executable, "-m", "x2video", "dataset", "make", "--renderer", "cycles", "--rooms", "3", "--frames", "2",
+           "--size", "32x24", "--samples", "2", "--workers", "1", "--test-every", "3", "--seed", "5", "--out", str(out)]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     info = json.loads((out / "train" / "room_00000" / "shot.json").read_text())
     assert info["extra"]["generator"] == "x2video.cycles v3" and info["extra"]["path_traced"]["variety"] is not None
     cfg = ResidualTrainConfig(steps=1, batch=2, crop=16, val_every=1, ckpt_every=1, noisy_p=1.0, format_aug=1.0, widths=(8, 16))
     summary = train(out, tmp_path / "run", cfg, threads=1)
-    assert summary["steps"] == 1 and summary["train_frames"] == 2 and summary["val_split"] == "test"
+    assert summary["steps"] == 1 and summary["train_frames"] == 2 and summary["val_split"] == "val"
     assert np.isfinite(summary["best_val_psnr"])
     assert (tmp_path / "run" / "best" / "residual.safetensors").is_file()
