@@ -17,7 +17,7 @@ import numpy as np
 from x2video.channels import SPECS
 from x2video.io.cache import LRU
 from x2video.io.convention import exposure_scale, log_luminance_sum, sanitize, scale_irradiance, to_memory, zero_nonfinite
-from x2video.io.image import ImageData, read_image, read_spec
+from x2video.io.image import FileStamps, ImageData, read_image, read_spec
 from x2video.io.metadata import find_poses, parse_shot_json
 from x2video.io.sequence import find_frames
 from x2video.shot import Shot, ShotInfo
@@ -143,6 +143,7 @@ class FolderShot(Shot):
         if motion is not None and len(motion) not in (n, n - 1):
             raise ValueError(f"{folders['motion']}: {len(motion)} motion frames for a shot of {n} frames (expected {n - 1} or {n})")
         self._motion = motion
+        self._stamps = FileStamps([f for files in (*self._frames.values(), motion or []) for f in files])
         h, w = self._check_headers(meta)
         poses = find_poses(self.root, n, (h, w))
         order = tuple(c for c in SPECS if c in self._frames)
@@ -193,7 +194,7 @@ class FolderShot(Shot):
 
     def _decode(self, name: str, t: int, scale: float | None = None) -> np.ndarray:
         path = self.frame_path(name, t)
-        img = read_image(path)
+        img = self._stamps.read(path, f"frame {t}", reader=read_image)
         if (img.height, img.width) != (self.info.height, self.info.width):
             raise ValueError(f"{path}: size {img.width}x{img.height}, the shot is {self.info.width}x{self.info.height}")
         if name in self._packed:

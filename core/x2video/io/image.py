@@ -13,6 +13,7 @@ they cannot read, the whole image is read through OpenImageIO as before.
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -79,6 +80,58 @@ class ImageData:
     def all(self) -> np.ndarray:
         """(H, W, C) float32 array of all channels read, in file order."""
         return self.stack([n for n in self.channel_names if n in self.planes])
+
+
+class ShotChangedError(ImageReadError):
+    """A frame's file vanished or changed after its shot was opened (another program re-rendering the shot while we
+    read it): the render stops naming the file and frame instead of mixing old and new frames."""
+
+
+def _stamp(path: str | Path) -> tuple[int, int, int]:
+    st = os.stat(path)
+    return st.st_size, st.st_mtime_ns, st.st_ino
+
+
+class FileStamps:
+    """Size, modification time and inode of a shot's frame files when it was opened; `read` reads one of them checked
+    against its stamp before and after the read, so a file deleted, truncated or rewritten (in place or by a rename)
+    while a render reads the shot is a `ShotChangedError` naming the file and frame, never a silently different frame."""
+
+    def __init__(self, paths: Sequence[str | Path]) -> None:
+        self._stamps: dict[str, tuple[int, int, int]] = {}
+        for p in paths:
+            try:
+                self._stamps[str(p)] = _stamp(p)
+            except FileNotFoundError:
+                raise ImageReadError(f"{p}: file does not exist (it vanished while the shot was being opened)") from None
+
+    def read(self, path: str | Path, where: str, channels: Sequence[str] | None = None, reader: Any = None) -> ImageData:
+        """`read_image(path, channels)` (or `reader`'s); `where` (e.g. "frame 12") goes into every error."""
+        key = str(path)
+        want = self._stamps.get(key)
+        self._check(path, where, want, "before it was read")
+        reader = reader if reader is not None else read_image
+        try:
+            img = reader(path) if channels is None else reader(path, channels=channels)
+        except ImageReadError as exc:
+            self._check(path, where, want, "while it was read")  # a half-written file: say that it changed, not only "corrupt"
+            raise ImageReadError(f"{exc} ({where})") from None
+        self._check(path, where, want, "while it was read")
+        return img
+
+    def _check(self, path: str | Path, where: str, want: tuple[int, int, int] | None, when: str) -> None:
+        try:
+            now = _stamp(path)
+        except FileNotFoundError:
+            raise ShotChangedError(f"{path} ({where}): the file was removed after the shot was opened ({when}); "
+                                   "restore it, or open the shot again") from None
+        if want is not None and now != want:
+            import time
+
+            changed = time.strftime("%H:%M:%S", time.localtime(now[1] / 1e9))
+            raise ShotChangedError(f"{path} ({where}): the file changed after the shot was opened (rewritten at {changed}, "
+                                   f"{now[0]} bytes, was {want[0]}; noticed {when}); another program may be writing the shot: "
+                                   "open it again when it has finished")
 
 
 def read_spec(path: str | Path) -> oiio.ImageSpec:

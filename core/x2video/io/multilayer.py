@@ -26,7 +26,7 @@ import numpy as np
 from x2video.channels import SPECS
 from x2video.io.cache import LRU
 from x2video.io.convention import exposure_scale, log_luminance_sum, normalize, sanitize, scale_irradiance, zero_nonfinite
-from x2video.io.image import ImageData, read_image, read_spec
+from x2video.io.image import FileStamps, ImageData, read_image, read_spec
 from x2video.io.metadata import find_poses, parse_shot_json
 from x2video.io.sequence import find_frames
 from x2video.shot import Shot, ShotInfo
@@ -135,6 +135,7 @@ class MultilayerShot(Shot):
             bad = [f for f in self._files if f.suffix.lower() != ".exr"]
             if bad:
                 raise ValueError(f"{bad[0]}: multi-layer shots are EXR files only")
+        self._stamps = FileStamps(self._files)
         spec = read_spec(self._files[0])
         names = tuple(spec.channelnames)
         self._sources = map_channels(names, str(self._files[0]))
@@ -187,7 +188,8 @@ class MultilayerShot(Shot):
         (a Blender frame holds every light pass: `x2video.io.image.read_image`)."""
         path = self._files[t]
         sources = {ch: src for ch, src in self._sources.items() if only is None or ch in only}
-        img = read_image(path, channels=[n for src in sources.values() for names in src.passes for n in names])
+        img = self._stamps.read(path, f"frame {t}", channels=[n for src in sources.values() for names in src.passes for n in names],
+                                 reader=read_image)
         if (img.height, img.width) != (self.info.height, self.info.width):
             raise ValueError(f"{path}: size {img.width}x{img.height}, frame 0 is {self.info.width}x{self.info.height}")
         where = f"{path} (frame {t})"
@@ -220,5 +222,5 @@ class MultilayerShot(Shot):
         """(H, W, 2) forward motion of frame t (our ``motion.X/Y`` layer), or None."""
         if self._motion_src is None:
             return None
-        img = read_image(self._files[t], channels=self._motion_src.passes[0])
+        img = self._stamps.read(self._files[t], f"frame {t}", channels=self._motion_src.passes[0], reader=read_image)
         return img.stack(self._motion_src.passes[0])

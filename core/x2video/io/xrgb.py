@@ -21,7 +21,7 @@ import numpy as np
 from x2video.channels import INTRINSIC, SPECS
 from x2video.io.cache import LRU
 from x2video.io.convention import exposure_scale, log_luminance_sum, scale_irradiance, to_memory
-from x2video.io.image import IMAGE_EXTENSIONS, read_image, read_spec
+from x2video.io.image import IMAGE_EXTENSIONS, FileStamps, read_image, read_spec
 from x2video.shot import Shot, ShotInfo
 
 SUFFIXES = {**{c: c for c in INTRINSIC}, "ref": "rgb"}
@@ -90,6 +90,7 @@ class XRGBShot(Shot):
                     f"{folder}: set {n!r} has channels {sorted(sets[n])}, set {names[0]!r} has {sorted(chans)}; every frame needs the same"
                 )
         self._files = [sets[n] for n in names]
+        self._stamps = FileStamps([f for files in self._files for f in files.values()])
         size = None
         for c in chans:
             spec = read_spec(self._files[0][c])
@@ -111,7 +112,7 @@ class XRGBShot(Shot):
 
     def _decode(self, name: str, t: int, scale: float | None = None) -> np.ndarray:
         path = self._files[t][name]
-        img = read_image(path)
+        img = self._stamps.read(path, f"frame {t}", reader=read_image)
         if (img.height, img.width) != (self.info.height, self.info.width):
             raise ValueError(f"{path}: size {img.width}x{img.height}, the shot is {self.info.width}x{self.info.height}")
         a = to_memory(name, img, ldr_decode="srgb" if name == "rgb" else "gamma2.2", where=f"{path} (frame {t})")
