@@ -167,13 +167,29 @@ class StagedFrames:
             self.progress(len(self.written))
 
     def write(self, index: int, rgb: np.ndarray) -> None:
+        import io
+
+        from x2video.io.atomic import DiskFullError, is_disk_full, looks_full
         from x2video.sampling.sink import _write_exr
 
-        with atomic_path(self.folder / frame_name(index, self.fmt)) as tmp:
-            if self.fmt == "mp4":
-                np.save(tmp, np.asarray(rgb, dtype=np.float16))  # as FrameSink stages an MP4's frames
-            else:
-                _write_exr(tmp, rgb, self.units)
+        try:
+            with atomic_path(self.folder / frame_name(index, self.fmt)) as tmp:
+                if self.fmt == "mp4":  # as FrameSink stages an MP4's frames; a Python write, so a full disk raises ENOSPC
+                    buf = io.BytesIO()
+                    np.save(buf, np.asarray(rgb, dtype=np.float16))
+                    with open(tmp, "wb") as f:
+                        f.write(buf.getbuffer())
+                else:
+                    _write_exr(tmp, rgb, self.units)
+        except OSError as exc:
+            if not (is_disk_full(exc) or looks_full(self.folder, np.asarray(rgb).size * 2)):
+                raise
+            staged = [p.stat().st_size for p in self.folder.iterdir() if p.name[:1].isdigit()]
+            each = sum(staged) / len(staged) if staged else np.asarray(rgb).size * 2
+            left = len(self.keep - self.written) if self.keep is not None else 1
+            raise DiskFullError(self.folder, int(each * left), what=f"staging frame {index}, {left} frame(s) of this task still to write",
+                                kept=f"the {len(staged)} frame(s) staged there stay whole and finished tasks are not run again: "
+                                     "free space and run the same farm command again to resume") from None
         self.written.add(index)
 
 

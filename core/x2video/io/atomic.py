@@ -71,6 +71,16 @@ class DiskFullError(OSError):
     def __str__(self) -> str:  # OSError's str would prefix "[Errno 28]"
         return str(self.strerror)
 
+    def __reduce__(self) -> tuple:  # pickles whole (Ray hands a task's error back to the driver)
+        return (_rebuild_disk_full, (str(self.strerror), str(self.folder), self.needed, self.free, self.what, self.kept))
+
+
+def _rebuild_disk_full(message: str, folder: str, needed: int | None, free: int | None, what: str, kept: str) -> DiskFullError:
+    exc = DiskFullError.__new__(DiskFullError)
+    OSError.__init__(exc, errno.ENOSPC, message)
+    exc.folder, exc.needed, exc.free, exc.what, exc.kept = Path(folder), needed, free, what, kept
+    return exc
+
 
 def is_disk_full(exc: BaseException) -> bool:
     """Whether `exc` says the device or quota is full (errno ENOSPC/EDQUOT, or a `DiskFullError`)."""

@@ -5,7 +5,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 
@@ -89,6 +89,14 @@ class ShotWriter:
             planes = {s: a[..., i] for i, s in enumerate(suffixes)}
             attrs = {"x2video:frame": int(t), "x2video:channel": name}
             write_exr(self.out_dir / name / frame_name(t), planes, ptype, attrs)
+            self._written.setdefault(name, set()).add(t)
+
+    def adopt(self, t: int, names: Iterable[str]) -> None:
+        """Count channels `names` of frame `t` as written: whole files an interrupted earlier writer left (each image is
+        written atomically), which a resumed export keeps instead of writing again."""
+        for name in names:
+            if not (self.out_dir / name / frame_name(t)).is_file():
+                raise ValueError(f"{self.out_dir}: frame {t} of channel {name!r} is not there to keep")
             self._written.setdefault(name, set()).add(t)
 
     def close(self) -> None:

@@ -286,6 +286,9 @@ class FrameSink:
         """Nothing appears under the output name; what was staged is dropped, or, with `resume`, kept for the next
         render with the same key (whole frames only: each was written atomically)."""
         if self._staging is not None and self.resume is not None and self.result is None:
+            if not any(p.name[:1].isdigit() for p in self._staging.iterdir()):  # nothing to resume from
+                self._remove_staging()
+                return
             if self._frames - self.kept:
                 log.info("%s: %d frame(s) kept in %s for a re-run to resume from", self.out, len(self._frames | self.kept), self._staging)
             self._staging = None
