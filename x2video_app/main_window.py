@@ -557,7 +557,8 @@ def launch(argv: list[str]) -> tuple[QApplication, MainWindow]:
             win.render_ctl.preload()
 
     def start() -> None:
-        ok = win.project.open_path(args.path) if args.path else win.project.open_demo()
+        ok = (not args.smoke_test and win.project.offer_crashed()) or (  # an editor killed before: its autosave first
+            win.project.open_path(args.path) if args.path else win.project.open_demo())
         # The model builds in the background once the shot is painted: importing torch in a thread holds
         # the GIL through whole shared-library loads, which stalled opening the demo by seconds here.
         QTimer.singleShot(100, build_model)

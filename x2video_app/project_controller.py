@@ -1,11 +1,11 @@
-"""Opening shots, projects and the demo; saving; autosave to a side file with recovery; the unsaved-changes guard;
-and export (MP4 / EXR sequence) with a progress dialog. Works on the Document, the undo stack (clean = saved)
-and the render controller it is given; asks and reports through a `Host`."""
+"""Opening shots, projects and the demo; saving; autosave (with the undo history) to a side file with recovery after
+a crash; a lock file that tells a second editor the project is open; the unsaved-changes guard; and export (MP4 /
+EXR sequence) with a progress dialog. Works on the Document, the undo stack (clean = saved) and the render controller
+it is given; asks and reports through a `Host`. The files are Qt-free: `x2video.edits.autosave`, `x2video.edits.lock`;
+the undo side is `x2video_app.recovery`."""
 from __future__ import annotations
 
 import logging
-import os
-import time
 from pathlib import Path
 
 from PySide6.QtCore import QObject, Qt, QTimer, Signal
@@ -14,11 +14,23 @@ from PySide6.QtWidgets import QApplication, QCheckBox, QFileDialog, QMessageBox,
 from shiboken6 import isValid
 from superqt.utils import create_worker
 
-from x2video.edits import PROJECT_SUFFIX, Project, is_project_file, load_project, remove_project, save_project
+from x2video.edits import PROJECT_SUFFIX, Project, is_project_file, load_project, save_project
+from x2video.edits.autosave import (
+    AutosaveError,
+    autosave_path,
+    crashed_sessions,
+    forget_session,
+    note_session,
+    read_autosave,
+    remove_autosave,
+    set_aside,
+    write_autosave,
+)
+from x2video.edits.lock import ProjectLock, ProjectLocked
 from x2video.io import load_shot
 from x2video.io.units import OutputUnits
 from x2video.sampling.events import RenderSettings
-from x2video_app import exporter
+from x2video_app import exporter, recovery
 from x2video_app.demo import ensure_demo
 from x2video_app.document import Document
 from x2video_app.host import Host
@@ -27,13 +39,9 @@ from x2video_app.render_controller import RenderController
 log = logging.getLogger(__name__)
 
 
-def autosave_path(project: Path | None, shot_path: str | None) -> Path:
-    """The side file autosave writes: beside the project, or in the cache for an unsaved one."""
-    if project is not None:
-        return project.with_name(project.stem + ".autosave" + project.suffix)
-    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "x2video" / "autosave"
-    stem = Path(shot_path).name if shot_path else "untitled"
-    return cache / f"{stem}.autosave{PROJECT_SUFFIX}"
+def lock_target(project: Path | None, shot_path: str | None) -> Path:
+    """What the lock guards: the project file, or an unsaved shot's autosave."""
+    return project if project is not None else autosave_path(None, shot_path)
 
 
 class ProjectController(QObject):
@@ -58,6 +66,10 @@ class ProjectController(QObject):
         #: recovered autosave: unsaved under the project's name although the undo stack is clean
         self.force_dirty = False
         undo.cleanChanged.connect(self._clean_changed)
+        #: the Edits at each undo index, for autosave (`x2video_app.recovery`)
+        self.history = recovery.HistoryTracker(doc, undo)
+        #: the lock of the open project (or unsaved shot); None when nothing is open
+        self.lock: ProjectLock | None = None
 
     # -- title / dirty ---------------------------------------------------------
     def _clean_changed(self, _clean: bool) -> None:
@@ -85,9 +97,53 @@ class ProjectController(QObject):
         if b == QMessageBox.StandardButton.Save:
             return self.save()
         if b == QMessageBox.StandardButton.Discard:
-            remove_project(autosave_path(self.doc.project_path, self.doc.shot_path))  # nothing to recover later
+            remove_autosave(autosave_path(self.doc.project_path, self.doc.shot_path))  # nothing to recover later
             return True
         return False
+
+    # -- the lock ----------------------------------------------------------------
+    def _take_lock(self, project: Path | None, shot_path: str | None) -> bool:
+        """Lock what is about to open; a project open in another editor is opened only if the person says so."""
+        lock = ProjectLock(lock_target(project, shot_path))
+        try:
+            how = lock.acquire()
+        except ProjectLocked as exc:
+            if not recovery.ask_open_locked(self.host, str(exc)):
+                return False
+            how = lock.acquire(take_over=True)
+        if how.startswith("stale"):
+            log.info("%s: took over a stale lock (%s)", lock.path, how)
+            self.host.status(f"Took over the lock of {lock.target.name} ({how.removeprefix('stale: ')})", 8000)
+        self._release_lock()
+        self.lock = lock
+        return True
+
+    def _release_lock(self) -> None:
+        if self.lock is not None:
+            self.lock.release()
+            self.lock = None
+
+    # -- recovery ------------------------------------------------------------------
+    def _read_side(self, side: Path, opens: str, shot: str | None = None):
+        """The autosave at `side` (None: none, damaged and set aside, or of another shot)."""
+        if not side.is_file():
+            return None
+        try:
+            saved = read_autosave(side)
+        except AutosaveError as exc:
+            aside = set_aside(side)
+            log.warning("autosave %s: %s; set aside as %s", side, exc.reason, aside)
+            recovery.tell_set_aside(self.host, side, exc.reason, aside, opens)
+            forget_session(side)
+            return None
+        if shot is not None and Path(saved.shot).resolve() != Path(shot).resolve():
+            return None  # another shot's (an older autosave name could be shared by two shots of one name)
+        return saved
+
+    def _restore(self, saved, shot, shot_path: str, project_path: Path | None) -> None:
+        """Open the autosave's current state with its undo history."""
+        self.doc.set_shot(shot, shot_path, saved.states[0], project_path=project_path)
+        self.force_dirty = recovery.rebuild_undo(self.undo, self.doc, saved)
 
     # -- opening ---------------------------------------------------------------
     def open_shot_dialog(self) -> None:
@@ -100,8 +156,9 @@ class ProjectController(QObject):
         if path:
             self.open_path(path)
 
-    def open_path(self, path: str | Path) -> bool:
-        """Open a shot (folder or file the loaders read) or a project file; errors keep the current project."""
+    def open_path(self, path: str | Path, recover: bool | None = None) -> bool:
+        """Open a shot (folder or file the loaders read) or a project file; errors keep the current project. An
+        autosave left by a crash is offered (`recover`: True/False answers for the person)."""
         p = Path(path)
         if not self.confirm_discard("open another file"):
             return False
@@ -110,44 +167,67 @@ class ProjectController(QObject):
             self.render_ctl.wait(120_000)
         try:
             if is_project_file(p):
-                return self._open_project(p)
+                return self._open_project(p, recover=recover)
             shot = load_shot(p)
         except Exception as e:
             self.host.show_error("Cannot open", f"{p}:\n{e}")
             return False
+        if not self._take_lock(None, str(p)):
+            return False
         self.doc.set_shot(shot, str(p))
         self.force_dirty = False
         side = autosave_path(None, str(p))
-        if side.is_file():
-            if self._recover(f"Unsaved work on {p.name} was autosaved {time.ctime(side.stat().st_mtime)} (probably before a crash)."):
-                try:
-                    self.doc.set_shot(shot, str(p), load_project(side).edits)
-                    self.force_dirty = True
-                except Exception as e:
-                    self.host.show_error("Cannot recover the autosave", f"{side}:\n{e}")
+        saved = self._read_side(side, f"{p.name} opens without it", shot=str(p))
+        if saved is not None:
+            found = f"Unsaved work on {p.name} was autosaved ({recovery.describe(saved, side)}), probably before a crash."
+            if recover if recover is not None else recovery.ask_recover(self.host, found):
+                self._restore(saved, shot, str(p), None)
+                self.force_dirty = True
             else:
-                remove_project(side)
+                remove_autosave(side)
         self.update_title()
         self.host.status(f"Opened {p} ({shot.num_frames} frames, {shot.size[1]}×{shot.size[0]}, channels: {', '.join(shot.channels)})", 8000)
         return True
 
-    def _open_project(self, p: Path, recovering_from: Path | None = None) -> bool:
-        side = autosave_path(p, None)
-        if recovering_from is None and side.exists() and side.stat().st_mtime > p.stat().st_mtime:
-            if self._recover(f"An autosave newer than {p.name} exists ({time.ctime(side.stat().st_mtime)}), probably from a crash."):
-                return self._open_project(side, recovering_from=p)
+    def _open_project(self, p: Path, recover: bool | None = None) -> bool:
         project = load_project(p)
         shot = load_shot(project.shot)
-        self.doc.set_shot(shot, project.shot, project.edits, project_path=recovering_from or p)
-        self.force_dirty = recovering_from is not None
+        if not self._take_lock(p, None):
+            return False
+        side = autosave_path(p, None)
+        saved = None
+        if side.exists() and side.stat().st_mtime > p.stat().st_mtime:
+            saved = self._read_side(side, f"{p.name} opens as last saved")
+        if saved is not None:
+            found = f"An autosave newer than {p.name} exists ({recovery.describe(saved, side)}), probably from a crash."
+            if not (recover if recover is not None else recovery.ask_recover(self.host, found)):
+                saved = None
+        if saved is not None:
+            self._restore(saved, shot, project.shot, p)
+        else:
+            self.doc.set_shot(shot, project.shot, project.edits, project_path=p)
+            self.force_dirty = False
         self.update_title()
         self.host.status(f"Opened project {p}", 8000)
         return True
 
-    def _recover(self, found: str) -> bool:
-        """Ask whether to recover the autosave that `found` describes."""
-        yes, no = QMessageBox.StandardButton.Yes, QMessageBox.StandardButton.No
-        return self.host.ask("Recover autosaved work?", f"{found} Recover it?", yes | no, yes) == yes
+    def offer_crashed(self) -> bool:
+        """At start: offer the newest autosave of an editor that ended without saving (its process is gone); True when
+        it was opened. Asked once: declined, it stays beside its project and is offered when that is opened."""
+        for entry in crashed_sessions():
+            side, target = Path(entry["autosave"]), entry.get("project") or entry.get("shot")
+            forget_session(side)
+            if not target or not Path(target).exists():
+                continue
+            saved = self._read_side(side, "nothing is recovered")
+            if saved is None:
+                continue
+            found = (f"X2Video Studio stopped without saving (pid {entry.get('pid')}): {Path(target).name} has "
+                     f"{recovery.describe(saved, side)}.")
+            if recovery.ask_recover(self.host, found):
+                return self.open_path(target, recover=True)
+            return False
+        return False
 
     def open_demo(self) -> bool:
         """Open the demo shot, generating it first (with a busy dialog) if it is not cached."""
@@ -186,11 +266,13 @@ class ProjectController(QObject):
             self.host.show_error("Cannot save project", f"{path}:\n{e}")
             return False
         old_side = autosave_path(self.doc.project_path, self.doc.shot_path)
+        if self.lock is None or self.lock.target != Path(path):
+            self._take_lock(Path(path), None)  # saved under a new name: that file is now the one held
         self.doc.project_path = Path(path)
         self.undo.setClean()
         self.force_dirty = False
         for side in {old_side, autosave_path(self.doc.project_path, None)}:
-            remove_project(side)
+            remove_autosave(side)
         self.update_title()
         self.host.status(f"Saved {path}", 5000)
         return True
@@ -201,14 +283,19 @@ class ProjectController(QObject):
         save_project(path, Project(shot=str(Path(self.doc.shot_path).resolve()), edits=self.doc.edits))
 
     def autosave(self) -> Path | None:
-        """Write the side file when there are unsaved changes (timer; also callable directly)."""
-        if self.doc.shot is None or not self.dirty:
+        """Write the side file (the undo history's states, masks included) when there are unsaved changes (timer;
+        also callable directly)."""
+        if self.doc.shot is None or not self.dirty or not self.doc.shot_path:
             return None
         side = autosave_path(self.doc.project_path, self.doc.shot_path)
+        shot = str(Path(self.doc.shot_path).resolve())
+        project = None if self.doc.project_path is None else str(self.doc.project_path.resolve())
         try:
-            self._write_project(side)
+            write_autosave(side, self.history.autosave(shot, project, clean=not self.force_dirty))
+            note_session(side, shot, project)
         except Exception as e:  # autosave must never interrupt the person
             log.warning("autosave to %s failed: %s", side, e)
+            self.host.status(f"Autosave to {side} failed: {e}", 8000)
             return None
         self.host.status(f"Autosaved to {side}", 3000)
         return side
@@ -216,8 +303,12 @@ class ProjectController(QObject):
     def shutdown(self) -> None:
         """Clean exit: nothing left to recover."""
         self.timer.stop()
+        side = autosave_path(self.doc.project_path, self.doc.shot_path)
         if not self.dirty:
-            remove_project(autosave_path(self.doc.project_path, self.doc.shot_path))
+            remove_autosave(side)
+        else:
+            forget_session(side)  # a clean exit that chose to keep the autosave: offered when that project opens
+        self._release_lock()
 
     # -- export ----------------------------------------------------------------
     def export_dialog(self, kind: str, exposure: float | str = RenderSettings.exposure) -> None:

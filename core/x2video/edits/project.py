@@ -79,6 +79,8 @@ def save_project(path: str | Path, project: Project) -> None:
         "mask_files": files,
     }
     write_json_atomic(path, doc)
+    for p in path.parent.glob(f".{path.stem}.*.tmp{path.suffix}"):  # what a killed save left (one editor per project: the lock)
+        p.unlink(missing_ok=True)
     keep = {Path(f).name for f in files.values()}
     if mdir.is_dir():
         for p in mdir.glob("*.npz"):
