@@ -86,11 +86,20 @@ def test_library_api_refuses_the_same_values():
     ok = RenderSettings(quality="formula")
     with pytest.raises(ValueError, match="the range 5:5 is empty"):
         dataclasses.replace(ok, frames=(5, 5))
-    ok.steps = 0  # changed in place: validate() says so
+    ok.steps = 0  # changed in place: validate() says so, and the Renderer calls it before choosing a tier
     with pytest.raises(ValueError, match="steps"):
         ok.validate()
-    with pytest.raises(ValueError, match="unknown quality 'best'"):
-        RenderSettings(quality="best")  # type: ignore[arg-type]
+    from sampling_fake import make_shot
+
+    from x2video.sampling.events import RenderFailed
+    from x2video.sampling.renderer import Renderer
+
+    events: list = []
+    with pytest.raises(ValueError, match="steps must be at least 1"):
+        Renderer(None).render(make_shot(3), None, ok, on_event=events.append)
+    assert isinstance(events[-1], RenderFailed) and not [e for e in events if hasattr(e, "frames")]
+    with pytest.raises(ValueError, match="unknown quality 'best'"):  # any registered tier is a quality: the render says
+        Renderer(None).render(make_shot(3), None, RenderSettings(quality="best"))  # type: ignore[arg-type]
 
 
 def test_output_inside_a_file(shot_dir, tmp_path, capsys):

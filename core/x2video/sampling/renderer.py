@@ -177,7 +177,7 @@ class Renderer:
         self.encode_seconds = 0.0
         try:
             try:
-                setup.check_pixel_bounds(settings)  # tier 1 reads residual_pixels, which nothing else checks first
+                settings.validate()  # every field, before any tier is chosen (a field changed in place since it was made, too)
                 choice = self.choose_tier(shot, edits, settings)
                 self.last_tier = choice
                 log.info("quality %s: tier %s (%s)", settings.quality, choice.tier, choice.reason)

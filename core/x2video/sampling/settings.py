@@ -116,6 +116,8 @@ class RenderSettings:
 
         hints = _hints(type(self))
         for name, tp in hints.items():
+            if name == "quality":  # any registered tier (`x2video.sampling.tier.TIERS`, which the Literal only lists the built-in
+                continue  # ones of): `tiers.decide` refuses an unknown one before it chooses
             value = getattr(self, name)
             options = [a for a in typing.get_args(tp) if a is not type(None)]
             if typing.get_origin(tp) is Literal or (options and all(typing.get_origin(o) is Literal for o in options)):
