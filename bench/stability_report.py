@@ -302,6 +302,13 @@ def tier1_note(model: dict) -> str:
             "'residual' forced) is where tier 1 shows")
 
 
+def faults_section(md: Path) -> list[str]:
+    """The hand-written faults table (docs/stability/faults.md, issue 44: what the product does on a full disk, a crash,
+    files changing under a render, bad flags), which no bench run measures, copied in as it is."""
+    src = md.parent / "stability" / "faults.md"
+    return ["", *src.read_text(encoding="utf-8").rstrip().splitlines()] if src.is_file() else []
+
+
 def write_report(out: dict, md: Path, figs: Path) -> None:
     cells = out["cells"]
     methods = [m for m in METHODS if any(c["method"] == m for c in cells)]
@@ -457,8 +464,9 @@ def write_report(out: dict, md: Path, figs: Path) -> None:
               "- tier 1 took roughness and metallic outside [0, 1] as given (roughness -0.5: 28 dB below the formula); "
               "`residual.features` now clamps them, as the loaders and the sampler do;",
               "- the classical shading (the shading prior's latent, the residual model's detail) let NaN albedo through "
-              "(NaN frames from the diffusion tier) and turned +Inf irradiance into 3.4e38 (10 dB lost); non-finite values count as 0.",
-              "", "## Observations", ""]
+              "(NaN frames from the diffusion tier) and turned +Inf irradiance into 3.4e38 (10 dB lost); non-finite values count as 0."]
+    lines += faults_section(md)
+    lines += ["", "## Observations", ""]
     lines += observations(cells)
     for fam, what in (("channels", "Channel subsets (the rest dropped via Edits.dropped)"),
                       ("masks", "Masks (MaskOut A|M|R per mask; PSNR inside / outside the masks)"),

@@ -192,3 +192,11 @@ def test_nan_and_inf_channels_render_finite_frames(tmp_path, capsys):
     for p in (tmp_path / "out").iterdir():
         img = read_image(p).all()
         assert np.isfinite(img).all() and (img[2:6, 3:9] == 0).all(), p
+
+
+@pytest.mark.parametrize("extra", [[], ["--openjd", "templates"]], ids=["ray", "openjd"])
+def test_the_farm_refuses_the_same_flags_before_it_starts(extra, shot_dir, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    refused(["farm", str(shot_dir), "--out", str(tmp_path / "out"), "--steps", "0", *extra], capsys, tmp_path,
+            "steps must be at least 1, got 0")
+    assert not (tmp_path / "templates").exists()
