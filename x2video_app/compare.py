@@ -61,7 +61,7 @@ class Compare(QObject):
                 tb.addWidget(QLabel(f" {text} "))
             tb.addWidget(w)
         self.toolbar = tb
-        self.label = QLabel(win.viewer.viewport())  # what A and B are, over the viewer
+        self.label = QLabel(win.viewer)  # what A and B are, over the view (a viewport's children scroll with the image)
         self.label.hide()
         self.psnr_label = QLabel()
         self.psnr_label.setToolTip("PSNR of the frame on screen against the shot's ground truth (its rgb channel), display-referred")
@@ -174,8 +174,9 @@ class Compare(QObject):
         self.label.setText(f"A: {what_a}{sep}B: {what_b}" + ("  (black: equal, yellow: ≥ 0.25)" if mode == "difference" else ""))
         self.label.setStyleSheet("QLabel { background: rgba(20, 20, 24, 200); color: #eee; padding: 2px 6px; }")
         self.label.adjustSize()
-        self.label.move(8, max(8, self.win.viewer.viewport().height() - self.label.height() - 8))
+        self.label.move(10, max(10, self.win.viewer.height() - self.label.height() - 10))
         self.label.show()
+        self.label.raise_()
         return img
 
     def _update_psnr(self) -> None:

@@ -240,8 +240,8 @@ class LivePreview(QObject):
         self.toolbar.setObjectName("Live preview")
         self.toolbar.addWidget(self.live_box)
         self.toolbar.addWidget(self.auto_box)
-        self.badge = QLabel(win.viewer.viewport())
-        self.badge.move(8, 8)
+        self.badge = QLabel(win.viewer)  # on the view, not its viewport, whose children scroll with the image
+        self.badge.move(10, 10)
         self.badge.hide()
         self.shown: LiveResult | None = None  # what the viewer shows
         #: (seconds, LiveResult) of every live frame shown, for tests and the bench
@@ -393,7 +393,8 @@ class LivePreview(QObject):
     def mark(self, info_label: QLabel) -> None:
         """After the window refreshed the viewer: the badge, and the info label, say when a live frame is on screen."""
         res, doc = self.shown, self.doc
-        if res is None or doc.live is not res or res.t != doc.frame or doc.view not in LIVE_VIEWS:
+        comparing = getattr(getattr(self.win, "compare", None), "active", False)  # the Compare view labels its own sides
+        if res is None or doc.live is not res or res.t != doc.frame or doc.view not in LIVE_VIEWS or comparing:
             self.badge.hide()
             return
         full = self.is_full(res)
@@ -403,6 +404,7 @@ class LivePreview(QObject):
                                  % ("#9fd49f" if full else "#ffb347"))
         self.badge.adjustSize()
         self.badge.show()
+        self.badge.raise_()
         edited = "" if doc.version == res.request.version else " (your latest edit is on its way)"
         info_label.setText(f"frame {doc.frame}/{doc.num_frames - 1}: {self.describe(res)}{edited}")
 
