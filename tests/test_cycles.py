@@ -26,8 +26,14 @@ def test_cycles_room_renders_and_loads(tmp_path):
     meta = json.loads((out / "dataset.json").read_text())
     # one room built once, rendered as two clips of two frames along their own camera paths
     assert meta["complete"] and meta["renderer"] == "cycles" and meta["splits"]["train"] == ["train/room_00000", "train/room_00000_c1"]
-    assert meta["frames"]["train"] == 4 and meta["builds"][-1]["frames"] == 4 and meta["builds"][-1]["frames_per_hour"] > 0
+    assert meta["frames"] == 2 and meta["split_frames"]["train"] == 4 and meta["builds"][-1]["frames"] == 4 and meta["builds"][-1]["frames_per_hour"] > 0
     assert meta["variety"]["rooms"] == 1 and set(meta["variety"]["light"]) <= {"day", "night", "mixed", "lamp-only"}
+    # the same command again resumes (nothing left to render) and keeps the settings, the totals and the build record
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert "1 done, 0 to path-trace" in again.stdout, again.stdout[-2000:]
+    meta2 = json.loads((out / "dataset.json").read_text())
+    assert meta2["frames"] == 2 and meta2["split_frames"] == meta["split_frames"] and len(meta2["builds"]) == 2
     c0 = json.loads((out / "train" / "room_00000" / "cameras.json").read_text())
     c1 = json.loads((out / "train" / "room_00000_c1" / "cameras.json").read_text())
     assert c0 != c1, "each clip follows its own camera path"

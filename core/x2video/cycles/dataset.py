@@ -150,7 +150,12 @@ def make_cycles(args: argparse.Namespace, width: int, height: int) -> int:
     if old and "generator" not in old:  # a set from before clips and generator versions: one clip of v2 rooms
         old_settings = {**old, "clips": 1, "generator": 2, "eval_frames": old.get("frames")}
         write_json_atomic(out / "dataset.json", old_settings)
-    meta = begin_dataset(out, settings, FORMAT)
+    if isinstance(old.get("frames"), dict):  # written by a build that stored the per-split totals over the --frames setting
+        train = old.get("splits", {}).get("train") or []
+        clip = json.loads((out / train[0] / "shot.json").read_text())["num_frames"] if train else args.frames
+        old = {**old, "split_frames": old["frames"], "frames": clip}
+        write_json_atomic(out / "dataset.json", old)
+    meta = begin_dataset(out, settings, FORMAT, builds=old.get("builds", []))  # a build stopped mid-way keeps the record of those before
     deadline = time.time() + minutes * 60 if minutes else 0.0
     jobs = []
     for i in range(args.rooms):
@@ -202,7 +207,7 @@ def make_cycles(args: argparse.Namespace, width: int, height: int) -> int:
            "minutes_budget": minutes}
     variety = variety_summary(done_dirs)
     total = {s: sum(json.loads((out / r / "shot.json").read_text())["num_frames"] for r in rs) for s, rs in rooms.items()}
-    write_json_atomic(meta, {**settings, "format": FORMAT, "complete": complete, "splits": rooms, "frames": total, "variety": variety,
+    write_json_atomic(meta, {**settings, "format": FORMAT, "complete": complete, "splits": rooms, "split_frames": total, "variety": variety,
                              "builds": old.get("builds", []) + [run],
                              "build_seconds_this_run": round(seconds, 1), "frames_this_run": frames})
     print(f"{len(jobs)} rooms in {out} ({len(rooms['train'])} train, {len(rooms['val'])} val, {len(rooms['test'])} test clips;"
