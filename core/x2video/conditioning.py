@@ -1,11 +1,16 @@
 """`FrameConditioning`: what the model eats for one frame, after `Edits` were applied to a `Shot`."""
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from x2video.channels import INTRINSIC
+
+if TYPE_CHECKING:
+    from x2video.shot import Shot
 
 
 @dataclass
@@ -24,6 +29,14 @@ class FrameConditioning:
     amr_mask: np.ndarray
     local_masks: np.ndarray
     frame_index: int = 0
+    #: reads the frame's depth (H, W, 1) along the camera's -z when the shot has it (geometry: no edit changes it;
+    #: read only when asked, `depth()`), and the camera's vertical field of view in degrees when known: tier 1's
+    #: screen-space hints (`x2video.model.screen_space`) use them
+    depth_source: Callable[[], np.ndarray] | None = field(default=None, repr=False, compare=False)
+    fov_y_deg: float | None = None
+
+    def depth(self) -> np.ndarray | None:
+        return None if self.depth_source is None else self.depth_source()
 
     def __post_init__(self) -> None:
         for name in INTRINSIC:
@@ -40,3 +53,12 @@ class Prompts:
 
     global_prompt: str = ""
     local: list[str] = field(default_factory=list)
+
+
+def camera_view(shot: Shot, t: int) -> dict:
+    """FrameConditioning's geometry of frame `t` of `shot`: its depth reader (None without a depth channel) and
+    vertical field of view (None without cameras)."""
+    poses = shot.info.poses
+    pose = poses[t] if poses is not None and t < len(poses) else None
+    return {"depth_source": functools.partial(shot.channel, "depth", t) if shot.has("depth") else None,
+            "fov_y_deg": None if pose is None else pose.fov_y_deg}

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 
 from x2video.channels import INTRINSIC
-from x2video.conditioning import FrameConditioning
+from x2video.conditioning import FrameConditioning, camera_view
 from x2video.edits.model import Edits
 from x2video.edits.ops import MaskOut
 from x2video.shot import Shot
@@ -43,7 +43,7 @@ def apply_edits(shot: Shot, edits: Edits, t: int) -> FrameConditioning:
             amr = np.maximum(amr, (m > 0.5).astype(np.float32))
     names = edits.local_prompt_masks()
     local = np.stack([mask(n) for n in names]) if names else np.zeros((0, h, w), np.float32)  # (P, H, W)
-    return FrameConditioning(channels=channels, amr_mask=amr, local_masks=local.astype(np.float32), frame_index=t)
+    return FrameConditioning(channels=channels, amr_mask=amr, local_masks=local.astype(np.float32), frame_index=t, **camera_view(shot, t))
 
 
 def resolve_reference(shot: Shot, edits: Edits, base_dir: str | Path | None = None) -> tuple[int, np.ndarray] | None:

@@ -21,7 +21,7 @@ import functools
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Mapping
+from typing import Callable, Mapping
 
 import numpy as np
 import torch
@@ -34,6 +34,8 @@ FEATURES = ("albedo3", "normal3", "roughness", "metallic", "log_irradiance3", "l
 FORMULA_PLANES = slice(11, 14)
 #: the present flags of the five channels (`x2video.channels.INTRINSIC` order) among the input planes
 PRESENT_PLANES = slice(14, 19)
+#: planes of a net without screen-space hints; a net with `ResidualConfig.hints` reads `screen_space.PLANES` after them
+BASE_PLANES = 20
 
 
 @dataclass
@@ -42,8 +44,20 @@ class ResidualConfig:
 
     #: feature channels per level, finest first (the net downsamples by 2 between levels)
     widths: tuple[int, ...] = (16, 32, 64, 128)
-    #: input planes: 3 + 3 + 1 + 1 + 3 + 3 + 5 present flags + 1 geometry mask
-    in_channels: int = 20
+    #: input planes: 3 + 3 + 1 + 1 + 3 + 3 + 5 present flags + 1 geometry mask (+ the hint planes with `hints`)
+    in_channels: int = BASE_PLANES
+    #: whether the net reads the screen-space hints (`x2video.model.screen_space`: reflections marched through
+    #: the depth channel, the split-sum specular colour, N.V and the reflected direction) after the base planes
+    hints: bool = False
+
+    def __post_init__(self) -> None:
+        from x2video.model.screen_space import N_PLANES
+
+        want = BASE_PLANES + (N_PLANES if self.hints else 0)
+        if self.hints and self.in_channels == BASE_PLANES:  # ResidualConfig(hints=True): the planes follow
+            self.in_channels = want
+        if self.in_channels != want:
+            raise ValueError(f"ResidualConfig: in_channels {self.in_channels} does not match hints={self.hints} ({want} planes)")
 
     @property
     def factor(self) -> int:
@@ -151,12 +165,14 @@ def unseen_light(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | N
     return ~geometry | (geometry & (light <= 1e-3 * level) & ~metal) | (geometry & mirror)
 
 
-def features(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+def features(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None = None, *, hints: bool = False,
+             depth: np.ndarray | None = None, fov_y_deg: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(C_in, H, W) network input and (3, H, W) linear formula (albedo x irradiance) of one frame's channels
     (memory convention, irradiance exposure-normalised). A dropped channel is zeros with its present flag 0;
     `shape` = (H, W) is needed only when every channel is dropped. Non-finite values count as 0 (one NaN
     would otherwise reach the net's global context and blank the whole frame); roughness and metallic are
-    clamped to [0, 1]."""
+    clamped to [0, 1]. With `hints`, the screen-space hint planes follow (`x2video.model.screen_space`), made
+    with the frame's `depth` (H, W[, 1], or None: those planes are 0) and vertical field of view."""
     h, w = _frame_shape(ch, shape)
 
     def get(name: str, n: int) -> tuple[np.ndarray, float]:
@@ -173,12 +189,31 @@ def features(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None 
     ro, me = np.clip(ro, 0, 1), np.clip(me, 0, 1)  # their range, as the loaders and the sampler's to_vae_range clamp them
     ir, pi = get("irradiance", 3)
     shading = formula(ch, (h, w))
-    x = np.empty((20, h, w), np.float32)  # filled plane by plane: no (H, W, 20) intermediate on large frames
+    x = np.empty((BASE_PLANES + (hint_count() if hints else 0), h, w), np.float32)  # plane by plane: no (H, W, C) intermediate
     for i, a in ((0, al), (3, nr), (6, ro), (7, me), (8, np.log1p(np.maximum(ir, 0))), (11, np.log1p(np.maximum(shading, 0)))):
         x[i:i + a.shape[-1]] = np.moveaxis(a, -1, 0)
     x[14:19] = np.array([pa, pn, pr, pm, pi], np.float32)[:, None, None]
     x[19] = (np.einsum("hwc,hwc->hw", nr, nr) > 0.25) if pn else 1.0  # geometry: |normal| > 0.5
+    if hints:
+        from x2video.model.screen_space import hint_planes
+
+        dz = None if depth is None or not pn else _finite(depth)
+        x[BASE_PLANES:] = hint_planes(np.clip(al, 0, 1), nr, ro, me, shading, unseen_light(ch, (h, w)), dz, fov_y_deg)
     return x, np.ascontiguousarray(shading.transpose(2, 0, 1))
+
+
+def hint_count() -> int:
+    from x2video.model.screen_space import N_PLANES
+
+    return N_PLANES
+
+
+def view_args(net, depth: Callable[[], np.ndarray | None] | np.ndarray | None, fov_y_deg: float | None) -> dict:
+    """`features`' keyword arguments for `net`: none for a net without hints; else the frame's depth (read here
+    when given as a reader) and field of view."""
+    if not net.cfg.hints:
+        return {}
+    return {"hints": True, "depth": depth() if callable(depth) else depth, "fov_y_deg": fov_y_deg}
 
 
 def correction(net, x: torch.Tensor) -> torch.Tensor:
@@ -257,7 +292,8 @@ def _pad_channel(v: np.ndarray, ph: int, pw: int) -> np.ndarray:
 
 
 def apply_tiled(net, ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None = None, *, tile: int | None = None,
-                halo: int | None = None, feather: int | None = None) -> np.ndarray:
+                halo: int | None = None, feather: int | None = None, depth: np.ndarray | None = None,
+                fov_y_deg: float | None = None) -> np.ndarray:
     """(H, W, 3) linear radiance of one frame's channels: what `apply` gives for the whole frame, with the net run
     on overlapping tiles so that its working memory is bounded by a tile, whatever the frame's size.
 
@@ -276,10 +312,16 @@ def apply_tiled(net, ch: Mapping[str, np.ndarray | None], shape: tuple[int, int]
     padded = {k: None if v is None else _pad_channel(np.asarray(v), ph, pw) for k, v in ch.items()}
     H, W = h + ph, w + pw
     tiles = tile_grid(H, W, tile, halo, f)
+    hints = None
+    if net.cfg.hints:  # made on the whole frame (reflected rays cross tiles), padded as the channels are
+        hints = features(ch, (h, w), hints=True, depth=depth, fov_y_deg=fov_y_deg)[0][BASE_PLANES:]
+        hints = np.moveaxis(_pad_channel(np.moveaxis(hints, 0, -1), ph, pw), -1, 0)
 
     def tile_features(t: Tile) -> torch.Tensor:
         y0, y1, x0, x1 = t.box
         x, _ = features({k: None if v is None else v[y0:y1, x0:x1] for k, v in padded.items()}, (y1 - y0, x1 - x0))
+        if hints is not None:
+            x = np.concatenate([x, hints[:, y0:y1, x0:x1]])
         return torch.from_numpy(x)[None]  # (1, C_in, h_t, w_t)
 
     with torch.inference_mode():
@@ -334,7 +376,7 @@ def load(folder: str | Path, device: str | torch.device = "cpu") -> ResidualNet:
     if not meta.is_file():
         raise FileNotFoundError(f"{meta}: no tier-1 residual network here (train one with `x2video train residual`)")
     cfg = json.loads(meta.read_text())["config"]
-    net = ResidualNet(ResidualConfig(widths=tuple(cfg["widths"]), in_channels=int(cfg["in_channels"])))
+    net = ResidualNet(ResidualConfig(widths=tuple(cfg["widths"]), in_channels=int(cfg["in_channels"]), hints=bool(cfg.get("hints", False))))
     state = load_file(str(folder / "residual.safetensors"))
     net.load_state_dict({k: v.float() for k, v in state.items()})
     return net.to(device).eval()

@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from x2video.channels import INTRINSIC
-from x2video.conditioning import FrameConditioning
+from x2video.conditioning import FrameConditioning, camera_view
 from x2video.sampling import working
 from x2video.sampling.cache import ConditioningCache
 from x2video.sampling.settings import RenderSettings
@@ -49,6 +49,7 @@ def plain_conditioning(shot: Shot, t: int) -> FrameConditioning:
         amr_mask=np.zeros((h, w), np.float32),
         local_masks=np.zeros((0, h, w), np.float32),
         frame_index=t,
+        **camera_view(shot, t),
     )
 
 

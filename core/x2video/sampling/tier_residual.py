@@ -100,7 +100,7 @@ def _net_frames(net, conds: Sequence[FrameConditioning], device: torch.device | 
                 corrections: bool = False) -> list[np.ndarray]:
     """The net's own output for each frame (`residual_frames` without the unseen-light rule), or with `corrections`
     its log-space correction of the formula (before the output is clipped at 0)."""
-    from x2video.model.residual import MAX_PIXELS, apply, apply_tiled, correction, features, formula, needs_tiles
+    from x2video.model.residual import MAX_PIXELS, apply, apply_tiled, correction, features, formula, needs_tiles, view_args
 
     shape, size = _shape, _size
     out: list[np.ndarray] = []
@@ -108,7 +108,8 @@ def _net_frames(net, conds: Sequence[FrameConditioning], device: torch.device | 
     while i < len(conds):
         hw = size(conds[i])
         if needs_tiles(hw, net.cfg.factor):
-            f = apply_tiled(net, conds[i].channels, shape(conds[i]))
+            view = view_args(net, conds[i].depth_source, conds[i].fov_y_deg)
+            f = apply_tiled(net, conds[i].channels, shape(conds[i]), depth=view.get("depth"), fov_y_deg=view.get("fov_y_deg"))
             if corrections:  # (a working size beyond one tile: the clipped output's correction)
                 f = np.log1p(np.maximum(f, 0)) - np.log1p(np.maximum(formula(conds[i].channels, shape(conds[i])), 0))
             out.append(f)
@@ -118,7 +119,7 @@ def _net_frames(net, conds: Sequence[FrameConditioning], device: torch.device | 
         group = [conds[i]]
         while len(group) < n and i + len(group) < len(conds) and size(conds[i + len(group)]) == hw:
             group.append(conds[i + len(group)])
-        feats = [features(c.channels, shape(c)) for c in group]
+        feats = [features(c.channels, shape(c), **view_args(net, c.depth_source, c.fov_y_deg)) for c in group]
         x = torch.from_numpy(np.stack([f[0] for f in feats])).to(device)  # (B, C_in, H, W)
         s = torch.from_numpy(np.stack([f[1] for f in feats])).to(device)  # (B, 3, H, W)
         y = (correction(net, x) if corrections else apply(net, x, s)).permute(0, 2, 3, 1).float().cpu().numpy()  # (B, H, W, 3)

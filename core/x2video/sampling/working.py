@@ -27,6 +27,7 @@ own frame upsampled.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -84,7 +85,16 @@ def downsample_conditioning(cond: FrameConditioning, size: tuple[int, int]) -> F
         channels=channels,
         amr_mask=resize_area(cond.amr_mask, size),
         local_masks=np.stack([resize_area(m, size) for m in masks]) if masks.shape[0] else np.zeros((0, *size), np.float32),
+        depth_source=None if cond.depth_source is None else functools.partial(_depth_at, cond.depth_source, size),
     )
+
+
+def _depth_at(source, size: tuple[int, int]) -> np.ndarray:
+    """A frame's depth at working size (h, w): nearest samples (an average across an edge is a depth nowhere)."""
+    import cv2
+
+    d = np.asarray(source(), np.float32)
+    return cv2.resize(d.reshape(d.shape[:2]), (size[1], size[0]), interpolation=cv2.INTER_NEAREST)[..., None]
 
 
 def guide_image(cond: FrameConditioning, base: np.ndarray) -> np.ndarray | None:

@@ -29,6 +29,7 @@ from torch.nn import functional as F
 from x2video.channels import INTRINSIC
 from x2video.io.atomic import atomic_path, write_json_atomic
 from x2video.model import residual as R
+from x2video.model import screen_space as SS
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +71,10 @@ class ResidualTrainConfig:
     """Seed of the crops and the initial weights."""
     widths: tuple[int, ...] = field(default_factory=lambda: R.ResidualConfig().widths)
     """Channels per level of the net, finest first."""
+    hints: bool = False
+    """Feed the net the screen-space hints (`x2video.model.screen_space`: reflections marched through the shots'
+    depth, the split-sum specular colour, N.V, the reflected direction); a shot without depth gets them without
+    the reflections."""
 
 
 def _tonemap_t(x: torch.Tensor) -> torch.Tensor:
@@ -78,8 +83,9 @@ def _tonemap_t(x: torch.Tensor) -> torch.Tensor:
     return torch.where(x <= 0.0031308, x * 12.92, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
 
 
-def cache_shot(shot_dir: Path, cache_dir: Path) -> Path:
-    """Read a shot once into `cache_dir/<name>.npz`: features (T, C, H, W), target (T, 3, H, W) float16, scale."""
+def cache_shot(shot_dir: Path, cache_dir: Path, hints: bool = False) -> Path:
+    """Read a shot once into `cache_dir/<name>.npz`: features (T, C, H, W), target (T, 3, H, W) float16, scale;
+    with `hints` the features carry the screen-space hint planes (a cache of other planes is an error)."""
     from x2video.io import load_shot
 
     out = cache_dir / f"{shot_dir.parent.name}_{shot_dir.name}.npz"
@@ -92,15 +98,17 @@ def cache_shot(shot_dir: Path, cache_dir: Path) -> Path:
     s = float(shot.info.irradiance_scale)
     files = sorted(shot_dir.glob("*.exr"))
     xs, ys, noisy = [], [], []
+    has_depth = "depth" in shot.info.channels
     for t in range(shot.num_frames):
         fr = shot.frame(t)
         ch = {k: fr[k] for k in INTRINSIC}
-        x, _ = R.features(ch)
+        view = dict(hints=True, depth=fr["depth"] if has_depth else None, fov_y_deg=_fov(shot, t)) if hints else {}
+        x, _ = R.features(ch, **view)
         xs.append(x.astype(np.float16))
         ys.append((np.asarray(fr["rgb"], np.float32) * s).transpose(2, 0, 1).astype(np.float16))
         raw = noisy_irradiance(files[t]) if len(files) == shot.num_frames else None
         if raw is not None:
-            xn, _ = R.features({**ch, "irradiance": raw * s})
+            xn, _ = R.features({**ch, "irradiance": raw * s})  # (the noisy planes are base planes: no hints needed)
             noisy.append(xn[NOISY_PLANES].astype(np.float16))
     cache_dir.mkdir(parents=True, exist_ok=True)
     extra = {"noisy": np.stack(noisy)} if len(noisy) == len(xs) else {}
@@ -112,6 +120,14 @@ def cache_shot(shot_dir: Path, cache_dir: Path) -> Path:
 
 #: input planes that change when the irradiance is the sampled (noisy) one: log irradiance and log formula
 NOISY_PLANES = slice(8, 14)
+#: the hint planes that hold light (the log formula a reflected ray meets) and the reflected direction's x
+SSR_PLANES = slice(R.BASE_PLANES + SS.SSR_LOG.start, R.BASE_PLANES + SS.SSR_LOG.stop)
+REFLECT_X_PLANE = R.BASE_PLANES + SS.REFLECT_X
+
+
+def _fov(shot, t: int) -> float | None:
+    poses = shot.info.poses
+    return None if poses is None or poses[t] is None else poses[t].fov_y_deg
 
 
 def noisy_irradiance(frame_file: Path) -> np.ndarray | None:
@@ -179,6 +195,8 @@ class Frames:
             if self.exposure_aug > 1:  # the same scene under a brighter or dimmer light: log planes and target alike
                 g = float(np.exp(rng.uniform(-1, 1) * np.log(self.exposure_aug)))
                 x[NOISY_PLANES] = np.log1p(g * np.expm1(x[NOISY_PLANES]))
+                if x.shape[0] > R.BASE_PLANES:
+                    x[SSR_PLANES] = np.log1p(g * np.expm1(x[SSR_PLANES]))
                 y = y * g
             if self.format_aug > 0 and rng.random() < self.format_aug:
                 as_8bit(x, irradiance=bool(rng.random() < 0.5))
@@ -187,6 +205,8 @@ class Frames:
             if rng.random() < 0.5:  # mirror left-right: the camera-space normal's x changes sign
                 x, y = x[:, :, ::-1].copy(), y[:, :, ::-1].copy()
                 x[3] = -x[3]
+                if x.shape[0] > R.BASE_PLANES:  # so does the reflected direction's
+                    x[REFLECT_X_PLANE] = -x[REFLECT_X_PLANE]
             xs.append(x)
             ys.append(y)
         return torch.from_numpy(np.stack(xs)), torch.from_numpy(np.stack(ys))
@@ -220,6 +240,8 @@ def as_8bit(x: np.ndarray, irradiance: bool = False) -> None:
 def drop_irradiance(x: np.ndarray | torch.Tensor) -> None:
     """In place: features (C, H, W) or (N, C, H, W) as `residual.features` makes them with irradiance dropped."""
     x[..., NOISY_PLANES, :, :] = 0  # log irradiance and log formula (albedo x 0)
+    if x.shape[-3] > R.BASE_PLANES:
+        x[..., SSR_PLANES, :, :] = 0  # the formula the reflected rays meet
     x[..., R.PRESENT_PLANES.start + INTRINSIC.index("irradiance"), :, :] = 0
 
 
@@ -253,9 +275,9 @@ def train(data: Path, out: Path, cfg: ResidualTrainConfig, *, threads: int = 2, 
     """Train (or resume) a tier-1 net on `data/train`, validated on `data/val` (else `data/test`); returns the summary."""
     torch.set_num_threads(max(1, threads))
     cache = out / "cache"
-    train_files = [cache_shot(p, cache) for p in shot_dirs(data, "train")]
+    train_files = [cache_shot(p, cache, cfg.hints) for p in shot_dirs(data, "train")]
     val_split = "val" if shot_dirs(data, "val") else "test"
-    val_files = [cache_shot(p, cache) for p in shot_dirs(data, val_split)]
+    val_files = [cache_shot(p, cache, cfg.hints) for p in shot_dirs(data, val_split)]
     if not train_files:
         raise ValueError(f"{data}: no finished shots in train/ (make them with `x2video dataset make --renderer cycles`)")
     if not 0 <= cfg.irradiance_dropout <= 1:
@@ -263,7 +285,11 @@ def train(data: Path, out: Path, cfg: ResidualTrainConfig, *, threads: int = 2, 
     tr = Frames(train_files, cfg.noisy_p, cfg.exposure_aug, cfg.irradiance_dropout, cfg.format_aug)
     va = Frames(val_files) if val_files else None
     torch.manual_seed(cfg.seed)
-    net = R.ResidualNet(R.ResidualConfig(widths=tuple(cfg.widths)))
+    net = R.ResidualNet(R.ResidualConfig(widths=tuple(cfg.widths), hints=cfg.hints))
+    planes = tr.x[0].shape[0]
+    if planes != net.cfg.in_channels:
+        raise ValueError(f"{cache}: the cached shots have {planes} feature planes, a net with hints={cfg.hints} reads "
+                         f"{net.cfg.in_channels}; remove the cache (or train into another --out)")
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=1e-4)
     step, best = 0, -1.0
     ck = out / "checkpoint.pt"
