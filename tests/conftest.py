@@ -4,6 +4,8 @@ import os
 os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
+# tests that open the demo get the rasterized room in seconds, not a Cycles render (tests/test_demo.py path-traces one, small)
+os.environ.setdefault("X2VIDEO_DEMO_RENDERER", "raster")
 
 
 # --- Qt: fail any test that leaves a worker or thread running (editor tests; napari's pattern) ---------
