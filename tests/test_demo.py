@@ -86,3 +86,23 @@ def test_the_demo_renderer_comes_from_the_environment(tmp_path, monkeypatch, sma
     monkeypatch.setenv("X2VIDEO_DEMO_RENDERER", "blender")
     with pytest.raises(ValueError, match="X2VIDEO_DEMO_RENDERER"):
         ensure_demo(tmp_path)
+
+
+def test_the_editor_hears_each_frame_and_why_the_demo_is_rasterized(tmp_path, monkeypatch):
+    """x2video_app.demo reads the child's progress lines, its warnings and the folder it made."""
+    import x2video_app.demo as app_demo
+
+    (tmp_path / "shot").mkdir()
+    (tmp_path / "shot" / "shot.json").write_text("{}")
+    child = ("import sys, time\n"
+             "for d in range(3): print(f'progress {d} 2 1.5', flush=True); time.sleep(0.05)\n"
+             "print('WARNING x2video.demo: demo: the rasterized room, not the path-traced one: no bpy', file=sys.stderr)\n"
+             f"print('DEMO={tmp_path / 'shot'}')\n")
+    monkeypatch.setattr(app_demo, "_command", lambda: [sys.executable, "-c", child])
+    seen, notes, polls = [], [], []
+    got = app_demo.ensure_demo(poll=lambda: polls.append(1), on_progress=lambda *a: seen.append(a), on_note=notes.append)
+    assert got == tmp_path / "shot" and seen == [(0, 2, 1.5), (1, 2, 1.5), (2, 2, 1.5)] and polls
+    assert notes == ["demo: the rasterized room, not the path-traced one: no bpy"]
+    monkeypatch.setattr(app_demo, "_command", lambda: [sys.executable, "-c", "import sys; sys.exit('Blender crashed')"])
+    with pytest.raises(RuntimeError, match="Blender crashed"):
+        app_demo.ensure_demo()

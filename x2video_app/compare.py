@@ -119,7 +119,8 @@ class Compare(QObject):
         if name == "ground truth":
             if doc.shot is None or not doc.shot.has("rgb"):
                 return None, "ground truth: this shot has none (no rgb channel)"
-            return tonemap(doc.shot.channel("rgb", t).astype(np.float32)), "ground truth"
+            cycles = str(doc.shot.info.extra.get("renderer", "")).startswith("Cycles")  # the path-traced demo's, a Cycles data set's
+            return tonemap(doc.shot.channel("rgb", t).astype(np.float32)), "ground truth (Cycles)" if cycles else "ground truth"
         raise ValueError(f"unknown compare source {name!r}; one of {SOURCES}")
 
     def _made_frame(self, tier: str, name: str) -> tuple[np.ndarray | None, str]:

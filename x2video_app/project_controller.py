@@ -14,6 +14,7 @@ from PySide6.QtWidgets import QApplication, QCheckBox, QFileDialog, QMessageBox,
 from shiboken6 import isValid
 from superqt.utils import create_worker
 
+from x2video.demo import STATED_TIME
 from x2video.edits import PROJECT_SUFFIX, Project, is_project_file, load_project, save_project
 from x2video.edits.autosave import (
     AutosaveError,
@@ -230,20 +231,36 @@ class ProjectController(QObject):
         return False
 
     def open_demo(self) -> bool:
-        """Open the demo shot, generating it first (with a busy dialog) if it is not cached."""
-        dlg = QProgressDialog("Preparing the demo shot (a procedural room; generated once)…", None, 0, 0, self._dialog_parent)
+        """Open the demo shot, making it first if it is not cached: a busy dialog, which becomes a progress bar with the
+        frames left while Cycles path-traces the room (the first start only); why it is the rasterized room, if it is,
+        goes to the status bar."""
+        dlg = QProgressDialog("Preparing the demo shot (made once)…", None, 0, 0, self._dialog_parent)
         dlg.setWindowTitle("X2Video Studio")
         dlg.setWindowModality(Qt.WindowModality.WindowModal)
         dlg.setMinimumDuration(500)
+        notes: list[str] = []
+        frame_s: list[float] = []
+
+        def progress(done: int, total: int, seconds: float) -> None:
+            dlg.setMaximum(total)
+            dlg.setValue(done)
+            frame_s.extend([seconds] if done else [])
+            left = f", about {sum(frame_s) / len(frame_s) * (total - done):.0f} s left" if frame_s else ""
+            dlg.setLabelText(f"Path-tracing the demo room with Cycles, once ({STATED_TIME.removesuffix(', once')}):\n"
+                             + (f"frame {done} of {total}{left}" if done else "building the room…"))
+
         try:
-            d = ensure_demo(poll=QApplication.processEvents)
+            d = ensure_demo(poll=QApplication.processEvents, on_progress=progress, on_note=notes.append)
         except Exception as e:
             self.host.show_error("Cannot make the demo shot", f"{e}\n\nOpen a shot folder with File → Open shot.")
             return False
         finally:
             dlg.reset()
             dlg.close()
-        return self.open_path(d)
+        opened = self.open_path(d)
+        if opened and notes:
+            self.host.status(f"Demo: {notes[-1]}", 15000)
+        return opened
 
     # -- saving ----------------------------------------------------------------
     def save(self) -> bool:
