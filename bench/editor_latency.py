@@ -328,7 +328,8 @@ def main(argv: list[str] | None = None) -> int:
         "model": win.render_ctl.choice.label if win.render_ctl.choice else None,
         "tier1_standin": args.tier1_standin,
         "preview_all": not args.preview_frame_only,
-        "shot": {"frames": win.doc.num_frames, "size": list(win.doc.size[::-1]), "source": "demo" if not args.shot else "argument"},
+        "shot": {"frames": win.doc.num_frames, "size": list(win.doc.size[::-1]), "source": "demo" if not args.shot else "argument",
+                 "renderer": win.doc.shot.info.extra.get("renderer", "the procedural rasterizer")},  # the demo: Cycles, or the fallback
         "settings": {k: v for k, v in win.render_panel.values().items()},
         "interpreter_start_to_bench_import_s": round(started_before_import, 3),
         "summary (first press; from process start, or from the click)": summary,
