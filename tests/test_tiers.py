@@ -362,6 +362,17 @@ def test_a_toy_tier_is_one_new_class():
         tiers.choose_tier("toy-grey", [], False, False)
 
 
+def test_tiers_say_what_callers_used_to_compare_names_for():
+    """The editor and the benches ask a tier what it is (`generative`, `with_preset`), never compare its name."""
+    from x2video.sampling.setup import select_steps
+
+    assert [n for n in tiers.QUALITIES if tiers.generative(n)] == ["diffusion"]
+    assert not tiers.generative("") and not tiers.generative(None) and not tiers.generative("no-such-tier")
+    fast = RenderSettings(preset="fast")
+    assert tiers.get("diffusion").with_preset(fast, FakeModel()) == select_steps(fast, FakeModel())
+    assert tiers.get("formula").with_preset(fast, FakeModel()) is fast and tiers.get("residual").with_preset(fast, None) is fast
+
+
 def test_plan_render_is_what_the_render_runs():
     """`plan_render` (pure) names the tier and, for the diffusion tier, the windows and steps the render runs; the
     formula needs no model."""

@@ -111,6 +111,9 @@ class Tier:
     #: a render of any part of a frame range gives its frames the same bytes as a render of the whole range (no batch
     #: or window touches another frame's pixels), so a resumed render may render only the frames it lacks
     exact_in_part: ClassVar[bool] = False
+    #: makes what the channels do not say (a dropped channel, a masked-out region, a local prompt, a reference's look):
+    #: its frames are the ones the editor's Compare offers as the generated version
+    generative: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
@@ -122,6 +125,11 @@ class Tier:
         if self.needs_model and model is None:
             return f"quality {self.name!r} needs a model (load weights, or render with quality 'formula')"
         return None
+
+    def with_preset(self, settings: RenderSettings, model: RenderModel | None) -> RenderSettings:
+        """`settings` as this tier runs them on `model`: `settings.preset` resolved into the knobs it sets (a tier that
+        reads no preset: `settings` as given). Pure, unvalidated (the speed/accuracy chart marks a render by it)."""
+        return settings
 
     def plan(self, shot: Shot, edits: Edits | None, settings: RenderSettings, model: RenderModel | None, choice: TierChoice,
              frames: tuple[int, int]) -> RenderPlan:

@@ -54,6 +54,11 @@ class DiffusionTier(Tier):
 
     name = "diffusion"
     reads_reference = True
+    generative = True
+
+    def with_preset(self, settings: RenderSettings, model: RenderModel | None) -> RenderSettings:
+        """The preset resolved into a sampler and steps for `model` (`setup.select_steps`)."""
+        return setup.select_steps(settings, model)
 
     def plan(self, shot, edits, settings, model, choice, frames) -> RenderPlan:
         resolved = setup.resolve(settings, model)

@@ -53,6 +53,13 @@ def get(name: str) -> Tier:
     return cls()
 
 
+def generative(name: str | None) -> bool:
+    """Whether `name` is a registered tier that generates what the channels do not say (`Tier.generative`); False
+    for '', None, 'auto' and names no tier has."""
+    cls = TIERS.get(name or "")
+    return cls is not None and cls.generative
+
+
 #: channels the formula (albedo x irradiance) does not read: auto renders tier 0 when only these are missing
 FORMULA_IGNORES = ("normal", "roughness", "metallic")
 
@@ -165,5 +172,5 @@ def choose_tier(quality: str, reasons: list[str], only_regions: bool, has_residu
 
 
 __all__ = ["FEATHER_PX", "FORMULA_IGNORES", "QUALITIES", "RenderPlan", "Tier", "TierChoice", "TIERS", "choose_tier", "coarse_to_fine",
-           "decide", "dropped_channels", "feathered", "formula_frame", "generated_region", "generation_reasons", "get",
+           "decide", "dropped_channels", "feathered", "formula_frame", "generated_region", "generation_reasons", "generative", "get",
            "keep_formula_where_unseen", "plan_render", "qualities", "residual_frames"]
