@@ -14,7 +14,7 @@ bpy_missing = subprocess.run([sys.executable, "-c", "import importlib.util,sys; 
 
 @pytest.mark.slow
 @pytest.mark.skipif(bool(bpy_missing), reason="bpy is not installed: `pip install -e '.[cycles]'` (scripts/setup.sh does)")
-def test_cycles_room_renders_and_loads(tmp_path):
+def test_cycles_room_renders_and_loads(tmp_path, monkeypatch):
     from x2video.io import load_shot
     from x2video.io.image import read_image
 
@@ -59,6 +59,13 @@ def test_cycles_room_renders_and_loads(tmp_path):
     assert split_mean == pytest.approx(noisy_combined_mean, rel=0.25)
     info = json.loads((room / "shot.json").read_text())
     assert info["extra"]["renderer"].startswith("Cycles") and info["extra"]["samples"] == 4
+    # bench.light_budget on this set: adding Cycles' own passes to the formula brings it to the truth
+    from bench.light_budget import main as light_budget
+
+    monkeypatch.setattr("bench.light_budget.results_path", lambda bench, name: tmp_path / "lb" / f"{name}.json")
+    assert light_budget(["--data", str(out), "--split", "train", "--step", "1", "--name", "t"]) == 0
+    lb = json.loads((tmp_path / "lb" / "t.json").read_text())["summary"]
+    assert lb["+ every pass"] > lb["formula"] + 3 and lb["+ every pass"] > 24  # 4 spp, denoised passes vs denoised Combined
     # the room writes its material classes (every object id in the ids pass that is not background is classed)
     from x2video.cycles.classes import CLASSES, material_classes
 
