@@ -50,6 +50,9 @@ class ResidualTrainConfig:
     """AdamW peak learning rate (cosine decay to 5 % over `steps`, 100 warm-up steps)."""
     log_weight: float = 0.25
     """Weight of the log1p-space L1 beside the display-space L1."""
+    l2_weight: float = 0.0
+    """Weight of a display-space squared error beside the L1s: where the channels leave the light uncertain (what a
+    window or glass shows) L1 learns the likeliest value and L2 the mean, which is what PSNR rewards."""
     noisy_p: float = 0.3
     """Probability that a crop's irradiance is the sampled (noisy) one the shot keeps beside the denoised one."""
     exposure_aug: float = 2.0
@@ -245,8 +248,10 @@ def drop_irradiance(x: np.ndarray | torch.Tensor) -> None:
     x[..., R.PRESENT_PLANES.start + INTRINSIC.index("irradiance"), :, :] = 0
 
 
-def loss_fn(pred: torch.Tensor, y: torch.Tensor, log_weight: float) -> torch.Tensor:
-    return F.l1_loss(_tonemap_t(pred), _tonemap_t(y)) + log_weight * F.l1_loss(torch.log1p(pred), torch.log1p(y.clamp_min(0)))
+def loss_fn(pred: torch.Tensor, y: torch.Tensor, log_weight: float, l2_weight: float = 0.0) -> torch.Tensor:
+    dp, dy = _tonemap_t(pred), _tonemap_t(y)
+    loss = F.l1_loss(dp, dy) + log_weight * F.l1_loss(torch.log1p(pred), torch.log1p(y.clamp_min(0)))
+    return loss + l2_weight * F.mse_loss(dp, dy) if l2_weight else loss
 
 
 @torch.no_grad()
@@ -255,7 +260,7 @@ def validate(net: R.ResidualNet, frames: Frames, without_irradiance: bool = Fals
     of the net (given every channel, or all but irradiance) and of the formula (albedo x irradiance,
     every channel) over every held-out frame."""
     net.eval()
-    ps_net, ps_form = [], []
+    ps_net, ps_form, ps_kept = [], [], []
     for x, y, s in zip(frames.x, frames.y, frames.scale):
         xt = torch.from_numpy(x.astype(np.float32))[None]
         shading = torch.expm1(xt[:, R.FORMULA_PLANES])
@@ -263,12 +268,24 @@ def validate(net: R.ResidualNet, frames: Frames, without_irradiance: bool = Fals
             xt = xt.clone()
             drop_irradiance(xt)
         pred = R.apply(net, xt, torch.expm1(xt[:, R.FORMULA_PLANES]))
+        unseen = torch.from_numpy(unseen_in(x))[None, None]
+        kept = torch.where(unseen, shading, pred)  # what tier 1 renders by default: the formula where the channels hold no light
         gt = _tonemap_t(torch.from_numpy(y.astype(np.float32))[None] / s)
-        for v, acc in ((pred, ps_net), (shading, ps_form)):
+        for v, acc in ((pred, ps_net), (shading, ps_form), (kept, ps_kept)):
             mse = float(F.mse_loss(_tonemap_t(v / s), gt))
             acc.append(10 * math.log10(1.0 / max(mse, 1e-12)))
     net.train()
-    return {"psnr": float(np.mean(ps_net)), "psnr_formula": float(np.mean(ps_form)), "frames": len(ps_net)}
+    return {"psnr": float(np.mean(ps_net)), "psnr_formula": float(np.mean(ps_form)), "psnr_kept": float(np.mean(ps_kept)),
+            "frames": len(ps_net)}
+
+
+def unseen_in(x: np.ndarray) -> np.ndarray:
+    """(H, W) bool `residual.unseen_light` of the channels that features `x` (C, H, W) were made from."""
+    f = x.astype(np.float32)
+    ch = {"normal": f[3:6].transpose(1, 2, 0), "roughness": f[6][..., None], "metallic": f[7][..., None],
+          "irradiance": np.expm1(f[8:11]).transpose(1, 2, 0)}
+    m = R.unseen_light(ch)
+    return np.zeros(x.shape[1:], bool) if m is None else m
 
 
 def train(data: Path, out: Path, cfg: ResidualTrainConfig, *, threads: int = 2, progress: Callable[[dict], None] | None = None) -> dict:
@@ -315,7 +332,7 @@ def train(data: Path, out: Path, cfg: ResidualTrainConfig, *, threads: int = 2, 
             g["lr"] = cfg.lr * sched(step)
         x, y = tr.crops(rng, cfg.batch, cfg.crop)
         pred = R.apply(net, x, torch.expm1(x[:, R.FORMULA_PLANES]))
-        loss = loss_fn(pred, y, cfg.log_weight)
+        loss = loss_fn(pred, y, cfg.log_weight, cfg.l2_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
