@@ -106,3 +106,24 @@ def test_the_editor_hears_each_frame_and_why_the_demo_is_rasterized(tmp_path, mo
     monkeypatch.setattr(app_demo, "_command", lambda: [sys.executable, "-c", "import sys; sys.exit('Blender crashed')"])
     with pytest.raises(RuntimeError, match="Blender crashed"):
         app_demo.ensure_demo()
+
+
+def test_render_demo_shows_a_bar_and_says_what_it_made(tmp_path, monkeypatch, caplog, capsys):
+    from x2video.cli.render import _demo
+
+    folder = tmp_path / TINY.folder_name
+    folder.mkdir()
+    (folder / "x2video-demo.json").write_text(json.dumps({"spec": {"frames": 2, "width": 48, "height": 32, "samples": 4},
+                                                          "seconds": 9.5, "cpu_seconds": 17.0}))
+
+    def fake(cache, progress=None):
+        for d in range(3):
+            progress(d, 2, 1.0)
+        return folder
+
+    monkeypatch.setattr(demo, "ensure_demo", fake)
+    with caplog.at_level(logging.INFO, logger="x2video.cli.render"):
+        assert _demo(tmp_path) == folder
+    text = " ".join(r.getMessage() for r in caplog.records)
+    assert "path-tracing the demo room" in text and "2 frames at 48x32, 4 spp, path-traced in 9.5 s (17.0 CPU s)" in text
+    assert "demo (Cycles)" in capsys.readouterr().err  # the bar

@@ -79,10 +79,15 @@ def _demo(cache: Path) -> Path:
         bar.update(done - bar.n)
 
     try:
-        return ensure_demo(cache, progress=progress)
+        folder = ensure_demo(cache, progress=progress)
     finally:
         if bar is not None:
             bar.close()
+    if bar is not None:
+        from x2video.cycles.demo import describe
+
+        log.info("demo shot %s: %s", folder, describe(folder))
+    return folder
 
 
 def _resume_key(args: argparse.Namespace, shot: Any, settings: RenderSettings, options: ModelOptions, fps: float) -> str:
