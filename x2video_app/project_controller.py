@@ -238,6 +238,8 @@ class ProjectController(QObject):
         dlg.setWindowTitle("X2Video Studio")
         dlg.setWindowModality(Qt.WindowModality.WindowModal)
         dlg.setMinimumDuration(500)
+        dlg.setAutoReset(False)  # it stays up after the last frame, while the room's shot is finished and opened
+        dlg.setAutoClose(False)
         notes: list[str] = []
         frame_s: list[float] = []
 
