@@ -58,6 +58,7 @@ def test_train_stage_flags_come_from_their_dataclasses(train_parser):
     from x2video.cli import train as T
     from x2video.train.config import (
         AugmentConfig,
+        CacheStageConfig,
         EncoderStageConfig,
         ImageStageConfig,
         LCMStageConfig,
@@ -68,11 +69,13 @@ def test_train_stage_flags_come_from_their_dataclasses(train_parser):
     )
 
     req = {"vae": ["--data", "d", "--out", "o"], "image": ["--cache", "c", "--out", "o"], "video": ["--init", "i", "--cache", "c", "--out", "o"],
-           "lcm": ["--teacher", "t", "--cache", "c", "--out", "o"], "encoder": ["--teacher", "t", "--data", "d", "--out", "o"]}
+           "lcm": ["--teacher", "t", "--cache", "c", "--out", "o"], "encoder": ["--teacher", "t", "--data", "d", "--out", "o"],
+           "cache": ["--data", "d", "--vae", "v", "--out", "o"]}
     parse = lambda stage, *extra: train_parser.parse_args(["train", stage, *req[stage], *extra])  # noqa: E731
     for stage, cls in (("vae", VAEStageConfig), ("image", ImageStageConfig), ("video", VideoStageConfig), ("lcm", LCMStageConfig),
-                       ("encoder", EncoderStageConfig)):
+                       ("encoder", EncoderStageConfig), ("cache", CacheStageConfig)):
         assert from_args(cls, parse(stage)) == cls(), stage
+    assert from_args(CacheStageConfig, parse("cache", "--size", "160x112", "--batch", "4")) == CacheStageConfig(size=(160, 112), batch=4)
     assert T._loop_cfg(parse("lcm")) == LoopConfig(steps=1000, lr=1e-5, ema_decay=0.99)
     assert T._aug(parse("video")) == AugmentConfig() and T._window(parse("video")) == WindowConfig()
 

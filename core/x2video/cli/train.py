@@ -12,6 +12,7 @@ from x2video.cli.args import size_arg
 from x2video.fields import add_fields, from_args
 from x2video.train.config import (
     AugmentConfig,
+    CacheStageConfig,
     EncoderStageConfig,
     ImageStageConfig,
     LCMStageConfig,
@@ -152,6 +153,7 @@ def cmd_cache(a: argparse.Namespace) -> int:
 
         torch.set_num_threads(a.threads)
     ds = open_dataset(a.data, need_test=False)
+    stage = from_args(CacheStageConfig, a)
     cfg, vae = load_vae(a.vae)
     total = sum(s.num_frames for v in ds.values() for s in v)
     bar = tqdm(total=total, desc="cache", unit="frame", dynamic_ncols=True)
@@ -162,7 +164,7 @@ def cmd_cache(a: argparse.Namespace) -> int:
         bar.refresh()
 
     try:
-        info = build_cache(ds, vae, cfg, a.out, size=a.size, batch=a.batch, progress=progress)
+        info = build_cache(ds, vae, cfg, a.out, size=stage.size, batch=stage.batch, progress=progress)
     finally:
         bar.close()
     secs = time.perf_counter() - t0
@@ -256,9 +258,8 @@ def register(subparsers) -> None:
     s = sub.add_parser("cache", help="encode every frame of the data set once with the frozen VAE")
     s.add_argument("--data", type=Path, required=True, help="data set folder with train/ (and test/) rooms")
     s.add_argument("--vae", type=Path, required=True, help="VAE run folder (newest checkpoint) or model folder")
-    s.add_argument("--size", type=size_arg, default=None, help="encode frames resized to WxH (e.g. 160x112); default native")
     s.add_argument("--out", type=Path, required=True, help="cache folder")
-    s.add_argument("--batch", type=int, default=8, help="frames per VAE call")
+    _stage_args(s, CacheStageConfig, overrides=_SIZE)
     s.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = default)")
     s.set_defaults(func=cmd_cache)
 

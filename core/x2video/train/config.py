@@ -93,6 +93,16 @@ class WindowConfig:
 
 
 @dataclass
+class CacheStageConfig:
+    """What the cache stage encodes with the frozen VAE (field docstrings are CLI help)."""
+
+    size: tuple[int, int] | None = None
+    """(width, height) frames are resized to before encoding (e.g. 160x112, the diffusion training size); None: native."""
+    batch: int = 8
+    """Frames per VAE call."""
+
+
+@dataclass
 class VAEStageConfig:
     """What the VAE stage trains and on what (field docstrings are CLI help)."""
 
