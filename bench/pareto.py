@@ -408,13 +408,8 @@ def measure(opts: ParetoOptions, argv: list[str] | None, on_partial: Any = None)
                 outs = []
                 for s, n in zip(shots, nframes):
                     if m.kind == "formula":
-                        from x2video.sampling.formula import formula_frames
-
-                        class _R:  # formula_frames behind render_timed's interface
-                            def render(self, shot, edits, settings, on_event):
-                                formula_frames(shot, edits, settings, on_event)
                         c0 = time.process_time()
-                        fr, sec = render_timed(_R(), s, diffusion_settings(m, n))
+                        fr, sec = render_timed(Renderer(None), s, diffusion_settings(m, n))  # tier 0 needs no model
                     else:
                         renderer = Renderer(model)
                         c0 = time.process_time()

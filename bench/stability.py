@@ -507,9 +507,7 @@ def run_cell(cell: dict, ctx: Context) -> dict:
         scorer = Scorer(shot, float(shot.info.irradiance_scale), classes, names, delta_e=cell["family"] == "length")
         settings = RenderSettings(quality=method, preset=None if method == "formula" else "fast")
         if model is None:
-            from x2video.sampling.formula import formula_frames
-
-            formula_frames(shot, edits, settings, scorer.on_event)
+            Renderer(None).render(shot, edits, settings, scorer.on_event)  # tier 0 needs no model
         else:
             renderer = Renderer(model)  # a fresh conditioning cache: no cell profits from another
             renderer.render(shot, edits, settings, scorer.on_event)
