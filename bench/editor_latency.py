@@ -237,7 +237,7 @@ def main(argv: list[str] | None = None) -> int:
     i = win.render_panel.quality.findData(args.quality)
     t_prepare = time.perf_counter()
     win.render_panel.quality.setCurrentIndex(i)
-    win._prepare_render()  # as a changed setting does (also when the quality was already the chosen one)
+    win.rendering.prepare()  # as a changed setting does (also when the quality was already the chosen one)
     if not args.no_wait_prepare:
         pump_until(lambda: win.render_ctl.prepare_worker is None, "the shot's preparation")
     prepare_s = round(time.perf_counter() - t_prepare, 3)

@@ -1,14 +1,12 @@
 """The X2Video Studio main window: viewer, timeline, docks for masks/edits/scene/render/charts, menus; `run(argv)`."""
 from __future__ import annotations
 
-import dataclasses
 import logging
 import sys
-import time
 from pathlib import Path
 
 from PySide6.QtCore import QSettings, Qt, QTimer
-from PySide6.QtGui import QAction, QKeySequence, QUndoStack
+from PySide6.QtGui import QKeySequence, QUndoStack
 from PySide6.QtWidgets import (
     QApplication,
     QCheckBox,
@@ -24,8 +22,7 @@ from PySide6.QtWidgets import (
 )
 from shiboken6 import isValid
 
-from x2video.sampling.events import FramesReady, RenderStarted, WindowStarted
-from x2video_app.charts import Charts, pareto_key, pareto_path
+from x2video_app.charts import Charts, pareto_path
 from x2video_app.compare import Compare
 from x2video_app.display import VIEW_MODES
 from x2video_app.document import Document
@@ -33,8 +30,7 @@ from x2video_app.edit_actions import EditActions
 from x2video_app.edit_panel import EditPanel
 from x2video_app.live_preview import LivePreview
 from x2video_app.mask_panel import MaskPanel
-from x2video_app.model_source import ModelChoice, cuda_available, has_weights, resolve_device, weights_dir, weights_hint
-from x2video_app.preview import PreviewReady
+from x2video_app.model_source import cuda_available, weights_hint
 from x2video_app.project_controller import ProjectController
 from x2video_app.render_controller import RenderController
 from x2video_app.render_panel import RenderPanel
@@ -42,6 +38,7 @@ from x2video_app.scene_panel import ScenePanel
 from x2video_app.style import apply_style
 from x2video_app.timeline import Timeline
 from x2video_app.viewer import Viewer
+from x2video_app.window_render import WindowRender
 
 log = logging.getLogger(__name__)
 APP_NAME = "X2Video Studio"
@@ -49,7 +46,7 @@ BENCH_RESULTS = Path(__file__).resolve().parents[1] / "bench" / "results"
 
 
 class MainWindow(QMainWindow):
-    def __init__(self, bench_dir: Path | None = None, autosave_ms: int = 180_000, preload: bool = True) -> None:
+    def __init__(self, bench_dir: Path | None = None, autosave_ms: int | None = None, preload: bool = True) -> None:
         """`preload`: start building the model as soon as the event loop runs (`launch` starts it itself,
         once the first shot is open)."""
         super().__init__()
@@ -59,13 +56,6 @@ class MainWindow(QMainWindow):
         self.resize(1440, 900)
         self.ask = self._ask  # replaceable in tests: (title, text, buttons, default) -> button
         self.errors_shown: list[tuple[str, str]] = []  # (title, text) of every error dialog, for tests
-        self.render_settings = None  # the last render's RenderSettings (the speed/accuracy chart marks it)
-        #: seconds from pressing Render to the first frame painted in the viewer, the formula's preview or the
-        #: render's own (last render)
-        self.first_frame_shown_s: float | None = None
-        #: seconds from pressing Render to the render's first frame painted in the viewer (a keyframe in the
-        #: recursive scheme; the first batch of a per-frame tier) (last render)
-        self.first_keyframe_shown_s: float | None = None
 
         # central: view bar + viewer + timeline
         self.viewer = Viewer()
@@ -130,6 +120,7 @@ class MainWindow(QMainWindow):
 
         # controllers
         self.render_ctl = RenderController(self.doc, self)
+        self.rendering = WindowRender(self)  # model, device, the Render menu and what a render's events do here
         self.edits = EditActions(self.doc, self.undo, host=self, parent=self)
         self.project = ProjectController(self.doc, self.undo, self.render_ctl, host=self, parent=self, autosave_ms=autosave_ms)
         self.live = LivePreview(self)  # the frame on screen re-renders while an edit changes (issue 43)
@@ -176,13 +167,8 @@ class MainWindow(QMainWindow):
         v.addSeparator()
         for d in self.docks.values():
             v.addAction(d.toggleViewAction())
-        r = mb.addMenu("&Render")
-        self.act_render = r.addAction("Render", self.start_render, QKeySequence("Ctrl+R"))
-        self.act_cancel = r.addAction("Cancel render", self.render_ctl.cancel, QKeySequence("Esc"))
-        r.addSeparator()
-        self.act_untrained = QAction("Use the UNTRAINED tiny model (smoke test)", self, checkable=True)
-        self.act_untrained.toggled.connect(self._untrained_toggled)
-        r.addAction(self.act_untrained)
+        self.rendering.add_menu(mb)
+        self.act_render, self.act_cancel, self.act_untrained = self.rendering.act_render, self.rendering.act_cancel, self.rendering.act_untrained
         h = mb.addMenu("&Help")
         h.addAction("About the model weights…", lambda: QMessageBox.information(self, "Model weights", weights_hint()))
 
@@ -198,18 +184,9 @@ class MainWindow(QMainWindow):
         self.fit_button.clicked.connect(self.viewer.fit)
         self.timeline.sigFrame.connect(doc.set_frame)
         self.viewer.sigHover.connect(self._hover)
-        self.render_panel.sigRender.connect(self.start_render)
-        self.render_panel.sigCancel.connect(self.render_ctl.cancel)
-        self.render_panel.sigDevice.connect(self._device_changed)
-        self.render_panel.sigSettingsChanged.connect(self._prepare_render)
-        self.render_ctl.sigEvent.connect(self._render_event)
-        self.render_ctl.sigRunning.connect(self._running)
-        self.render_ctl.sigError.connect(self._render_error)
-        self.render_ctl.sigPreload.connect(self._preloading)
+        self.rendering.connect()
         self.project.sigTitle.connect(self._show_title)
         self._connect_edits()
-        self._eta_timer = QTimer(self)
-        self._eta_timer.timeout.connect(lambda: self.render_panel.show_state(self.doc.render))
 
     def _connect_edits(self) -> None:
         """The viewer's and the panels' gestures go to the edit actions; the chosen tool comes back to both."""
@@ -240,155 +217,39 @@ class MainWindow(QMainWindow):
         sp.sigUseRendered.connect(a.use_rendered_reference)
         sp.sigClearReference.connect(a.clear_reference)
 
-    # -- model -----------------------------------------------------------------
+    # -- rendering (x2video_app.window_render) ------------------------------------
     def device(self) -> str:
         """The torch device renders use: the Render panel's choice, auto = cuda when available."""
-        return resolve_device(self.render_panel.device.currentData())
-
-    def _device_changed(self, _choice: str) -> None:
-        c = self.render_ctl.choice
-        if c is not None:
-            self.render_ctl.set_model(dataclasses.replace(c, device=self.device()))  # a new Renderer on that device
-            self.render_ctl.preload()
-        self._update_model_label()
+        return self.rendering.device()
 
     def choose_default_model(self) -> None:
-        d = weights_dir()
-        if has_weights(d):
-            self.render_ctl.set_model(ModelChoice("pretrained", d, device=self.device()))
-            self.model_status.setText(f"Model: {d}")
-        else:
-            self.render_ctl.set_model(None)
-            self.statusBar().showMessage(f"Model weights not found in {d}; renders need them (or the untrained tiny model for a smoke test).", 15000)
-        self._update_model_label()
+        self.rendering.choose_default_model()
 
-    def _untrained_toggled(self, on: bool) -> None:
-        if on:
-            self.render_ctl.set_model(ModelChoice("untrained", device=self.device()))
-        else:
-            self.choose_default_model()
-        self._update_model_label()
-        self.render_ctl.preload()
-
-    def _preloading(self, busy: bool) -> None:
-        self.statusBar().showMessage("Loading the model in the background…" if busy else "Model loaded.", 0 if busy else 4000)
-        if not busy:
-            self.render_panel.set_residual_available(self.render_ctl.residual_available())
-
-    def _update_model_label(self) -> None:
-        c = self.render_ctl.choice
-        text = c.label if c is not None else "Model: none (weights missing)"
-        tip = c.detail if c is not None else "No trained weights found; Render offers the untrained tiny model."
-        self.model_status.setText(text)
-        self.model_status.setMinimumWidth(self.model_status.fontMetrics().horizontalAdvance(text) + 28)
-        self.model_status.setToolTip(tip)
-        self.render_panel.model_label.setText(text)
-        self.render_panel.model_label.setToolTip(tip)
-        self.render_panel.model_label.setStyleSheet("color: #ffb347;" if c is None or c.kind == "untrained" else "")
-        self.device_status.setText(f"Device: {self.device()}")
-        self.render_panel.set_residual_available(self.render_ctl.residual_available())
-
-    # -- rendering ---------------------------------------------------------------
     def start_render(self) -> bool:
-        if self.doc.shot is None or self.render_ctl.running:
-            return False
-        if self.render_ctl.choice is None:
-            b = self.ask(
-                "Model weights missing",
-                weights_hint() + "\n\nRender with the untrained tiny model now?",
-                QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.Cancel,
-                QMessageBox.StandardButton.Cancel,
-            )
-            if b != QMessageBox.StandardButton.Yes:
-                return False
-            self.act_untrained.setChecked(True)
-        settings = self.render_ctl.settings(**self.render_panel.values())
-        self.render_settings = settings  # the chart marks this setting when the render says which tier runs
-        if self.follow_box.isChecked() and self.doc.view not in ("rendered", "side-by-side"):
-            self.doc.set_view("rendered")
-        self.first_keyframe_shown_s = self.first_frame_shown_s = None
-        ok = self.render_ctl.start(settings)
-        if ok:
-            self.charts.reset(1)
-            self.refresh_timeline()
-        return ok
-
-    def _running(self, running: bool) -> None:
-        self.render_panel.set_running(running)
-        self.act_render.setEnabled(not running)
-        self.act_cancel.setEnabled(running)
-        if running:
-            self._eta_timer.start(500)
-        else:
-            self._eta_timer.stop()
-            self.render_panel.set_residual_available(self.render_ctl.residual_available())  # the render may have built the model
-        self.render_panel.show_state(self.doc.render)
-        self.refresh_timeline()
+        return self.rendering.start_render()
 
     def mark_chart(self, tier: str) -> dict | None:
         """Ring the running render's setting on the speed/accuracy chart (docs/pareto.json), at the shot's size."""
-        settings, model = self.render_settings, getattr(self.render_ctl.renderer, "model", None)
-        if settings is None or self.doc.shot is None:
-            return None
-        if tier == "diffusion" and model is not None:
-            from x2video.sampling.renderer import select_steps  # the preset as the Renderer resolves it
+        return self.rendering.mark_chart(tier)
 
-            settings = select_steps(settings, model)
-        h, w = self.doc.shot.size
-        return self.charts.mark_setting(pareto_key(tier, settings), (w, h))
+    @property
+    def render_settings(self):
+        """The last render's RenderSettings (the speed/accuracy chart marks it)."""
+        return self.rendering.render_settings
 
-    def _shown_after_press(self) -> float | None:
-        """Paint the viewer now; seconds since Render was pressed."""
-        if self.render_ctl.pressed_at is None:
-            return None
-        self.viewer.viewport().repaint()
-        return time.perf_counter() - self.render_ctl.pressed_at
+    @render_settings.setter
+    def render_settings(self, settings) -> None:
+        self.rendering.render_settings = settings
 
-    def _render_event(self, ev) -> None:
-        st = self.doc.render
-        if isinstance(ev, PreviewReady):  # the formula's frames, until the render's own arrive; the viewer stays put
-            if self.doc.frame in ev.frames:
-                self.refresh_view()
-                if self.first_frame_shown_s is None:
-                    self.first_frame_shown_s = self._shown_after_press()
-        elif isinstance(ev, RenderStarted):
-            self.charts.reset(0 if st.per_frame else max(ev.levels) if ev.levels else 1, ev.num_windows)
-            self.statusBar().showMessage(f"Rendering with the {ev.tier} tier" + (f": {ev.reason}" if ev.reason else ""), 15000)
-            self.mark_chart(ev.tier)
-            log.info("render tier %s (%s)", ev.tier, ev.reason)
-        elif isinstance(ev, FramesReady):
-            self.charts.add_window(ev.window, 0 if st.per_frame else ev.level, ev.seconds)
-            if self.follow_box.isChecked():
-                self.doc.set_frame(min(ev.frames))
-            if self.doc.frame in ev.frames:
-                self.refresh_view()
-            if self.first_keyframe_shown_s is None:
-                self.first_keyframe_shown_s = self._shown_after_press()
-                if self.first_frame_shown_s is None:
-                    self.first_frame_shown_s = self.first_keyframe_shown_s
-                if self.first_keyframe_shown_s is not None:
-                    log.info("first frame of the render on screen %.2f s after Render was pressed", self.first_keyframe_shown_s)
-        elif isinstance(ev, WindowStarted):
-            pass
-        self.render_panel.show_state(st)
-        self.refresh_timeline()
-        if st.status in ("finished", "cancelled", "failed"):
-            self.refresh_view()
-            self.statusBar().showMessage(self.render_panel.status_label.text().replace("\n", "  "), 10000)
+    @property
+    def first_frame_shown_s(self) -> float | None:
+        """Seconds from pressing Render to the first frame painted in the viewer (last render)."""
+        return self.rendering.first_frame_shown_s
 
-    def _render_error(self, kind: str, message: str) -> None:
-        if kind == "weights":
-            self.act_untrained.setChecked(False)
-            b = self.ask("Model weights missing", message + "\n\nUse the untrained tiny model instead?",
-                         QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.No, QMessageBox.StandardButton.No)
-            if b == QMessageBox.StandardButton.Yes:
-                self.act_untrained.setChecked(True)
-        elif kind == "oom":
-            self.show_error("Out of memory", "The render ran out of memory:\n" + message +
-                            "\n\nYour project is intact. Try a smaller window N, a shorter frame range, the fast preset, "
-                            "or close other programs, then render again.")
-        else:
-            self.show_error("Render failed", message + "\n\nYour project is intact; frames that finished are kept.")
+    @property
+    def first_keyframe_shown_s(self) -> float | None:
+        """Seconds from pressing Render to the render's own first frame painted in the viewer (last render)."""
+        return self.rendering.first_keyframe_shown_s
 
     # -- the controllers' host (x2video_app.host.Host) and the title ------------------
     def status(self, text: str, timeout_ms: int = 0) -> None:
@@ -418,12 +279,7 @@ class MainWindow(QMainWindow):
         self.timeline.set_num_frames(n, fps)
         self.charts.reset(1)
         self.refresh_all()
-        self._prepare_render()
-
-    def _prepare_render(self) -> None:
-        """Encode the shot's conditioning in the background for a render with the panel's settings (issue 31)."""
-        if self.doc.shot is not None and not self.render_ctl.running:
-            self.render_ctl.prepare(self.render_ctl.settings(**self.render_panel.values()))
+        self.rendering.prepare()
 
     def _view_changed(self, view: str) -> None:
         self.view_box.blockSignals(True)
