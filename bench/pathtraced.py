@@ -36,6 +36,7 @@ from x2video.io import load_shot
 from x2video.io.atomic import write_json_atomic
 from x2video.io.image import read_image
 from x2video.io.paths import portable_path
+from x2video.sampling import tiers
 from x2video.sampling.events import RenderSettings
 from x2video.sampling.renderer import Renderer
 
@@ -76,7 +77,8 @@ def render_tier(renderer: Renderer, shot, tier: str, condition: str, **overrides
     if condition == "drop_irradiance":
         edits = Edits()
         edits.dropped = {"irradiance"}
-    settings = RenderSettings(quality=tier if tier != "diffusion" else "diffusion", preset="fast" if tier == "diffusion" else None, **overrides)
+    windowed = not tiers.get(tier).per_frame  # a tier with sampler steps takes the fast preset
+    settings = RenderSettings(quality=tier, preset="fast" if windowed else None, **overrides)
     return render_timed(renderer, shot, settings, edits)
 
 
@@ -171,10 +173,10 @@ def main(argv: list[str] | None = None) -> int:
     shots = shot_dirs(root)
     if args.max_shots:
         shots = shots[: args.max_shots]
-    tiers = [t for t in args.tiers.split(",") if t]
+    names = [t for t in args.tiers.split(",") if t]
     conditions = [c for c in args.conditions.split(",") if c]
-    runs = [(f"{tier}|{cond}", tier, cond, {}) for cond in conditions for tier in tiers if tier == "diffusion" or cond == "all"]
-    if "residual" in tiers and "all" in conditions:  # tier 1 with its guess where the channels hold no light (off by default)
+    runs = [(f"{t}|{cond}", t, cond, {}) for cond in conditions for t in names if tiers.get(t).generative or cond == "all"]
+    if "residual" in names and "all" in conditions:  # tier 1 with its guess where the channels hold no light (off by default)
         runs.append(("residual_guess|all", "residual", "all", {"guess_unseen": True}))
     summary, per_shot = evaluate(renderer, shots, runs)
     out = {"format": "x2video-pathtraced", "command": command("pathtraced", argv), "data": portable_path(args.data), "split": args.split,

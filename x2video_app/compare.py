@@ -100,11 +100,13 @@ class Compare(QObject):
         if name in MADE:
             return self._made_frame(MADE[name], name)
         if name == "diffusion":
+            from x2video.sampling.tiers import generative  # the tier that makes the generated version
+
             live = doc.live
-            if live is not None and live.t == t and live.frame.tier == "diffusion":
+            if live is not None and live.t == t and generative(live.frame.tier):
                 return tonemap(live.image), "diffusion (live, this frame's window)"
             img = doc.render.frames.get(t)
-            if doc.render.tier == "diffusion" and img is not None:
+            if generative(doc.render.tier) and img is not None:
                 return tonemap(img.astype(np.float32)), "diffusion (the last render)"
             return None, "diffusion: render with it first (a local prompt, a reference, or quality 'diffusion')"
         if name == "rendered":
