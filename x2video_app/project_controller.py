@@ -6,6 +6,7 @@ the undo side is `x2video_app.recovery`."""
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 
 from PySide6.QtCore import QObject, Qt, QTimer, Signal
@@ -40,6 +41,22 @@ from x2video_app.render_controller import RenderController
 log = logging.getLogger(__name__)
 
 
+#: how often the editor autosaves when it is not told (milliseconds)
+AUTOSAVE_MS = 180_000
+
+
+def default_autosave_ms() -> int:
+    """The autosave interval of an editor that is not given one: `AUTOSAVE_MS`, or the environment's
+    X2VIDEO_AUTOSAVE_MS (milliseconds; 0: no timed autosave) where that is set. The SIGKILL test of the editor
+    (tests/faults/test_app_sigkill.py) shortens it, so the editor's own timer autosaves while the test kills it."""
+    env = os.environ.get("X2VIDEO_AUTOSAVE_MS", "").strip()
+    try:
+        return max(0, int(env)) if env else AUTOSAVE_MS
+    except ValueError:
+        log.warning("X2VIDEO_AUTOSAVE_MS=%r is not a number of milliseconds: autosaving every %d ms", env, AUTOSAVE_MS)
+        return AUTOSAVE_MS
+
+
 def lock_target(project: Path | None, shot_path: str | None) -> Path:
     """What the lock guards: the project file, or an unsaved shot's autosave."""
     return project if project is not None else autosave_path(None, shot_path)
@@ -51,8 +68,9 @@ class ProjectController(QObject):
     sigTitle = Signal(str, bool)
 
     def __init__(self, doc: Document, undo: QUndoStack, render_ctl: RenderController, host: Host,
-                 parent: QWidget | None = None, autosave_ms: int = 180_000) -> None:
-        """`parent`: the widget the file and progress dialogs sit on."""
+                 parent: QWidget | None = None, autosave_ms: int | None = None) -> None:
+        """`parent`: the widget the file and progress dialogs sit on; `autosave_ms`: the autosave interval (0: only
+        when called; None: `default_autosave_ms()`)."""
         super().__init__(parent)
         self.doc = doc
         self.undo = undo
@@ -61,6 +79,8 @@ class ProjectController(QObject):
         self._dialog_parent = parent
         self.timer = QTimer(self)
         self.timer.timeout.connect(self.autosave)
+        if autosave_ms is None:
+            autosave_ms = default_autosave_ms()
         if autosave_ms > 0:
             self.timer.start(autosave_ms)
         self.export_worker = None
