@@ -233,7 +233,8 @@ def cmd_residual(args: argparse.Namespace) -> int:
     out = Path(args.out)
 
     def show(v: dict) -> None:
-        print(f"step {v['step']:6d}  loss {v['loss']:.4f}  val PSNR {v['psnr']:.2f} dB (formula {v['psnr_formula']:.2f}, formula where unseen {v['psnr_kept']:.2f})  {v['seconds']:.0f} s", flush=True)
+        print(f"step {v['step']:6d}  loss {v['loss']:.4f}  val PSNR {v['psnr']:.2f} dB (formula {v['psnr_formula']:.2f},"
+              f" formula where unseen {v['psnr_kept']:.2f})  {v['seconds']:.0f} s", flush=True)
 
     summary = train(Path(args.data), out, cfg, threads=args.threads, progress=show)
     print(f"{summary['steps']} steps in {summary['seconds']:.0f} s on {summary['train_frames']} frames; best val PSNR {summary['best_val_psnr']:.2f} dB;"
