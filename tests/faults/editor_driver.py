@@ -1,14 +1,15 @@
 """The real editor, driven by a script inside its own process, for the SIGKILL test of the editor
 (tests/faults/test_app_sigkill.py), which kills it at random points.
 
-    python editor_driver.py --serve      one editor per line "WORK SEED" read from stdin
+    python editor_driver.py WORK SEED    one editor on WORK/p.x2v.json, its script seeded by SEED
 
-The server imports the editor once (torch, PySide6, x2video_app: several seconds of CPU) and then forks one editor per
-line: each is a process of its own, with its own pid, QApplication and main window, killed for real. No QApplication
-exists in the server, so each child builds its Qt from nothing, as a fresh start does. It answers `PID` when the child
-runs and `exit STATUS` when it is gone.
+The test starts one such process per kill point (`subprocess.Popen`: fork and exec at once, a fresh interpreter that
+imports torch, PySide6 and x2video_app itself, several seconds of CPU each). It is never forked from a process that
+has already imported them: such a process runs threads (torch's and OpenMP's pools, Qt's, logging's locks) and a
+fork copies only the forking thread, so a lock another thread held at the fork stays held in the child forever (an
+earlier server that forked its editors hung so: an editor that never wrote a journal line).
 
-Each child starts the editor the way a person does: `x2video_app.main_window.launch([WORK/p.x2v.json])` (the window,
+Each editor starts the way a person does: `x2video_app.main_window.launch([WORK/p.x2v.json])` (the window,
 then on the event loop `offer_crashed()` and opening the project, whose autosave, when newer, is offered) with the
 editor's own autosave timer every X2VIDEO_AUTOSAVE_MS (set by the test). Every question the editor asks is answered
 Yes (recover the autosave, render with the untrained model); the model is a stand-in (`sampling_fake.FakeModel`,
@@ -36,6 +37,7 @@ from __future__ import annotations
 import os
 import random
 import sys
+import traceback
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -51,23 +53,6 @@ from x2video_app.main_window import launch  # noqa: E402
 
 ACTIONS = ["stroke", "stroke", "stroke", "mask", "prompt", "param", "undo", "undo", "redo", "save", "render"]
 TICK_MS = 15
-
-
-def serve() -> None:
-    """`--serve`: fork one editor per line `WORK SEED` on stdin; `PID` when it runs, `exit STATUS` when it is gone."""
-    for line in sys.stdin:
-        work, seed = line.split()
-        pid = os.fork()
-        if pid == 0:
-            try:
-                os.dup2(2, 1)  # the child's prints must not reach the server's answers
-                drive(Path(work), int(seed))
-            finally:
-                os._exit(0)
-        print(pid, flush=True)
-        _, status = os.waitpid(pid, 0)
-        print(f"exit {status}", flush=True)
-    os._exit(0)  # no interpreter shutdown (torch's and Qt's exit handlers): the test waits for this exit
 
 
 def drive(work: Path, seed: int) -> None:
@@ -163,5 +148,19 @@ def drive(work: Path, seed: int) -> None:
     app.exec()
 
 
+def main(argv: list[str]) -> None:
+    work, seed = argv
+    status = 0
+    try:
+        drive(Path(work), int(seed))
+    except BaseException:
+        traceback.print_exc()  # into the test's editors.log
+        status = 1
+    finally:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)  # no interpreter shutdown (torch's and Qt's exit handlers); the test kills it before this
+
+
 if __name__ == "__main__":
-    serve()
+    main(sys.argv[1:])

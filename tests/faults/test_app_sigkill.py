@@ -12,6 +12,15 @@ window in this process starts as the next start does and must
 
 and the next editor's own start must open what this window found. Nothing is skipped: a kill point whose phase was
 not reached in time fails the test.
+
+Each editor is a fresh process (`subprocess.Popen` of editor_driver.py: fork and exec at once), never a fork of a
+process that has imported torch or Qt: their threads' locks (OpenMP's and torch's pools, Qt's, logging's) can be held
+at the fork and stay held in the child forever, which hung an earlier version of this test. Every wait has a limit:
+an editor that writes no journal line for STALL_S (its start included), or does not reach its kill point within
+REACH_S, is killed and fails the test with the tails of the journal and of the editors' log; a killed editor not gone
+within REAP_S fails it too. STALL_S and REACH_S count the editor's own time, not the time a busy machine kept it
+waiting for a CPU (`_wait_for`); the wall clock's bound is pytest's --timeout (pyproject: 600 s), whose failure kills
+the editor too (the `finally` of each kill point).
 """
 from __future__ import annotations
 
@@ -47,6 +56,9 @@ MARKERS = {"painting": "begin stroke", "rendering": "rendering", "saving": "savi
 SEED = 44
 AUTOSAVE_MS = 60
 YES = QMessageBox.StandardButton.Yes
+#: limits (s) of the waits on an editor: no new journal line (its import and start included: ~6 s of CPU), the kill
+#: point not reached (both in the editor's own time: `_wait_for`), the killed process not gone (wall clock)
+STALL_S, REACH_S, REAP_S = 60.0, 180.0, 30.0
 
 
 def _env(work: Path) -> dict[str, str]:
@@ -57,25 +69,63 @@ def _env(work: Path) -> dict[str, str]:
             "MKL_NUM_THREADS": "1", "X2VIDEO_TORCH_THREADS": "1"}
 
 
-def _wait_for(journal: Path, start: int, marker: str, after: int, server: subprocess.Popen, pid: int,
-              timeout: float = 240.0) -> bool:
-    """Wait until the run's journal (from byte `start`) has `marker` after its `after`-th action began."""
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < timeout:
+def _tails(work: Path, journal: Path, start: int = 0) -> str:
+    """The ends of this kill point's journal and of the editors' log, for a failure's message."""
+    run = journal.read_text()[start:] if journal.exists() else "(no journal)"
+    log = work / "editors.log"
+    return f"\n--- journal (this editor) ---\n{run[-3000:]}\n--- editors.log ---\n{log.read_text()[-3000:] if log.exists() else ''}"
+
+
+def _run_queue_s(pid: int) -> float | None:
+    """Seconds the threads of process `pid` have waited, runnable, for a CPU (/proc/PID/task/*/schedstat's 2nd
+    field): time a busy machine withheld from them, which is not the editor's (None where there is no schedstat)."""
+    total = 0
+    try:
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            try:
+                total += int((task / "schedstat").read_text().split()[1])
+            except (OSError, IndexError, ValueError):
+                pass  # the thread has ended
+    except OSError:
+        return None
+    return total / 1e9
+
+
+def _wait_for(journal: Path, start: int, marker: str, after: int, proc: subprocess.Popen, work: Path) -> bool:
+    """Wait until the run's journal (from byte `start`) has `marker` after its `after`-th action began: False when
+    REACH_S passes first; AssertionError when the editor ended by itself or wrote no line for STALL_S.
+
+    Both limits count the editor's own time: the wall clock less what its threads waited on the run queue for a CPU
+    (a machine busy with other work, or this test run at nice 19 beside a training job, is not a hang: a deadlocked
+    editor sleeps on its lock, off the run queue, and its clock runs at the wall's pace)."""
+    now = time.monotonic()
+    rq = _run_queue_s(proc.pid)
+    mark, own, idle, seen = now, 0.0, 0.0, -1
+    while True:
         lines = journal.read_text()[start:].splitlines() if journal.exists() else []
         begun = 0
         for line in lines:
             if begun >= after and line.startswith(marker):
                 return True
             begun += line.startswith("begin ")
-        if server.poll() is not None:
-            raise AssertionError(f"the editor server died (exit {server.returncode})")
-        try:
-            os.kill(pid, 0)  # the editor ended by itself (its server reaps it at once)?
-        except ProcessLookupError:
-            raise AssertionError(f"editor {pid} ended before it was killed: {lines[-8:]}") from None
+        if proc.poll() is not None:
+            raise AssertionError(f"editor {proc.pid} ended (exit {proc.returncode}) before it was killed"
+                                 + _tails(work, journal, start))
+        if len(lines) != seen:
+            seen, idle = len(lines), 0.0
+        now = time.monotonic()
+        if now - mark >= 0.25:  # the editor's own time since the last look
+            rq_now = _run_queue_s(proc.pid)
+            waited = rq_now - rq if rq is not None and rq_now is not None and rq_now >= rq else 0.0
+            step = max(0.0, now - mark - waited)
+            mark, rq, own, idle = now, rq_now, own + step, idle + step
+            if idle > STALL_S:
+                raise AssertionError(f"editor {proc.pid} wrote no journal line for {STALL_S:.0f} s of its own time "
+                                     f"({'after ' + repr(lines[-1]) if lines else 'none since its start'}): hung"
+                                     + _tails(work, journal, start))
+            if own > REACH_S:
+                return False
         time.sleep(0.003)
-    return False
 
 
 def _autosave_key(parts: list[str]) -> tuple:
@@ -170,48 +220,46 @@ def test_the_real_editor_sigkilled_at_random_points_gives_back_its_last_autosave
     outcome: Counter = Counter()
     t0, cpu0 = time.monotonic(), os.times()
     with open(work / "editors.log", "w") as log:
-        server = subprocess.Popen([sys.executable, str(DRIVER), "--serve"], env=_env(work), stdin=subprocess.PIPE,
-                                  stdout=subprocess.PIPE, stderr=log, text=True, cwd=ROOT)
         try:
             for k, phase in enumerate(phases):
-                base = _kill_and_restart(k, phase, base, rng, work, journal, server, window, killed, outcome)
+                base = _kill_and_restart(k, phase, base, rng, work, journal, log, window, killed, outcome)
         except BaseException:
-            print("editors' log:", (work / "editors.log").read_text()[-3000:], "journal:", journal.read_text()[-3000:], sep="\n")
+            print(_tails(work, journal))
             raise
-        finally:
-            server.stdin.close()
-            try:
-                server.wait(60)
-            except subprocess.TimeoutExpired:
-                server.kill()
-                server.wait()
-                raise
     cpu = os.times()
     print(f"kill points: {dict(killed)}; restarts: {dict(outcome)}; {time.monotonic() - t0:.1f} s wall, "
           f"{cpu.children_user + cpu.children_system - cpu0.children_user - cpu0.children_system:.1f} s CPU in the editors")
     assert sum(killed.values()) == len(MARKERS) >= 5
 
 
-def _kill_and_restart(k, phase, base, rng, work, journal, server, window, killed, outcome) -> tuple:
+def _kill_and_restart(k, phase, base, rng, work, journal, log, window, killed, outcome) -> tuple:
     """One kill point; `base`: what a start found on disk before it (`_on_disk`, the project file's digest)."""
     base, saved = base
     project, side = work / "p.x2v.json", work / "p.x2v.autosave.json"
     start = journal.stat().st_size if journal.exists() else 0
-    server.stdin.write(f"{work} {SEED * 100 + k}\n")
-    server.stdin.flush()
-    pid = int(server.stdout.readline())
+    log.write(f"=== kill point {k} ({phase}) ===\n")
+    log.flush()
+    # a fresh interpreter (fork and exec at once), never a fork of a threaded process; its own session, so that the
+    # kill reaches anything it started too
+    proc = subprocess.Popen([sys.executable, str(DRIVER), str(work), str(SEED * 100 + k)], env=_env(work),
+                            stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, cwd=ROOT,
+                            start_new_session=True)
+    pid = proc.pid
     try:
-        reached = _wait_for(journal, start, MARKERS[phase], rng.randint(3, 14), server, pid)
+        reached = _wait_for(journal, start, MARKERS[phase], rng.randint(3, 14), proc, work)
         time.sleep(rng.uniform(0.0, 0.25 if phase == "anywhere" else 0.01))
     finally:
         try:
-            os.kill(pid, signal.SIGKILL)
+            os.killpg(pid, signal.SIGKILL)
         except ProcessLookupError:
             pass  # ended already: `_wait_for` said so
-    status = int(server.stdout.readline().split()[1])
-    assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGKILL, status  # killed, not ended by itself
+        try:
+            proc.wait(REAP_S)
+        except subprocess.TimeoutExpired:
+            raise AssertionError(f"editor {pid} still there {REAP_S:.0f} s after its SIGKILL") from None
+    assert proc.returncode == -signal.SIGKILL, proc.returncode  # killed, not ended by itself
     run = journal.read_text()[start:].splitlines()
-    assert reached, f"kill point {k}: '{MARKERS[phase]}' not reached: {run[-8:]}"
+    assert reached, f"kill point {k}: '{MARKERS[phase]}' not reached in {REACH_S:.0f} s" + _tails(work, journal, start)
     killed[phase] += 1
     opened = [line for line in run if line.startswith(("opened ", "begin "))][0]
     assert run[0] == f"start {pid}" and opened.startswith("opened "), run[:3]
