@@ -23,6 +23,14 @@ def _wait(app, cond, timeout: float) -> None:
             raise TimeoutError("the editor did not reach the expected state in time")
 
 
+def _pump(app, seconds: float) -> None:
+    """Run the event loop for `seconds` (a mouse's pace between slider values)."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < seconds:
+        app.processEvents()
+        time.sleep(0.02)
+
+
 def _save(win, path: Path, max_kb: int = 290) -> None:
     """Grab the window; a 256-colour palette PNG (Pillow, which diffusers already pulls in) keeps it small."""
     from PySide6.QtCore import Qt
@@ -114,6 +122,21 @@ def main(argv: list[str] | None = None) -> int:
 
     _wait(app, lambda: win.render_ctl.preload_worker is None, args.timeout)
     print(f"model ready {time.perf_counter() - t_model:.1f} s after it was chosen (background, while editing)")
+    # the live preview mid-drag: the Exposure slider held down and moved, the frame on screen re-rendered by tier 1
+    doc.set_edit_global(True)
+    doc.set_view("rendered")
+    slider = win.edit_panel.exposure
+    slider.setSliderDown(True)
+    for v in (0.6, 0.8, 1.0, 1.2):
+        slider.setValue(v)
+        _pump(app, 0.15)
+    _wait(app, lambda: win.live.shown is not None, 30)
+    _wait(app, lambda: True, 0.3)
+    _save(win, args.out / "07_live_preview_drag.png")
+    slider.setSliderDown(False)
+    slider.setValue(0.5)
+    ed.set_param("exposure", 0.5, True)
+    doc.set_edit_global(False)
     shots: dict[str, bool] = {}
     top = {"level": None}
 
@@ -143,6 +166,17 @@ def main(argv: list[str] | None = None) -> int:
     win.charts.tabs.setCurrentIndex(0)
     _wait(app, lambda: True, 1)
     _save(win, args.out / "06_render_finished_side_by_side.png")
+    # Compare: a wipe between the Cycles ground truth and the render, PSNR in the status bar
+    from x2video_app.compare import SOURCES
+    from x2video_app.compare_views import MODES
+
+    doc.set_view("rendered")
+    win.compare.a.setCurrentIndex(SOURCES.index("ground truth"))
+    win.compare.b.setCurrentIndex(SOURCES.index("rendered"))
+    win.compare.mode.setCurrentIndex(MODES.index("wipe"))
+    _wait(app, lambda: True, 1.5)
+    _save(win, args.out / "08_compare_wipe.png")
+    win.compare.mode.setCurrentIndex(MODES.index("off"))
     # a prompt-only change re-renders from cached conditioning latents
     win.render_ctl.sigEvent.disconnect(on_event)
     ed.set_global_prompt("the same room at night, lamps on")
