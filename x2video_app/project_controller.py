@@ -165,6 +165,12 @@ class ProjectController(QObject):
         """Open the autosave's current state with its undo history."""
         self.doc.set_shot(shot, shot_path, saved.states[0], project_path=project_path)
         self.force_dirty = recovery.rebuild_undo(self.undo, self.doc, saved)
+        side = autosave_path(project_path, shot_path)
+        if side.is_file():  # the restored work is this editor's now: killed before its first autosave, the next start offers it
+            try:
+                note_session(side, str(Path(shot_path).resolve()), None if project_path is None else str(Path(project_path).resolve()))
+            except OSError as e:
+                log.warning("could not register the recovered session %s: %s", side, e)
 
     # -- opening ---------------------------------------------------------------
     def open_shot_dialog(self) -> None:

@@ -156,6 +156,12 @@ def test_a_project_open_in_another_editor(window, shot, tmp_path):
     assert w2.project.open_path(path) and w2.asked == []  # the holder is gone: a stale lock is taken over silently
 
 
+def registry_entries() -> list:
+    from x2video.edits.autosave import registry_dir
+
+    return sorted(registry_dir().glob("*.json"))
+
+
 def test_the_next_start_offers_the_work_of_a_killed_editor(window, shot, tmp_path):
     """An editor killed (SIGKILL) with unsaved work: the next start, whatever it was asked to open, offers it."""
     path = tmp_path / "p.x2v.json"
@@ -182,6 +188,12 @@ os.kill(os.getpid(), signal.SIGKILL)
     assert start.project.offer_crashed()
     assert start.asked[0][0] == "Recover autosaved work?" and "stopped without saving" in start.asked[0][1]
     assert start.doc.project_path == path and start.doc.edits.global_prompt == "unsaved when killed"
+    from x2video.edits.autosave import autosave_path as side_of
+    from x2video.edits.autosave import crashed_sessions
+
+    # the recovered work is registered to this editor at once: killed before its first autosave, it is offered again
+    entry = json.loads(next(p for p in registry_entries() if json.loads(p.read_text())["autosave"] == str(side_of(path, None).resolve())).read_text())
+    assert entry["pid"] == os.getpid() and not any(c.get("autosave") == entry["autosave"] for c in crashed_sessions())
     start.act_undo.trigger()
     assert start.doc.edits.global_prompt == "a small test room" and not start.isWindowModified()  # the saved project's
     assert not window().project.offer_crashed()  # asked once
