@@ -214,3 +214,100 @@ def test_render_panel_max_levels_reaches_the_settings(qtbot):
     assert changed and settings.max_levels == 2 and settings.scheme == "recursive"
     panel.scheme.setCurrentIndex(panel.scheme.findData("sequential"))
     assert not panel.levels.isEnabled() and panel.values()["max_levels"] is None
+
+
+def test_mask_overlay_reads_as_a_selection():
+    """Outside every mask the image is dimmed and desaturated, inside tinted, the edge outlined in the mask's colour
+    with a dark line outside it; no mask, no change."""
+    base = np.full((12, 12, 3), (40, 200, 120), np.uint8)
+    m = np.zeros((12, 12), np.float32)
+    m[3:9, 3:9] = 1
+    over = overlay_masks(base, [(m, (255, 99, 71))])
+    outside, inside = over[0, 0].astype(int), over[5, 5].astype(int)
+    assert outside.sum() < base[0, 0].astype(int).sum() * 0.6 and np.ptp(outside) < np.ptp(base[0, 0].astype(int))
+    assert inside[0] > 150 and abs(int(inside[1]) - 200) > 40  # tinted towards the mask's colour
+    assert tuple(over[3, 5]) == (255, 99, 71) and tuple(over[2, 5]) == (51, 19, 14)  # the outline, the dark line outside
+    assert np.array_equal(overlay_masks(base, [(np.zeros((12, 12)), (255, 0, 0))]), base)
+
+
+def test_mask_list_shows_each_masks_prompt_after_its_name(qtbot):
+    from PySide6.QtWidgets import QStyleOptionViewItem
+
+    from x2video_app.mask_panel import MaskPanel
+
+    panel = MaskPanel()
+    qtbot.addWidget(panel)
+    panel.set_masks([{"name": "mask 1", "colour": (255, 0, 0), "visible": True, "prompt": "a red sofa", "mask_out": False},
+                     {"name": "mask 2", "colour": (0, 0, 255), "visible": True, "prompt": "", "mask_out": True}], 0)
+
+    def shown(row: int) -> str:
+        opt = QStyleOptionViewItem()
+        panel.list.itemDelegate().initStyleOption(opt, panel.list.model().index(row, 0))
+        return opt.text
+
+    assert shown(0) == "mask 1  \u2014  \u201ca red sofa\u201d" and shown(1) == "mask 2  \u2014  A|M|R out"
+    assert panel.list.item(0).text() == "mask 1"  # renaming edits the name alone
+    renamed = []
+    panel.sigRename.connect(lambda i, name: renamed.append((i, name)))
+    panel.list.item(0).setText("sofa")
+    assert renamed == [(0, "sofa")]
+
+
+def _docked_render_panel(qtbot, height: int):
+    """A main window with the Render panel docked above another dock, as the editor lays them out."""
+    from PySide6.QtWidgets import QDockWidget, QMainWindow, QWidget
+
+    from x2video_app.render_panel import RenderPanel
+
+    win = QMainWindow()
+    qtbot.addWidget(win)
+    win.setCentralWidget(QWidget())
+    panel, below = RenderPanel(), QWidget()
+    below.setMinimumHeight(150)
+    for name, w in (("Render", panel), ("Charts", below)):
+        d = QDockWidget(name, win)
+        d.setWidget(w)
+        win.addDockWidget(Qt.DockWidgetArea.LeftDockWidgetArea, d)
+    win.resizeDocks([panel.parentWidget(), below.parentWidget()], [300, 600], Qt.Orientation.Vertical)  # the panel too short
+    win.resize(1000, height)
+    win.show()
+    qtbot.waitExposed(win)
+    qtbot.wait(50)
+    return win, panel, below
+
+
+def _long_render_state() -> RenderState:
+    st = RenderState()
+    st.begin(steps_per_window=2, windows_per_level={3: 1, 2: 5, 1: 8})
+    st.apply(RenderStarted(num_frames=33, num_windows=14, levels=[3, 2, 1], tier="diffusion",
+                           reason="albedo/material masked out (A|M|R) inside mask(s) mask 2; local prompt(s) on mask 1, "
+                                  "mask 2: generated there, tier 1 around it"))
+    st.apply(FramesReady(window=0, frames={0: np.zeros((2, 2, 3), np.float32)}, level=3, mode="key", seconds=1.0))
+    return st
+
+
+def test_render_panel_rows_keep_their_height_when_progress_bars_show(qtbot):
+    win, panel, below = _docked_render_panel(qtbot, 900)
+    rows = (panel.quality, panel.preset, panel.seed, panel.window, panel.scheme, panel.levels, panel.noise_shared, panel.device,
+            panel.render_button)
+    before = [w.height() for w in rows]
+    assert all(h >= w.sizeHint().height() for h, w in zip(before, rows))  # the dock grew to the rows on show
+    assert panel.scroll.verticalScrollBar().maximum() == 0
+    below_before = below.height()
+    panel.show_state(_long_render_state())
+    qtbot.wait(50)
+    assert [w.height() for w in rows] == before
+    bars = list(panel._bars.values())
+    assert len(bars) == 3 and all(b.height() >= b.sizeHint().height() for b in bars)
+    label = panel.status_label
+    assert "Tier: diffusion" in label.text() and label.height() >= label.heightForWidth(label.width())
+    assert panel.scroll.verticalScrollBar().maximum() == 0 and below.height() <= below_before  # room from the dock below
+
+
+def test_render_panel_scrolls_instead_of_squeezing_in_a_short_window(qtbot):
+    win, panel, below = _docked_render_panel(qtbot, 420)
+    panel.show_state(_long_render_state())
+    qtbot.wait(50)
+    for w in (panel.quality, panel.seed, panel.device, *panel._bars.values()):
+        assert w.height() >= w.sizeHint().height()
+    assert panel.scroll.verticalScrollBar().maximum() > 0 and below.height() >= below.minimumHeight()

@@ -15,11 +15,31 @@ from PySide6.QtWidgets import (
     QListWidget,
     QListWidgetItem,
     QPushButton,
+    QStyledItemDelegate,
     QToolButton,
     QVBoxLayout,
     QWidget,
 )
 from superqt import QLabeledSlider
+
+#: item data: what the mask list shows after a mask's name (its local prompt, whether A|M|R are masked out there)
+NOTE_ROLE = Qt.ItemDataRole.UserRole + 1
+
+
+def mask_note(prompt: str, mask_out: bool) -> str:
+    """What a mask does, after its name in the list: 'A|M|R out · "its local prompt"'."""
+    parts = (["A|M|R out"] if mask_out else []) + ([f"\u201c{prompt}\u201d"] if prompt else [])
+    return " \u00b7 ".join(parts)
+
+
+class MaskItemDelegate(QStyledItemDelegate):
+    """Draws a mask's note (NOTE_ROLE) after its name; renaming still edits the name alone."""
+
+    def initStyleOption(self, option, index) -> None:  # noqa: N802 (Qt)
+        super().initStyleOption(option, index)
+        note = index.data(NOTE_ROLE)
+        if note:
+            option.text = f"{option.text}  \u2014  {note}"
 
 
 def swatch(rgb: tuple[int, int, int], size: int = 14) -> QIcon:
@@ -48,6 +68,9 @@ class MaskPanel(QWidget):
         super().__init__(parent)
         self.list = QListWidget()
         self.list.setMinimumHeight(60)
+        self.list.setItemDelegate(MaskItemDelegate(self.list))
+        self.list.setTextElideMode(Qt.TextElideMode.ElideRight)  # a long prompt ends in '…' (the Prompt field has it whole)
+        self.list.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
         self.list.setToolTip("Masks: tick to show in the overlay, double-click to rename")
         self.add_button = QPushButton("Add mask")
         self.remove_button = QPushButton("Remove")
@@ -135,6 +158,7 @@ class MaskPanel(QWidget):
             it = QListWidgetItem(swatch(m["colour"]), m["name"])
             it.setFlags(it.flags() | Qt.ItemFlag.ItemIsUserCheckable | Qt.ItemFlag.ItemIsEditable)
             it.setCheckState(Qt.CheckState.Checked if m["visible"] else Qt.CheckState.Unchecked)
+            it.setData(NOTE_ROLE, mask_note(m.get("prompt") or "", bool(m.get("mask_out"))))
             if m.get("prompt"):
                 it.setToolTip(f"prompt: {m['prompt']}")
             self.list.addItem(it)

@@ -1,18 +1,25 @@
 """Render settings (quality tier, preset, seed, window N, scheme, seam pass, noise shared across frames, exposure, device),
-Render/Cancel, a progress bar per level and the ETA."""
+Render/Cancel, a progress bar per level and the ETA.
+
+The panel's rows sit in a scroll area and are never squeezed below their size: when the progress bars or a longer
+status appear, the panel asks its dock for the room (taken from the dock below it); what the window cannot give
+scrolls."""
 from __future__ import annotations
 
-from PySide6.QtCore import Qt, Signal
+from PySide6.QtCore import Qt, QTimer, Signal
 from PySide6.QtWidgets import (
     QCheckBox,
     QComboBox,
+    QDockWidget,
     QDoubleSpinBox,
     QFormLayout,
     QGroupBox,
     QHBoxLayout,
     QLabel,
+    QMainWindow,
     QProgressBar,
     QPushButton,
+    QScrollArea,
     QSpinBox,
     QVBoxLayout,
     QWidget,
@@ -33,6 +40,11 @@ QUALITY_ITEMS = (
                                "missing or masked, follows prompts and a reference."),
 )
 NO_RESIDUAL = "The loaded model has no tier-1 network (residual.safetensors beside its weights)."
+#: progress bars the panel keeps room for before a render starts (keyframes and two levels: the recursive scheme up to
+#: 65 frames), so the first render does not change its height
+RESERVED_BARS = 3
+#: lines of status text kept free (the progress line, the tier and why, the first keyframe)
+RESERVED_STATUS_LINES = 5
 
 
 class RenderPanel(QWidget):
@@ -141,15 +153,19 @@ class RenderPanel(QWidget):
         self.model_label = QLabel()
         self.status_label = QLabel("Ready")
         self.status_label.setWordWrap(True)
-        self.status_label.setMinimumHeight(3 * self.status_label.fontMetrics().lineSpacing() + 4)
+        self.status_label.setAlignment(Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignTop)
+        self.status_label.setMinimumHeight(RESERVED_STATUS_LINES * self.status_label.fontMetrics().lineSpacing() + 4)
         self.bars_box = QGroupBox("Progress per level")
         self.bars_layout = QVBoxLayout(self.bars_box)
         self.bars_layout.setContentsMargins(6, 4, 6, 4)
+        self.bars_layout.setAlignment(Qt.AlignmentFlag.AlignTop)
         self._bars: dict[int, QProgressBar] = {}
         self._empty = QLabel("No render yet")
         self.bars_layout.addWidget(self._empty)
+        self.bars_box.setMinimumHeight(self._bars_height(RESERVED_BARS))
 
-        lay = QVBoxLayout(self)
+        self.body = QWidget()
+        lay = QVBoxLayout(self.body)
         lay.setContentsMargins(4, 4, 4, 4)
         lay.addLayout(form)
         lay.addLayout(buttons)
@@ -157,7 +173,61 @@ class RenderPanel(QWidget):
         lay.addWidget(self.bars_box)
         lay.addWidget(self.status_label)
         lay.addStretch(1)
-        self.setMinimumHeight(self.sizeHint().height())
+        self.scroll = QScrollArea()
+        self.scroll.setWidget(self.body)
+        self.scroll.setWidgetResizable(True)
+        self.scroll.setFrameShape(QScrollArea.Shape.NoFrame)
+        self.scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        outer = QVBoxLayout(self)
+        outer.setContentsMargins(0, 0, 0, 0)
+        outer.addWidget(self.scroll)
+        self._room_timer = QTimer(self)
+        self._room_timer.setSingleShot(True)
+        self._room_timer.timeout.connect(self.claim_room)
+
+    def _bars_height(self, n: int) -> int:
+        """The progress box's height with `n` bars in it."""
+        m = self.bars_layout.contentsMargins()
+        bar = QProgressBar().sizeHint().height()
+        title = self.bars_box.fontMetrics().lineSpacing() + 6
+        return title + m.top() + m.bottom() + n * bar + max(n - 1, 0) * self.bars_layout.spacing()
+
+    def sizeHint(self):  # noqa: N802 (Qt)
+        """The rows' own size (QScrollArea's hint is capped), so a dock starts tall enough for them."""
+        hint = self.body.sizeHint()
+        return hint.expandedTo(self.body.minimumSizeHint()).grownBy(self.scroll.contentsMargins())
+
+    def needed_height(self) -> int:
+        """The height the rows take at the panel's current width."""
+        w = self.scroll.viewport().width()
+        h = self.body.heightForWidth(w) if self.body.hasHeightForWidth() else -1
+        return max(h, self.body.minimumSizeHint().height())
+
+    def claim_room(self) -> None:
+        """Grow the panel's dock to the rows' height, taking the room from the docks above and below it (down to their
+        minimum); what the window cannot give scrolls. Nothing when the panel is not docked in a main window."""
+        dock = self.parentWidget()
+        win = dock.parentWidget() if isinstance(dock, QDockWidget) else None
+        if not isinstance(win, QMainWindow) or dock.isFloating() or not self.isVisible():
+            return
+        missing = self.needed_height() - self.scroll.viewport().height()
+        if missing <= 0:
+            return
+        area = win.dockWidgetArea(dock)
+        column = [d for d in win.findChildren(QDockWidget) if d is not dock and d.isVisible() and not d.isFloating()
+                  and win.dockWidgetArea(d) == area and d.x() == dock.x()]
+        heights = []
+        for d in column:  # resizeDocks with this dock alone moves the splitter part of the way: give each its height
+            give = max(0, min(missing, d.height() - d.minimumSizeHint().height()))
+            heights.append(d.height() - give)
+            missing -= give
+        grown = dock.height() + sum(d.height() for d in column) - sum(heights)
+        if column and grown > dock.height():
+            win.resizeDocks([dock, *column], [grown, *heights], Qt.Orientation.Vertical)
+
+    def showEvent(self, ev) -> None:  # noqa: N802 (Qt)
+        super().showEvent(ev)
+        self._room_timer.start(0)
 
     def values(self) -> dict:
         return {
@@ -217,7 +287,8 @@ class RenderPanel(QWidget):
             b.setTextVisible(True)
             self._bars[lv] = b
             self.bars_layout.addWidget(b)
-        self.setMinimumHeight(self.sizeHint().height())
+        self.bars_box.setMinimumHeight(self._bars_height(max(len(levels), RESERVED_BARS)))
+        self._room_timer.start(0)
 
     def show_state(self, st: RenderState) -> None:
         progress = st.level_progress()
@@ -254,4 +325,6 @@ class RenderPanel(QWidget):
         ttk = st.time_to_first_keyframe()
         if ttk is not None:
             msg += f"\nFirst {'network frame' if st.per_frame else 'keyframe'} after {ttk:.2f} s"
-        self.status_label.setText(msg)
+        if msg != self.status_label.text():
+            self.status_label.setText(msg)
+            self._room_timer.start(0)  # once the layout has the new text: room for it
