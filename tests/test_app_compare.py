@@ -45,9 +45,20 @@ def test_a_b_wipe_of_formula_and_tier_1_and_psnr_against_the_ground_truth(qtbot,
     cmp.mode.setCurrentIndex(cmp.mode.findData("difference"))
     assert np.array_equal(cmp.image_or(lambda: None), difference(fa, fb))
     # the shot's rgb channel is its ground truth: the status bar gives each version's PSNR on this frame
-    truth = tonemap(win.doc.shot.channel("rgb", win.doc.frame).astype(np.float32))
+    truth = tonemap(win.doc.shot.channel("rgb", win.doc.frame).astype(np.float32) * np.float32(win.doc.shot.info.irradiance_scale))
     want = 10 * np.log10(1 / np.mean((fb.astype(np.float64) - truth) ** 2))
     assert cmp.psnr["tier 1"] == pytest.approx(want, abs=1e-6) and "PSNR vs ground truth" in cmp.psnr_label.text()
     assert "tier 1" in cmp.psnr_label.text() and "rendered" in cmp.psnr  # the live preview's frame
     cmp.mode.setCurrentIndex(cmp.mode.findData("off"))
     assert not cmp.label.isVisible() and np.array_equal(win.doc.display_image(), cmp.image_or(win.doc.display_image))
+
+
+def test_the_ground_truth_is_compared_in_the_renders_exposure(qtbot, win):
+    """A loader that normalised the irradiance (irradiance_scale; about 16 on the Cycles demo) left the rgb in the file's
+    units; the renders are in the normalised exposure, so Compare scales the ground truth as training does. Unscaled,
+    the demo's Cycles frame showed dark beside every render and PSNR read ~5 dB."""
+    doc = win.doc
+    doc.shot.info.irradiance_scale = 4.0
+    got, label = win.compare.source("ground truth")
+    want = tonemap(doc.shot.channel("rgb", doc.frame).astype(np.float32) * 4.0)
+    assert label.startswith("ground truth") and np.allclose(got, want)

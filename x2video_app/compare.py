@@ -122,7 +122,9 @@ class Compare(QObject):
             if doc.shot is None or not doc.shot.has("rgb"):
                 return None, "ground truth: this shot has none (no rgb channel)"
             cycles = str(doc.shot.info.extra.get("renderer", "")).startswith("Cycles")  # the path-traced demo's, a Cycles data set's
-            return tonemap(doc.shot.channel("rgb", t).astype(np.float32)), "ground truth (Cycles)" if cycles else "ground truth"
+            # in the exposure the renders are in: the loader scaled the irradiance by irradiance_scale, not the rgb
+            truth = doc.shot.channel("rgb", t).astype(np.float32) * np.float32(doc.shot.info.irradiance_scale)
+            return tonemap(truth), "ground truth (Cycles)" if cycles else "ground truth"
         raise ValueError(f"unknown compare source {name!r}; one of {SOURCES}")
 
     def _made_frame(self, tier: str, name: str) -> tuple[np.ndarray | None, str]:
