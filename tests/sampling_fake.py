@@ -25,6 +25,7 @@ class FakeModel:
     latent_channels = 4
     num_train_timesteps = 1000
     residual_prior = False
+    prior = "shading"
     residual_net = None  # no tier-1 network: quality auto renders with the sampler
     residual_auto = True
     text_encoder = None

@@ -154,6 +154,8 @@ class _ResidualFake(FakeModel):
 
     residual_prior = True
 
+    prior = "shading"
+
     def sample_to_latents(self, x0: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
         return x0 + 0.5 * cond
 

@@ -34,6 +34,10 @@ class FrameConditioning:
     #: screen-space hints (`x2video.model.screen_space`) use them
     depth_source: Callable[[], np.ndarray] | None = field(default=None, repr=False, compare=False)
     fov_y_deg: float | None = None
+    #: tier 1's frame of these channels (H, W, 3), linear: what a model whose `ModelConfig.prior` is "tier1" samples its
+    #: residual over. Derived from the channels and the model's tier-1 net; `x2video.sampling.setup.Encoder` fills it
+    #: before encoding (None until then, and for every other model)
+    prior: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def depth(self) -> np.ndarray | None:
         return None if self.depth_source is None else self.depth_source()

@@ -141,6 +141,19 @@ def cmd_vae(a: argparse.Namespace) -> int:
     return 0
 
 
+def _prior_net(stage: CacheStageConfig):
+    """The tier-1 net (PyTorch) that makes a tier-1 prior cache, or None for the classical shading."""
+    if stage.prior != "tier1":
+        return None
+    from x2video.model.residual import load as load_residual
+    from x2video.weights import shipped_weights
+
+    folder = Path(stage.residual) if stage.residual else shipped_weights()
+    if folder is None or not (folder / "residual.safetensors").is_file():
+        raise FileNotFoundError(f"{folder}: no residual.safetensors there; --prior tier1 needs a tier-1 net (--residual FOLDER)")
+    return load_residual(folder).eval()
+
+
 def cmd_cache(a: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -164,7 +177,7 @@ def cmd_cache(a: argparse.Namespace) -> int:
         bar.refresh()
 
     try:
-        info = build_cache(ds, vae, cfg, a.out, size=stage.size, batch=stage.batch, progress=progress)
+        info = build_cache(ds, vae, cfg, a.out, size=stage.size, batch=stage.batch, progress=progress, prior_net=_prior_net(stage))
     finally:
         bar.close()
     secs = time.perf_counter() - t0

@@ -45,6 +45,9 @@ class RenderModel(Protocol):
     has_lcm: bool
     #: whether the sampler's output is a residual over the shading prior (see `sample_to_latents`, `detail`)
     residual_prior: bool
+    #: what the shading-prior slot holds (`ModelConfig.prior`): "shading", or "tier1" (`FrameConditioning.prior`, tier 1's
+    #: frame made with `residual_net`, which the conditioning set-up fills before `encode_frames`)
+    prior: str
     #: channels of `encode_frames`' output (C_cond)
     cond_channels: int
     #: the tier-1 network (`x2video.model.residual`) the residual tier runs, or None (that tier is then unavailable)

@@ -101,6 +101,10 @@ class HybridConfig:
     """LoRA output scale (`up(down(x)) * lora_alpha`)."""
 
 
+#: what the shading-prior slot can hold (`ModelConfig.prior`)
+PRIORS = ("shading", "tier1")
+
+
 @dataclass
 class ModelConfig:
     """Everything that rebuilds an X2Video model; saved as `config.json` next to the weights."""
@@ -120,6 +124,11 @@ class ModelConfig:
     """With the shading prior: the diffusion runs on the residual x0 - z_shading (the RGB latent minus
     the shading prior's latent, zero where the prior is absent), and the decoded frame gets back the
     shading's fine detail the VAE loses. A model that learned nothing renders the classical shading."""
+    prior: str = "shading"
+    """What the shading-prior slot holds, and so what a residual model samples its residual over:
+    "shading", the classical shading of the channels (`x2video.model.shading`); "tier1", tier 1's frame of
+    the same channels (`FrameConditioning.prior`, made by the tier-1 net beside the weights), so a zero
+    residual renders exactly what tier 1 renders and training only has to teach what must be generated."""
     video: bool = True
     """True: the video UNet (28/32 inputs, Hybrid Self-Attention). False: the per-frame image UNet (23 inputs)."""
     latent_scales: dict[str, float] = field(default_factory=lambda: {k: 1.0 for k in LATENT_SCALE_KEYS})
@@ -131,6 +140,8 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if self.prediction not in ("v", "sample"):
             raise ValueError(f"ModelConfig.prediction must be 'v' or 'sample', got {self.prediction!r}")
+        if self.prior not in PRIORS:
+            raise ValueError(f"ModelConfig.prior must be one of {PRIORS}, got {self.prior!r}")
         missing = [k for k in LATENT_SCALE_KEYS if k not in self.latent_scales]
         if missing:
             raise ValueError(f"ModelConfig.latent_scales lacks {missing}")

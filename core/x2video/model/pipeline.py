@@ -169,6 +169,9 @@ class X2VideoModel:
             model.residual_net = engine(load_residual(directory, model.device), model.device)
             #: whether quality 'auto' may use it: residual.json's "auto", set when the net beat the formula on the outside check
             model.residual_auto = bool(json.loads((directory / "residual.json").read_text()).get("auto", False))
+        elif cfg.prior == "tier1":
+            raise FileNotFoundError(f"{directory / 'residual.safetensors'} is missing: this model samples its residual over tier 1's "
+                                    f"frame (config prior 'tier1'), so it needs the tier-1 net it was trained with beside its weights")
         return model
 
     def save_pretrained(self, directory: str | os.PathLike, *, dtype: torch.dtype = torch.float32) -> Path:
@@ -240,6 +243,12 @@ class X2VideoModel:
             h = hashlib.sha256(self.config.to_json().encode())
             h.update(str(self.encoder_dtype).encode())  # a bf16 encoder gives other latents
             parts = [("", self.vae)] + ([("channel_encoder.", self.channel_encoder)] if self.channel_encoder is not None else [])
+            if self.config.prior == "tier1":  # the prior slot holds the tier-1 net's frame: its weights shape the latents
+                from x2video.model.residual import torch_module
+
+                if self.residual_net is None:
+                    raise ValueError("this model samples its residual over tier 1's frame (config prior 'tier1') and has no tier-1 net")
+                parts.append(("residual.", torch_module(self.residual_net)))
             for prefix, module in parts:  # the distilled channel encoder gives other latents than the VAE
                 for k, v in sorted(module.state_dict().items()):
                     h.update((prefix + k).encode())
@@ -284,10 +293,29 @@ class X2VideoModel:
         if self.config.shading_prior:
             idx = [i for i, fr in enumerate(frames) if shading_available(fr.channels)]
             if idx:
-                imgs = [to_vae_range("shading", classical_shading(frames[i].channels, frames[i].amr_mask)) for i in idx]
+                imgs = [to_vae_range("shading", self.prior_image(frames[i])) for i in idx]
                 z = self._encode_channels(imgs) * scales["rgb"]  # (n, 4, h, w)
                 out[idx, _SHADING_SLOT : _SHADING_SLOT + 4] = z * (1 - masks_lat[idx])  # zero where A|M|R masked out
         return out
+
+    def prior_image(self, frame: FrameConditioning) -> np.ndarray:
+        """(H, W, 3) linear image the shading-prior slot encodes for `frame` (`ModelConfig.prior`): its classical
+        shading, or tier 1's frame (`frame.prior`), zero inside the A|M|R mask either way."""
+        if self.config.prior == "shading":
+            return classical_shading(frame.channels, frame.amr_mask)
+        if frame.prior is None:
+            raise ValueError(f"frame {frame.frame_index}: this model samples its residual over tier 1's frame (config prior "
+                             f"'tier1'), and the frame carries none; render through x2video.Renderer, which makes it")
+        H, W = frame.size
+        if np.shape(frame.prior) != (H, W, 3):
+            raise ValueError(f"frame {frame.frame_index}: tier 1's frame is {np.shape(frame.prior)}, expected {(H, W, 3)}")
+        keep = (np.asarray(frame.amr_mask, np.float32) <= 0.5)[..., None]
+        return (np.asarray(frame.prior, np.float32) * keep).astype(np.float32)
+
+    @property
+    def prior(self) -> str:
+        """What the shading-prior slot holds (`ModelConfig.prior`): "shading" or "tier1"."""
+        return self.config.prior
 
     @torch.no_grad()
     def encode_image(self, rgb_linear: np.ndarray) -> torch.Tensor:
@@ -357,7 +385,7 @@ class X2VideoModel:
             smooth = self.decode(prior_latents(cond[idx]))  # (n, H, W, 3) what the VAE keeps of the shading
             for j, i in enumerate(idx):
                 keep = (np.asarray(frames[i].amr_mask, np.float32) <= 0.5)[..., None]
-                out[i] = (classical_shading(frames[i].channels, frames[i].amr_mask) - smooth[j]) * keep
+                out[i] = (self.prior_image(frames[i]) - smooth[j]) * keep
         return out
 
     @torch.no_grad()

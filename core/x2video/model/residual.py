@@ -398,6 +398,11 @@ class OnnxResidual:
         self.session = self._session(self._export(self._net, (torch.zeros(1, net.cfg.in_channels, size, size),), ["features"], "delta"))
         self._tile_session = self._bottom_session = None  # made on the first tiled frame (`apply_tiled`)
 
+    @property
+    def module(self) -> ResidualNet:
+        """The PyTorch net this session was exported from."""
+        return self._net
+
     def _session(self, model: bytes):
         from x2video.model.engine import ort_session
 
@@ -459,6 +464,15 @@ class _Bottom(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return self.net.bottom(x)
+
+
+def torch_module(net) -> ResidualNet:
+    """The PyTorch net behind `net` (a `ResidualNet`, or what `engine` made of one)."""
+    if isinstance(net, ResidualNet):
+        return net
+    if isinstance(net, OnnxResidual):
+        return net.module
+    raise TypeError(f"not a tier-1 net: {type(net).__name__}")
 
 
 def engine(net: ResidualNet, device: torch.device | str = "cpu", prefer: str = "auto"):

@@ -27,6 +27,7 @@ from x2video.conditioning import FrameConditioning, camera_view
 from x2video.sampling import working
 from x2video.sampling.cache import ConditioningCache
 from x2video.sampling.settings import RenderSettings
+from x2video.sampling.tier_residual import residual_frames
 from x2video.sampling.timing import NoTimes, StageTimes
 
 if TYPE_CHECKING:
@@ -96,6 +97,7 @@ def pad_conditioning(cond: FrameConditioning, ph: int, pw: int) -> FrameConditio
         channels={k: None if v is None else pad_image(np.asarray(v), ph, pw) for k, v in cond.channels.items()},
         amr_mask=pad_image(np.asarray(cond.amr_mask), ph, pw),
         local_masks=np.stack([pad_image(m, ph, pw) for m in masks]) if masks.shape[0] else np.zeros((0, masks.shape[1] + ph, masks.shape[2] + pw), np.float32),
+        prior=None,  # remade from the padded channels when needed
     )
 
 
@@ -210,10 +212,25 @@ class Encoder:
             found = [made[keys[i]] if v is None else v for i, v in enumerate(found)]
         return torch.stack(found)
 
+    def with_priors(self, conds: list[FrameConditioning]) -> list[FrameConditioning]:
+        """`conds`, each carrying tier 1's frame (`FrameConditioning.prior`) when the model samples its residual over it
+        (`RenderModel.prior` "tier1"): `residual_frames` of the frames that lack one, with the model's own tier-1 net, as
+        tier 1 renders them by default (the unseen-light rule included), so a zero residual renders exactly tier 1's frame.
+        Filled in place: it is derived from the channels, like a cache."""
+        if self.model.prior != "tier1":
+            return conds
+        todo = [c for c in conds if c.prior is None]
+        if todo:
+            if self.model.residual_net is None:
+                raise ValueError("this model samples its residual over tier 1's frame (prior 'tier1') and has no tier-1 net")
+            for c, f in zip(todo, residual_frames(self.model.residual_net, todo, self.model.device)):
+                c.prior = f
+        return conds
+
     def encode(self, conds: list[FrameConditioning], keys: list[str]) -> torch.Tensor:
         """(n, C_cond, h, w) conditioning latents, encoding only frames the cache lacks (one batch)."""
         with self.clock.stage("encode"):
-            return self._cached(keys, lambda idx: self.model.encode_frames([conds[i] for i in idx]))
+            return self._cached(keys, lambda idx: self.model.encode_frames(self.with_priors([conds[i] for i in idx])))
 
     def detail(self, conds: list[FrameConditioning], keys: list[str], cond: torch.Tensor) -> np.ndarray | None:
         """(G, H, W, 3) `model.detail` of the generated frames, cached beside their conditioning latents in half
@@ -223,7 +240,7 @@ class Encoder:
             return None
 
         def compute(idx: list[int]) -> torch.Tensor:
-            d = self.model.detail([conds[i] for i in idx], cond[idx])
+            d = self.model.detail(self.with_priors([conds[i] for i in idx]), cond[idx])
             assert d is not None  # residual models always have a detail
             return torch.from_numpy(d).half()
 

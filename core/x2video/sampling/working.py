@@ -86,6 +86,7 @@ def downsample_conditioning(cond: FrameConditioning, size: tuple[int, int]) -> F
         amr_mask=resize_area(cond.amr_mask, size),
         local_masks=np.stack([resize_area(m, size) for m in masks]) if masks.shape[0] else np.zeros((0, *size), np.float32),
         depth_source=None if cond.depth_source is None else functools.partial(_depth_at, cond.depth_source, size),
+        prior=None,  # tier 1's frame of the full-size channels; remade at this size when needed
     )
 
 

@@ -23,7 +23,7 @@ import torch
 from x2video.channels import INTRINSIC, VAE_ENCODED
 from x2video.model.config import LATENT_SCALE_KEYS
 from x2video.model.vae import area_downsample
-from x2video.train.cache import SHADING_KEYS, load_split, load_text, read_info, shading_key
+from x2video.train.cache import PRIOR_KEYS, load_split, load_text, prior_key, read_info
 from x2video.train.config import AugmentConfig, WindowConfig
 from x2video.train.loop import process_index
 
@@ -64,8 +64,10 @@ class LatentData:
         t = load_split(cache_dir, split)
         self.shading_prior = shading_prior
         self.lat = {k: (t[k].float() * latent_scales[k]).half() for k in LATENT_SCALE_KEYS}
+        #: what the prior latents hold (`ModelConfig.prior`): "shading" or "tier1", as the cache was built
+        self.prior = self.info.prior
         if shading_prior:
-            self.lat.update({k: (t[k].float() * latent_scales["rgb"]).half() for k in SHADING_KEYS})
+            self.lat.update({k: (t[k].float() * latent_scales["rgb"]).half() for k in PRIOR_KEYS[self.prior]})
         self.irradiance = t["irradiance"]  # (F, 3, h, w) float16
         self.ids = t["ids"]  # (F, H, W) int16
         self.row_room = t["room"].long()
@@ -97,8 +99,8 @@ class LatentData:
         parts.append(self.irradiance[rows].float() if keep["irradiance"] else torch.zeros(n, 3, h, w))
         parts.append(m)
         if self.shading_prior:
-            if keep["albedo"] and keep["irradiance"]:
-                key = shading_key(keep["normal"] and keep["roughness"], keep["metallic"])
+            key = prior_key(self.prior, keep)
+            if key is not None:
                 parts.append(self.lat[key][rows].float() * (1 - m))
             else:
                 parts.append(torch.zeros(n, 4, h, w))

@@ -48,12 +48,25 @@ log = logging.getLogger(__name__)
 VAE_KEYS = LATENT_SCALE_KEYS
 #: shading prior variants: "shading_<S><M>", S = specular term present, M = metallic present
 SHADING_KEYS = ("shading_11", "shading_10", "shading_01", "shading_00")
+#: tier-1 prior variants (`ModelConfig.prior` "tier1"): "tier1_<N><R><M>", tier 1's frame with normal, roughness and
+#: metallic present (1) or dropped (0); albedo and irradiance are always present (without them there is no prior)
+TIER1_KEYS = tuple(f"tier1_{n}{r}{m}" for n in (1, 0) for r in (1, 0) for m in (1, 0))
+PRIOR_KEYS = {"shading": SHADING_KEYS, "tier1": TIER1_KEYS}
 READ = (*INTRINSIC, "rgb", "ids")
 FORMAT = "x2video-latent-cache"
 
 
 def shading_key(specular: bool, metallic: bool) -> str:
     return f"shading_{int(specular)}{int(metallic)}"
+
+
+def prior_key(prior: str, keep: dict[str, bool]) -> str | None:
+    """The cache key of the prior a sample with these kept channels sees, or None (albedo or irradiance dropped: no prior)."""
+    if not (keep["albedo"] and keep["irradiance"]):
+        return None
+    if prior == "tier1":
+        return f"tier1_{int(keep['normal'])}{int(keep['roughness'])}{int(keep['metallic'])}"
+    return shading_key(keep["normal"] and keep["roughness"], keep["metallic"])
 
 
 @dataclass
@@ -67,6 +80,11 @@ class CacheInfo:
     rooms: list[dict]
     prompts: list[str]
     format: str = FORMAT
+    prior: str = "shading"
+    """What the prior latents hold (`ModelConfig.prior`): "shading" (SHADING_KEYS) or "tier1" (TIER1_KEYS)."""
+    prior_net: str = ""
+    """With the tier-1 prior: sha256 of the tier-1 net's weights that made it (a model trained on this cache renders
+    over that net's frames)."""
 
 
 def _shading_images(fr: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
@@ -80,21 +98,48 @@ def _shading_images(fr: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return out
 
 
+def _tier1_images(frames: list[dict[str, np.ndarray]], net) -> list[dict[str, np.ndarray]]:
+    """Per frame, tier 1's frame (as `Renderer` renders it by default, `residual_frames`) of each TIER1_KEYS variant, in
+    the VAE's range: what `X2VideoModel.encode_frames` encodes for a "tier1" model with those channels kept."""
+    from x2video.conditioning import FrameConditioning
+    from x2video.sampling.tier_residual import residual_frames
+
+    conds, keys = [], []
+    for i, fr in enumerate(frames):
+        h, w = fr["albedo"].shape[:2]
+        for key in TIER1_KEYS:
+            n, r, m = (c == "1" for c in key[-3:])
+            ch = {"albedo": fr["albedo"], "irradiance": fr["irradiance"], "normal": fr["normal"] if n else None,
+                  "roughness": fr["roughness"] if r else None, "metallic": fr["metallic"] if m else None}
+            conds.append(FrameConditioning(ch, np.zeros((h, w), np.float32), np.zeros((0, h, w), np.float32), frame_index=i))
+            keys.append((i, key))
+    out: list[dict[str, np.ndarray]] = [{} for _ in frames]
+    for (i, key), img in zip(keys, residual_frames(net, conds, "cpu", batch=8)):
+        out[i][key] = to_vae_range("shading", img)
+    return out
+
+
 @torch.no_grad()
-def encode_room(vae: AutoencoderKL, shot: Shot, size: tuple[int, int] | None, batch: int = 8) -> dict[str, torch.Tensor]:
-    """All frames of one room -> the per-split tensors above (unscaled latents), frame by frame in chunks."""
+def encode_room(vae: AutoencoderKL, shot: Shot, size: tuple[int, int] | None, batch: int = 8, prior_net=None) -> dict[str, torch.Tensor]:
+    """All frames of one room -> the per-split tensors above (unscaled latents), frame by frame in chunks; the
+    classical shading variants, or with `prior_net` (a tier-1 net) tier 1's frames (TIER1_KEYS). The rgb target is
+    brought into the units the channels are read in (times the shot's irradiance normalisation), as the
+    renderer's output is before it is divided back into the input's units."""
     dev = next(vae.parameters()).device
     dtype = next(vae.parameters()).dtype
     f = 2 ** (len(vae.config.block_out_channels) - 1)
     parts: dict[str, list[torch.Tensor]] = {}
     for t0 in range(0, shot.num_frames, batch):
         frames = [read_frame(shot, t, READ, size) for t in range(t0, min(shot.num_frames, t0 + batch))]
+        for fr in frames:
+            fr["rgb"] = (np.asarray(fr["rgb"], np.float32) * np.float32(shot.info.irradiance_scale)).astype(np.float32)
         H, W = frames[0]["rgb"].shape[:2]
         if H % f or W % f:
             raise ValueError(f"shot {shot.info.source!r}: frame size {W}x{H} is not a multiple of the VAE factor {f}; pass --size")
         imgs = {k: [to_vae_range(k, fr[k]) for fr in frames] for k in VAE_KEYS}
-        shade = [_shading_images(fr) for fr in frames]
-        imgs.update({k: [s[k] for s in shade] for k in SHADING_KEYS})
+        shade = _tier1_images(frames, prior_net) if prior_net is not None else [_shading_images(fr) for fr in frames]
+        prior_keys = TIER1_KEYS if prior_net is not None else SHADING_KEYS
+        imgs.update({k: [s[k] for s in shade] for k in prior_keys})
         # Encode each distinct image once: a frame without metal has identical metallic on/off
         # shading variants (identical images give identical posterior modes).
         flat = [(k, i) for k in imgs for i in range(len(frames))]
@@ -102,7 +147,7 @@ def encode_room(vae: AutoencoderKL, shot: Shot, size: tuple[int, int] | None, ba
         slot: dict[tuple[str, int], int] = {}
         for k, i in flat:
             img = imgs[k][i]
-            same = next((slot[(k2, i)] for k2 in SHADING_KEYS if k in SHADING_KEYS and (k2, i) in slot
+            same = next((slot[(k2, i)] for k2 in prior_keys if k in prior_keys and (k2, i) in slot
                          and np.array_equal(unique[slot[(k2, i)]], img)), None)
             if same is None:
                 unique.append(img)
@@ -142,11 +187,14 @@ def build_cache(
     scale_frames: int = 32,
     batch: int = 8,
     progress: Callable[[int, int], None] | None = None,
+    prior_net=None,
 ) -> CacheInfo:
     """Encode every frame of `shots` ({'train': [...], 'test': [...]}) once into `out_dir` (see module doc).
     Latent scales are measured on `scale_frames` random training frames (`measure_latent_scales`) when
     `config` has none (all 1.0, as a VAE run's); a model folder's scales are kept, so the models trained
-    with them can train further on this cache (the latents are stored unscaled either way)."""
+    with them can train further on this cache (the latents are stored unscaled either way).
+    With `prior_net` (a tier-1 net, `x2video.model.residual`) the prior latents are tier 1's frames (TIER1_KEYS, for a
+    model whose `ModelConfig.prior` is "tier1") instead of the classical shading."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     train = list(shots.get("train", []))
@@ -171,7 +219,7 @@ def build_cache(
         tensors: dict[str, list[torch.Tensor]] = {}
         row = 0
         for i, shot in enumerate(split_shots):
-            enc = encode_room(vae, shot, size, batch)
+            enc = encode_room(vae, shot, size, batch, prior_net)
             latent_size = tuple(enc["rgb"].shape[-2:])
             frame_size = (int(enc["ids"].shape[-1]), int(enc["ids"].shape[-2]))
             n = enc["rgb"].shape[0]
@@ -198,9 +246,23 @@ def build_cache(
         save_file({"emb": emb.contiguous()}, str(tmp), metadata={"format": FORMAT})
     save_checkpoint(out / "model", cfg, {"vae": vae})
     assert latent_size is not None and frame_size is not None
-    info = CacheInfo(size=frame_size, latent_size=latent_size, rooms=rooms, prompts=prompt_list)
+    info = CacheInfo(size=frame_size, latent_size=latent_size, rooms=rooms, prompts=prompt_list,
+                     prior="tier1" if prior_net is not None else "shading", prior_net=net_sha(prior_net) if prior_net is not None else "")
     write_json_atomic(out / "meta.json", dataclasses.asdict(info))
     return info
+
+
+def net_sha(net) -> str:
+    """sha256 (first 16 hex digits) of a tier-1 net's weights: which net a tier-1 prior came from."""
+    import hashlib
+
+    from x2video.model.residual import torch_module
+
+    h = hashlib.sha256()
+    for k, v in sorted(torch_module(net).state_dict().items()):
+        h.update(k.encode())
+        h.update(v.detach().to("cpu", torch.float32).contiguous().numpy().tobytes())
+    return h.hexdigest()[:16]
 
 
 def read_info(cache_dir: str | Path) -> CacheInfo:

@@ -98,6 +98,11 @@ class CacheStageConfig:
 
     size: tuple[int, int] | None = None
     """(width, height) frames are resized to before encoding (e.g. 160x112, the diffusion training size); None: native."""
+    prior: Literal["shading", "tier1"] = "shading"
+    """What the prior latents hold: the classical shading, or tier 1's frames (for a model sampling its residual over
+    tier 1: the image, video and LCM stages take the prior of their cache)."""
+    residual: str | None = None
+    """With --prior tier1: the folder whose residual.safetensors makes tier 1's frames (default: the shipped weights)."""
     batch: int = 8
     """Frames per VAE call."""
 

@@ -40,6 +40,18 @@ def zero_output_layer(unet: UNet2DConditionModel) -> None:
             unet.conv_out.bias.zero_()
 
 
+def with_cache_prior(cfg: ModelConfig, cache: Path, what: str) -> ModelConfig:
+    """`cfg` with the prior the cache holds (`CacheInfo.prior`): a model trained on a tier-1 cache samples over tier 1's
+    frames. A model continued from the other prior keeps its weights; its prior slot now holds the cache's."""
+    from x2video.train.cache import read_info
+
+    prior = read_info(cache).prior
+    if cfg.shading_prior and prior != cfg.prior:
+        log.info("%s: its prior slot held the %s prior; this cache's (and from now on the model's) is %s", what, cfg.prior, prior)
+        return dataclasses.replace(cfg, prior=prior)
+    return cfg
+
+
 def _resume_fields(stage) -> dict:
     """The stage settings a resumed run must share (the held-out report size is free to change)."""
     d = dataclasses.asdict(stage)
@@ -124,7 +136,7 @@ def run_image_stage(cache: str | Path, out_dir: str | Path, stage: ImageStageCon
     if stage.init:  # absolute, so a resumed run matches whatever folder it is started from
         stage = dataclasses.replace(stage, init=str(Path(stage.init).resolve()))
     cache_cfg = read_config(cache / "model")
-    cfg = image_model_config(stage, cache_cfg)
+    cfg = with_cache_prior(image_model_config(stage, cache_cfg), cache, "image model")
     # With the shading prior the image UNet takes 27 inputs (XRGB's 23 + the shading latent), so
     # prior on/off is compared at the image stage on the same budget and the winner carried forward.
     data = LatentData(cache, "train", cfg.latent_scales, shading_prior=cfg.shading_prior)
@@ -197,6 +209,7 @@ def run_video_stage(init: str | Path, cache: str | Path, out_dir: str | Path, st
         unet = convert_image_to_video(image_unet, cfg.hybrid, sp)
         if cfg.prediction == "sample" and img_cfg.prediction != "sample":
             zero_output_layer(unet)
+    cfg = with_cache_prior(cfg, cache, f"video model {init}")
     data = LatentData(cache, "train", cfg.latent_scales, sp)
     log.info("video UNet: %.2f M parameters, %d training frames", sum(p.numel() for p in unet.parameters()) / 1e6, data.num_rows)
     sc = {"stage": "video", **_resume_fields(stage), "model": cfg.to_dict(), "cache": str(cache.resolve()),

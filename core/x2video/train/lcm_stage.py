@@ -109,6 +109,11 @@ def run_lcm_stage(teacher: str | Path, cache: str | Path, out_dir: str | Path, s
     if not cfg.video:
         raise ValueError(f"{d} holds an image model; --teacher wants the video stage's run or model")
     check_same_vae(cfg, read_config(cache / "model"), f"teacher {teacher}")
+    from x2video.train.cache import read_info
+
+    if cfg.shading_prior and read_info(cache).prior != cfg.prior:
+        raise ValueError(f"teacher {teacher} samples over the {cfg.prior!r} prior, the cache {cache} holds the "
+                         f"{read_info(cache).prior!r} prior; distil on a cache of the teacher's prior")
     teacher_unet = build_unet(cfg)
     load_into(teacher_unet, d / "unet.safetensors", "unet")
     teacher_unet.eval().requires_grad_(False)
