@@ -93,9 +93,10 @@ def run_case(size: tuple[int, int], tier: str, frames: int, threads: int) -> dic
 
     torch.set_num_threads(threads)
     from x2video.model.residual import needs_tiles, tile_grid
-    from x2video.sampling import working
+    from x2video.sampling import tiers
     from x2video.sampling.events import FramesReady, RenderSettings
     from x2video.sampling.renderer import Renderer
+    from x2video.sampling.tier_residual import ResidualTier
     from x2video.weights import load_model
 
     w, h = size
@@ -106,7 +107,8 @@ def run_case(size: tuple[int, int], tier: str, frames: int, threads: int) -> dic
     shot = generated_shot(frames, h, w)
     ready: list[float] = []
     quality = tier.split("@")[0]
-    settings = RenderSettings(quality=quality, preset="fast" if quality == "diffusion" else None, **TIER_SETTINGS.get(tier, {}))  # type: ignore[arg-type]
+    runs = tiers.get(quality)  # a windowed tier (the sampler's steps) takes the fast preset
+    settings = RenderSettings(quality=quality, preset="fast" if not runs.per_frame else None, **TIER_SETTINGS.get(tier, {}))  # type: ignore[arg-type]
 
     def on_event(e) -> None:
         if isinstance(e, FramesReady):
@@ -119,17 +121,14 @@ def run_case(size: tuple[int, int], tier: str, frames: int, threads: int) -> dic
            "seconds": round(secs, 2), "sec_per_frame": round(secs / frames, 3), "cpu_seconds_per_frame": round(cpu / frames, 3),
            "first_frame_seconds": round(ready[0] - t0, 2) if ready else None,
            "peak_rss_gb": round(peak_rss_gb(), 3), "rss_after_load_gb": round(rss_loaded, 3)}
-    if settings.quality == "residual" and len(ready) > 1:
+    if runs.per_frame and len(ready) > 1:
         out["sec_per_frame_after_first"] = round((ready[-1] - ready[0]) / (len(ready) - 1), 3)
-    if settings.quality == "residual":
-        f = model.residual_net.cfg.factor
-        ws = working.working_size((h, w), f, settings.residual_pixels)
+    if runs.needs_model:
+        ws = runs.working_size((h, w), settings, model)
         out["working_size"] = None if ws is None else [ws[1], ws[0]]
-        if ws is None and needs_tiles((h, w), f):
+        f = model.residual_net.cfg.factor if isinstance(runs, ResidualTier) else 0
+        if ws is None and f and needs_tiles((h, w), f):  # the tier-1 net at full size, in tiles beyond 896x896
             out["tiles"] = len(tile_grid(h + (-h) % f, w + (-w) % f, factor=f))
-    if tier == "diffusion":
-        ws = working.working_size((h, w), model.downsample, settings.working_pixels)
-        out["working_size"] = None if ws is None else [ws[1], ws[0]]
     return out
 
 
@@ -155,6 +154,7 @@ def accuracy(data: Path, split: str, tiers: list[str], threads: int) -> dict:
 
     from bench.pathtraced import evaluate
     from x2video.sampling.renderer import Renderer
+    from x2video.sampling.tiers import windowed
     from x2video.weights import load_model
 
     torch.set_num_threads(threads)
@@ -164,8 +164,8 @@ def accuracy(data: Path, split: str, tiers: list[str], threads: int) -> dict:
     if not shots:
         raise FileNotFoundError(f"{root}: no shot folders (shot.json) to score")
     runs = [(f"{t}|all", t.split("@")[0], "all", TIER_SETTINGS.get(t, {})) for t in tiers]
-    if "diffusion" in tiers:
-        runs.append((f"diffusion@{TRAINING_PIXELS}|all", "diffusion", "all", {"working_pixels": TRAINING_PIXELS}))
+    # a windowed tier (the diffusion sampler) also with the model's training size as its working resolution
+    runs += [(f"{t}@{TRAINING_PIXELS}|all", t, "all", {"working_pixels": TRAINING_PIXELS}) for t in tiers if windowed(t)]
     summary, per_shot = evaluate(renderer, shots, runs)
     return {"shots": [f"{p.parent.name}/{p.name}" for p in shots], "summary": summary, "per_shot": per_shot,
             "ceiling": ceiling(shots, renderer.model.downsample)}

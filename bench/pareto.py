@@ -62,6 +62,8 @@ import numpy as np
 from bench.common import command, results_path
 from bench.ptscore import display, render_timed, score, shot_dirs, truth
 from x2video.cli.fields import add_fields, from_args
+from x2video.sampling import tiers
+from x2video.sampling.tier import Tier
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 METHODS = ("formula", "residual", "ddim-1", "ddim-2", "ddim-4", "ddim-8", "ddim-20", "lcm-1", "lcm-2", "lcm-4",
@@ -119,26 +121,39 @@ class ParetoOptions:
 @dataclass(frozen=True)
 class Method:
     key: str  # as given: "ddim-20-seq"
-    kind: str  # formula | residual | diffusion | cycles
+    kind: str  # a tier's name (formula | residual | diffusion) or cycles
     sampler: str = ""
     steps: int = 0
     scheme: str = "recursive"
     samples: int = 0
 
     @property
+    def tier(self) -> Tier | None:
+        """The tier whose renders this method measures (None: Cycles)."""
+        return None if self.kind == "cycles" else tiers.get(self.kind)
+
+    @property
+    def windowed(self) -> bool:
+        """The sampler's windows (the diffusion tier): its sampler, steps and scheme name the method."""
+        return tiers.windowed(self.kind)
+
+    @property
+    def needs_model(self) -> bool:
+        tier = self.tier
+        return tier is not None and tier.needs_model
+
+    @property
     def label(self) -> str:
-        if self.kind == "formula":
-            return "formula (tier 0)"
-        if self.kind == "residual":
-            return "tier 1 (residual net)"
         if self.kind == "cycles":
             return f"Cycles {self.samples} spp + OIDN"
-        return f"{self.sampler.upper()}-{self.steps}" + (" sequential" if self.scheme == "sequential" else "")
+        if self.windowed:
+            return f"{self.sampler.upper()}-{self.steps}" + (" sequential" if self.scheme == "sequential" else "")
+        return FAMILY_NAMES.get(self.kind, self.kind)
 
     @property
     def family(self) -> str:
         """Points joined by a line in the chart: the DDIM steps, the LCM steps, the Cycles samples."""
-        if self.kind == "diffusion":
+        if self.windowed:
             return f"{self.sampler}-{self.scheme}"
         return self.kind
 
@@ -146,7 +161,7 @@ class Method:
 def parse_method(text: str) -> Method:
     """'formula', 'residual', 'ddim-20', 'lcm-2-seq', 'cycles-64' -> Method; a clear error otherwise."""
     t = text.strip().lower()
-    if t in ("formula", "residual"):
+    if t in tiers.TIERS and not tiers.windowed(t):  # a per-frame tier is named by itself
         return Method(t, t)
     m = re.fullmatch(r"(ddim|lcm)-(\d+)(-seq)?", t)
     if m:
@@ -284,8 +299,8 @@ def bpy_available() -> str | None:
 def diffusion_settings(m: Method, frames: int):
     from x2video.sampling.events import RenderSettings
 
-    if m.kind == "diffusion":
-        return RenderSettings(quality="diffusion", sampler=m.sampler, steps=m.steps, scheme=m.scheme, frames=(0, frames))
+    if m.windowed:
+        return RenderSettings(quality=m.kind, sampler=m.sampler, steps=m.steps, scheme=m.scheme, frames=(0, frames))
     return RenderSettings(quality=m.kind, frames=(0, frames))
 
 
@@ -305,12 +320,12 @@ def warm_up(model: Any, shots: list, nframes: list[int], methods: list[Method]) 
     size and window kind (`x2video.model.engine`: a 2-frame warm-up left a 3-, 4- or 5-frame window's to the first row)."""
     from x2video.sampling.renderer import Renderer
 
-    kinds = {(m.kind, m.sampler, m.scheme if m.kind == "diffusion" else "") for m in methods if m.kind in ("residual", "diffusion")}
+    kinds = {(m.kind, m.sampler, m.scheme if m.windowed else "") for m in methods if m.needs_model}
     firsts: dict[int, Any] = {}
     for s, n in zip(shots, nframes):
         firsts.setdefault(n, s)  # one shot per frame count: the windows depend on nothing else
     for kind, sampler, scheme in sorted(kinds):
-        m = Method("warm", kind, sampler, 1, scheme) if kind == "diffusion" else Method("warm", kind)
+        m = Method("warm", kind, sampler, 1, scheme) if tiers.windowed(kind) else Method("warm", kind)
         for n, shot in firsts.items():
             render_timed(Renderer(model), shot, diffusion_settings(m, n))
 
@@ -339,7 +354,7 @@ def measure(opts: ParetoOptions, argv: list[str] | None, on_partial: Any = None)
         raise SystemExit(f"--sizes: no finished shot of {', '.join(f'{w}x{h}' for w, h in missing)} in --data {opts.data}"
                          f" (split {opts.split!r}); sizes there: {have}")
     model = None
-    if any(m.kind in ("residual", "diffusion") for m in methods):
+    if any(m.needs_model for m in methods):
         from x2video.weights import load_model
 
         model = load_model(opts.weights or None)
@@ -407,14 +422,14 @@ def measure(opts: ParetoOptions, argv: list[str] | None, on_partial: Any = None)
                     continue
                 outs = []
                 for s, n in zip(shots, nframes):
-                    if m.kind == "formula":
+                    if not m.needs_model:
                         c0 = time.process_time()
                         fr, sec = render_timed(Renderer(None), s, diffusion_settings(m, n))  # tier 0 needs no model
                     else:
                         renderer = Renderer(model)
                         c0 = time.process_time()
                         fr, sec = render_timed(renderer, s, diffusion_settings(m, n))
-                        if m.kind == "diffusion":
+                        if m.windowed:
                             engine = getattr(renderer, "engine", None)
                     outs.append((fr, sec, time.process_time() - c0, float(s.info.irradiance_scale)))
             for (fr, sec, cpu, scale), s, n, ref, gt in zip(outs, shots, nframes, refs, gts):
@@ -426,7 +441,7 @@ def measure(opts: ParetoOptions, argv: list[str] | None, on_partial: Any = None)
                 cpu_total += cpu
                 frames_total += n
             row = {"name": f"{m.label} {w}x{h}", "method": m.key, "label": m.label, "kind": m.kind, "family": m.family, "size": [w, h],
-                   "sampler": m.sampler or None, "steps": m.steps or None, "scheme": m.scheme if m.kind == "diffusion" else None,
+                   "sampler": m.sampler or None, "steps": m.steps or None, "scheme": m.scheme if m.windowed else None,
                    "samples": m.samples or None, "engine": engine, "wall_seconds_per_frame": secs_total / max(frames_total, 1),
                    "cpu_seconds_per_frame": cpu_total / max(frames_total, 1), "frames": frames_total,
                    **{k: _mean([p[k] for p in per_shot]) for k in ("psnr", "ssim", "tc", "psnr_dataset", "tc_dataset")},
@@ -603,8 +618,8 @@ def merge_problems(old: dict, new: dict, section: str, where: str = "the result 
         new_rows = [r for r in n.get("rows") or [] if f"{r['size'][0]}x{r['size'][1]}" == size]
         if not new_rows:
             continue  # nothing measured yet at this size: checked with its first row
-        nf = next((r for r in new_rows if r["method"] == "formula"), None)
-        of = next((r for r in o.get("rows") or [] if r["method"] == "formula" and f"{r['size'][0]}x{r['size'][1]}" == size), None)
+        nf = next((r for r in new_rows if r["method"] == tiers.FORMULA), None)
+        of = next((r for r in o.get("rows") or [] if r["method"] == tiers.FORMULA and f"{r['size'][0]}x{r['size'][1]}" == size), None)
         if nf is None or of is None:
             problems.append(f"{size}: cannot check that this run's reference is the kept rows' ("
                             + ("no reference digest in " + where if not og.get("reference_sha256") else "its digest differs")
@@ -624,8 +639,8 @@ def merge_problems(old: dict, new: dict, section: str, where: str = "the result 
 
 
 def _row_order(r: dict) -> tuple:
-    kinds = {"formula": 0, "residual": 1, "diffusion": 2, "cycles": 3}
-    return (r["size"][0] * r["size"][1], kinds.get(r["kind"], 9), r.get("scheme") == "sequential", r.get("sampler") or "",
+    kinds = [*tiers.TIERS, "cycles"]  # the tiers in cost order, then Cycles
+    return (r["size"][0] * r["size"][1], kinds.index(r["kind"]) if r["kind"] in kinds else 9, r.get("scheme") == "sequential", r.get("sampler") or "",
             r.get("steps") or 0, r.get("samples") or 0)
 
 
@@ -683,7 +698,7 @@ def compare_schemes(rows: list[dict]) -> list[dict]:
     """Per size and sampler-steps measured both ways: recursive against sequential sampling (PSNR, TC, CPU and wall seconds)."""
     out = []
     for r in rows:
-        if r["kind"] != "diffusion" or r.get("scheme") != "recursive":
+        if not tiers.windowed(r["kind"]) or r.get("scheme") != "recursive":
             continue
         q = next((x for x in rows if x["method"] == r["method"] + "-seq" and x["size"] == r["size"]), None)
         if q is not None:
@@ -735,7 +750,7 @@ def _panels(axes: Any, rows: list[dict], clock: str | None) -> list[tuple[int, i
     for ax, key, ylabel in ((axes[0], "psnr", "PSNR (dB) ↑"), (axes[1], "tc", "TC (warping error / ground truth's) ↓")):
         for size in sizes:
             rs = [r for r in rows if tuple(r["size"]) == size and r.get(key) is not None]
-            form = next((r for r in rs if r["kind"] == "formula"), None)
+            form = next((r for r in rs if r["kind"] == tiers.FORMULA), None)
             if form is not None:
                 ax.axhline(form[key], color="black", lw=0.8, ls=dashes[size], alpha=0.5)
             for fam in dict.fromkeys(r["family"] for r in rs):
@@ -919,7 +934,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             if _section(old, opts.section) is not None:
                 keys = [t.strip().lower() for t in opts.methods.split(",") if t.strip()]
-                opts = dataclasses.replace(opts, methods=",".join(["formula"] + [k for k in keys if k != "formula"]))
+                opts = dataclasses.replace(opts, methods=",".join([tiers.FORMULA] + [k for k in keys if k != tiers.FORMULA]))
                 print("--merge: formula is measured first (a deterministic row: it checks this run's reference against the kept rows')",
                       file=sys.stderr)
             result = _clean(merge(old, _clean(measure(opts, argv, lambda partial: write_json_atomic(

@@ -176,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     names = [t for t in args.tiers.split(",") if t]
     conditions = [c for c in args.conditions.split(",") if c]
     runs = [(f"{t}|{cond}", t, cond, {}) for cond in conditions for t in names if tiers.get(t).generative or cond == "all"]
-    if "residual" in names and "all" in conditions:  # tier 1 with its guess where the channels hold no light (off by default)
+    if tiers.RESIDUAL in names and "all" in conditions:  # tier 1 with its guess where the channels hold no light (off by default)
         runs.append(("residual_guess|all", "residual", "all", {"guess_unseen": True}))
     summary, per_shot = evaluate(renderer, shots, runs)
     out = {"format": "x2video-pathtraced", "command": command("pathtraced", argv), "data": portable_path(args.data), "split": args.split,

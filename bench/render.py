@@ -47,6 +47,7 @@ from bench.common import command, results_path
 from x2video.channels import SPECS
 from x2video.io.atomic import write_json_atomic
 from x2video.model.pipeline import X2VideoModel
+from x2video.sampling import tiers
 from x2video.sampling.events import FramesReady, RenderSettings, StepDone
 from x2video.sampling.planner import plan
 from x2video.sampling.prepare import warm_engine
@@ -127,7 +128,7 @@ def time_render(renderer: Renderer, shot: Shot, settings: RenderSettings, sink_d
     cached = renderer.timing.seconds["encode"] + renderer.timing.seconds["detail"]  # what a warm cache saves
     resolved = select_steps(settings, renderer.model) if settings.preset else settings
     return {
-        "engine": renderer.engine if settings.quality != "formula" and renderer.last_tier.tier == "diffusion" else None,  # tiers 0/1: no UNet
+        "engine": renderer.engine if tiers.windowed(renderer.last_tier.tier) else None,  # per-frame tiers run no UNet
         "sampler": resolved.sampler,
         "steps": resolved.steps,
         "scheme": settings.scheme,
@@ -274,7 +275,7 @@ def main(argv: list[str] | None = None) -> None:
     warmed: set[tuple] = set()
     for s in configs:
         r = renderers[select_steps(s, base).sampler if s.preset else s.sampler]
-        if (s.engine, s.sampler, s.preset, s.scheme) not in warmed and s.quality == "diffusion":
+        if (s.engine, s.sampler, s.preset, s.scheme) not in warmed and tiers.windowed(s.quality):
             warmed.add((s.engine, s.sampler, s.preset, s.scheme))  # graphs exported/compiled and run once, outside the timing
             valid = resolve(s, r.model)
             r.render(shot, None, RenderSettings(**{**valid.__dict__, "frames": (0, min(args.frames, args.window)), "steps": 1, "preset": None}))

@@ -471,7 +471,9 @@ def _largest_ids(shot: Shot, n: int) -> list[int]:
 # --------------------------------------------------------------------------------------------- one cell
 def skip_reason(cell: dict, ctx: Context) -> str | None:
     """Why a cell is not run (the diffusion tier at sizes and lengths a 2-core CPU cannot afford), else None."""
-    if cell["method"] != "diffusion":
+    from x2video.sampling import tiers
+
+    if not tiers.windowed(cell["method"]):  # the sampler's windows are what a 2-core CPU cannot afford at these sizes
         return None
     p = cell["params"]
     w, h = p.get("size", [0, 0])
@@ -485,6 +487,7 @@ def skip_reason(cell: dict, ctx: Context) -> str | None:
 def run_cell(cell: dict, ctx: Context) -> dict:
     """Render one cell ({family, name, method, params}) and score it; never raises: an exception is recorded
     (crashed, error) with the numbers measured so far. seconds excludes scoring and the model's load."""
+    from x2video.sampling import tiers
     from x2video.sampling.events import RenderSettings
     from x2video.sampling.renderer import Renderer
 
@@ -494,7 +497,8 @@ def run_cell(cell: dict, ctx: Context) -> dict:
         rec.update(skipped=why)
         return rec
     method = cell["method"]
-    model = ctx.model() if method != "formula" else None
+    needs_model = tiers.needs_model(method)
+    model = ctx.model() if needs_model else None
     scorer = None
     release_memory()
     reset_peak_rss()
@@ -505,7 +509,7 @@ def run_cell(cell: dict, ctx: Context) -> dict:
         rec["size"] = [shot.size[1], shot.size[0]]
         rec["frames"] = shot.num_frames
         scorer = Scorer(shot, float(shot.info.irradiance_scale), classes, names, delta_e=cell["family"] == "length")
-        settings = RenderSettings(quality=method, preset=None if method == "formula" else "fast")
+        settings = RenderSettings(quality=method, preset="fast" if needs_model else None)
         if model is None:
             Renderer(None).render(shot, edits, settings, scorer.on_event)  # tier 0 needs no model
         else:
@@ -583,7 +587,9 @@ def grid(quick: bool, n_sources: int, has_cycles: bool, families: tuple[str, ...
 # --------------------------------------------------------------------------------------------- findings
 def findings(cells: list[dict]) -> list[dict]:
     """Failures: a crash, non-finite output, or a PSNR more than FAR_BELOW_DB under the formula's on the same case."""
-    formula = {(c["family"], c["name"]): c for c in cells if c["method"] == "formula"}
+    from x2video.sampling.tiers import FORMULA
+
+    formula = {(c["family"], c["name"]): c for c in cells if c["method"] == FORMULA}
     out = []
     for c in cells:
         if c.get("skipped"):
@@ -595,7 +601,7 @@ def findings(cells: list[dict]) -> list[dict]:
             kind = "non-finite output"
         elif c.get("mean_display") == 0.0:
             kind = "black frames"
-        elif c["method"] != "formula":
+        elif c["method"] != FORMULA:
             f = formula.get((c["family"], c["name"]))
             if f and not f["crashed"] and c.get("psnr") is not None and f.get("psnr") is not None and c["psnr"] < f["psnr"] - FAR_BELOW_DB:
                 kind = f"{f['psnr'] - c['psnr']:.1f} dB below the formula"

@@ -7,8 +7,10 @@ from typing import Any
 
 import numpy as np
 
-COLOURS = {"formula": (60, 60, 60), "residual": (0, 150, 0), "auto": (200, 120, 0), "diffusion": (30, 30, 220)}  # BGR
-METHODS = ("formula", "residual", "auto", "diffusion")
+from x2video.sampling.tiers import DIFFUSION, FORMULA, RESIDUAL  # the methods' rows and what the notes say of each tier
+
+COLOURS = {FORMULA: (60, 60, 60), RESIDUAL: (0, 150, 0), "auto": (200, 120, 0), DIFFUSION: (30, 30, 220)}  # BGR
+METHODS = (FORMULA, RESIDUAL, "auto", DIFFUSION)
 EXTRA_COLOURS = [(0, 150, 0), (150, 0, 150), (0, 150, 150), (120, 120, 0)]
 
 
@@ -174,11 +176,11 @@ def product_note(f: dict) -> str:
         return "the render fails with RenderFailed carrying the message; nothing is written (the editor shows it in the log)"
     if fam == "channels" and name.count("+") == 4:
         fam = "length"  # every channel kept: the plain case
-    if fam == "channels" and method == "residual":
+    if fam == "channels" and method == RESIDUAL:
         return ("tier 1 forced with a channel missing: the net reads the missing channel as zeros and was never trained so; "
                 "'auto' never does this (missing normal, roughness or metallic alone: the formula; anything else missing: the sampler), "
                 "only quality 'residual' forced by hand")
-    if fam == "channels" and method == "formula":
+    if fam == "channels" and method == FORMULA:
         return ("the formula needs albedo and irradiance; without either it is black. 'auto' runs the formula only where both "
                 "are present; a missing albedo or irradiance sends it to the diffusion sampler (x2video.sampling.tiers.choose_tier; the log says which)")
     if fam == "channels" and "alb" in name.split("+") and "irr" in name.split("+"):
@@ -187,20 +189,20 @@ def product_note(f: dict) -> str:
                 "(x2video.sampling.tiers.FORMULA_IGNORES), and the sampler runs there only when forced")
     if fam == "channels":
         return "'auto' runs the sampler for a dropped channel; what it generates is the model's guess, scored against one truth"
-    if fam == "masks" and method == "formula":
+    if fam == "masks" and method == FORMULA:
         return ("the formula leaves A|M|R regions black (nothing to multiply); 'auto' generates them with the sampler and keeps "
                 "tier 1 around them over a feathered seam")
     if fam == "hostile" and name == "negative_roughness":
         return ("clamped to [0, 1] (the loaders; `to_vae_range` and tier 1's features in memory): roughness -0.5 is roughness 0, "
                 "a mirror-like scene that tier 1 and the sampler render as such; the formula ignores roughness, so only their scores move")
-    if fam == "hostile" and name == "zero_normals" and method == "residual":
+    if fam == "hostile" and name == "zero_normals" and method == RESIDUAL:
         return ("zero normals mean 'no geometry here' (a window) to tier 1; it keeps the formula wherever the channels say "
                 "nothing of the light (x2video.model.residual.unseen_light), so zero normals give the formula's frames")
     if fam == "hostile" and name.startswith("albedo_"):
         return f"rendered as given: albedo {name[-1]} everywhere is a different scene from the truth it is scored on. {files}"
     if fam == "hostile":
         return f"{files}. In memory: tiers 0/1 and the sampler count NaN/Inf as 0 (core fixes); out-of-range values go through as given"
-    if below and method == "diffusion" and fam in ("channels", "masks", "length", "size", "noise", "limits"):
+    if below and method == DIFFUSION and fam in ("channels", "masks", "length", "size", "noise", "limits"):
         return ("'auto' does not run the sampler when every channel is present (tier 1 renders, or the formula where a net's "
                 "record does not trust it); the sampler is there only when "
                 "forced (quality 'diffusion') or for what must be generated. Its gap to the formula here is the tiny shipped "
@@ -219,7 +221,7 @@ def observations(cells: list[dict]) -> list[str]:
     get = {(c["family"], c["name"], c["method"]): c for c in cells if not c.get("skipped") and not c["crashed"]}
     out = []
     a, b = get.get(("masks", "1", "auto")), get.get(("masks", "1+prompts", "auto"))
-    f = get.get(("masks", "1", "formula"))
+    f = get.get(("masks", "1", FORMULA))
     if a and f and a.get("psnr_by_class") and f.get("psnr_by_class") and "+" not in str(a.get("tier", "+")):
         out.append(f"- One masked-out object sends 'auto' to the sampler for the whole frame (tier {a.get('tier')}): tier 1 is not "
                    "trusted, so there is no regional composite around the mask. Outside the mask PSNR is "
@@ -235,38 +237,38 @@ def observations(cells: list[dict]) -> list[str]:
                    f"mask: outside one masked object PSNR is {a['psnr_by_class']['outside']:.1f} dB with the regional composite "
                    f"(tier {a.get('tier')}) and {b['psnr_by_class']['outside']:.1f} dB with a local prompt on the same mask. "
                    "Letting local prompts on A|M|R-masked regions take the regional path would keep tier 1 outside them.")
-    part = [(c, get.get(("channels", c["name"], "formula"))) for c in cells if c["family"] == "channels" and c["method"] == "auto"
+    part = [(c, get.get(("channels", c["name"], FORMULA))) for c in cells if c["family"] == "channels" and c["method"] == "auto"
             and {"alb", "irr"} <= set(c["name"].split("+")) and c["name"].count("+") < 4 and not c["crashed"] and not c.get("skipped")]
     part = [(c, f) for c, f in part if f and c.get("psnr") is not None and f.get("psnr") is not None]
     if part:
         lo, hi = min(c["psnr"] for c, _ in part), max(c["psnr"] for c, _ in part)
         tiers_run = sorted({str(c.get("tier")) for c, _ in part})
-        diff = [d["psnr"] for c, _ in part if (d := get.get(("channels", c["name"], "diffusion"))) and d.get("psnr") is not None]
+        diff = [d["psnr"] for c, _ in part if (d := get.get(("channels", c["name"], DIFFUSION))) and d.get("psnr") is not None]
         out.append(f"- With albedo and irradiance kept but some of normal/roughness/metallic dropped ({len(part)} subsets), 'auto' "
                    f"runs {' / '.join(tiers_run)}: {lo:.1f} to {hi:.1f} dB, where the formula gives {part[0][1]['psnr']:.1f} dB"
                    + (f" and the sampler {min(diff):.1f} to {max(diff):.1f} dB." if diff else "."))
     big = [c for c in cells if c["family"] == "size" and c.get("params", {}).get("size") == [1920, 1080] and not c.get("skipped")
-           and not c["crashed"] and (c["method"] == "residual" or (c["method"] == "auto" and c.get("tier") == "residual"))]
+           and not c["crashed"] and (c["method"] == RESIDUAL or (c["method"] == "auto" and c.get("tier") == RESIDUAL))]
     if big:
         c = big[0]
         out.append(f"- Tier 1 at 1920x1080 ({c['frames']} frames, batches of 4): {c['seconds'] / c['frames']:.1f} s a frame and "
                    f"{c['peak_rss_above_start_mb'] / 1024:.1f} GB above the process's start (peak {c['peak_rss_mb'] / 1024:.1f} GB); "
                    "frames above `residual.MAX_PIXELS` run in tiles (`residual.apply_tiled`), so memory stays bounded as frames grow.")
-    lens = sorted((c for c in cells if c["family"] == "length" and c["method"] == "formula" and c.get("delta_e") is not None),
+    lens = sorted((c for c in cells if c["family"] == "length" and c["method"] == FORMULA and c.get("delta_e") is not None),
                   key=lambda c: c["frames"])
     if lens:
         c = lens[-1]
         out.append(f"- No drift in tiers 0/1: on {c['frames']} frames the formula's mean Lab dE is {c['delta_e_first']:.2f} over the "
                    f"first tenth and {c['delta_e_last']:.2f} over the last (per-frame tiers cannot drift); peak RSS stays "
                    f"{c['peak_rss_above_start_mb']:.0f} MB above the start (frames are streamed, not held).")
-    d = sorted((c for c in cells if c["family"] == "length" and c["method"] == "diffusion" and c.get("delta_e") is not None),
+    d = sorted((c for c in cells if c["family"] == "length" and c["method"] == DIFFUSION and c.get("delta_e") is not None),
                key=lambda c: c["frames"])
     if d:
         c = d[-1]
         out.append(f"- The sampler on {c['frames']} frames: dE {c['delta_e_first']:.2f} over the first tenth, {c['delta_e_last']:.2f} "
                    "over the last (longer shots were skipped for the sampler on this CPU).")
     fams = ("length", "size", "noise", "limits")
-    pairs = [(c, get.get((c["family"], c["name"], "formula"))) for c in cells if c["method"] == "residual" and c["family"] in fams]
+    pairs = [(c, get.get((c["family"], c["name"], FORMULA))) for c in cells if c["method"] == RESIDUAL and c["family"] in fams]
     diffs = [c["psnr"] - f["psnr"] for c, f in pairs if f and c.get("psnr") is not None and f.get("psnr") is not None]
     if diffs:
         out.append(f"- Tier 1 forced, against the formula on the same case with every channel present ({len(diffs)} cases: "

@@ -373,6 +373,24 @@ def test_tiers_say_what_callers_used_to_compare_names_for():
     assert tiers.get("formula").with_preset(fast, FakeModel()) is fast and tiers.get("residual").with_preset(fast, None) is fast
 
 
+
+def test_windowed_and_working_size_are_the_tiers_own():
+    """`tiers.windowed` (the sampler's windows, steps and engine) and `Tier.working_size` (where a tier's network runs on a
+    large frame) answer what the benches compared tier names for."""
+    from x2video.sampling import working
+
+    assert [n for n in tiers.QUALITIES if tiers.windowed(n)] == ["diffusion"]
+    assert not tiers.windowed("") and not tiers.windowed(None) and not tiers.windowed("no-such-tier")
+    big, small = (1080, 1920), (224, 320)
+    s = RenderSettings()
+    model = FakeModel()
+    model.residual_net = R.ResidualNet(R.ResidualConfig(widths=(8, 16))).eval()
+    assert tiers.get("formula").working_size(big, s, None) is None
+    assert tiers.get("residual").working_size(big, s, model) == working.working_size(big, model.residual_net.cfg.factor,
+                                                                                      s.residual_pixels) is not None
+    assert tiers.get("diffusion").working_size(big, s, model) == working.working_size(big, model.downsample, s.working_pixels) is not None
+    assert all(tiers.get(n).working_size(small, s, model) is None for n in ("formula", "residual", "diffusion"))
+
 def test_plan_render_is_what_the_render_runs():
     """`plan_render` (pure) names the tier and, for the diffusion tier, the windows and steps the render runs; the
     formula needs no model."""

@@ -131,6 +131,10 @@ class Tier:
         reads no preset: `settings` as given). Pure, unvalidated (the speed/accuracy chart marks a render by it)."""
         return settings
 
+    def working_size(self, size: tuple[int, int], settings: RenderSettings, model: RenderModel | None) -> tuple[int, int] | None:
+        """(H, W) this tier runs its network at for frames of `size` (H, W) on `model`, or None: at full size (or no network)."""
+        return None
+
     def plan(self, shot: Shot, edits: Edits | None, settings: RenderSettings, model: RenderModel | None, choice: TierChoice,
              frames: tuple[int, int]) -> RenderPlan:
         """What a render of frames [start, stop) runs with this tier (pure: no pixels read, nothing encoded)."""

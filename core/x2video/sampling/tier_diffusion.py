@@ -60,6 +60,11 @@ class DiffusionTier(Tier):
         """The preset resolved into a sampler and steps for `model` (`setup.select_steps`)."""
         return setup.select_steps(settings, model)
 
+    def working_size(self, size: tuple[int, int], settings: RenderSettings, model: RenderModel | None) -> tuple[int, int] | None:
+        """The working resolution of large frames (`setup.network_frames`: `RenderSettings.working_pixels`)."""
+        assert model is not None
+        return working.working_size(size, model.downsample, settings.working_pixels)
+
     def plan(self, shot, edits, settings, model, choice, frames) -> RenderPlan:
         resolved = setup.resolve(settings, model)
         return RenderPlan(choice.tier, choice.reason, frames, per_frame=False,

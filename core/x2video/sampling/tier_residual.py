@@ -16,6 +16,7 @@ from x2video.conditioning import FrameConditioning
 from x2video.model.api import RenderModel
 from x2video.sampling import working
 from x2video.sampling.regions import feathered
+from x2video.sampling.settings import RenderSettings
 from x2video.sampling.tier import PerFrameTier, RenderJob
 
 log = logging.getLogger(__name__)
@@ -32,9 +33,12 @@ class ResidualTier(PerFrameTier):
                     " the loaded model has none")
         return None
 
+    def working_size(self, size: tuple[int, int], settings: RenderSettings, model: RenderModel | None) -> tuple[int, int] | None:
+        assert model is not None and model.residual_net is not None
+        return working.working_size(size, model.residual_net.cfg.factor, settings.residual_pixels)
+
     def begin(self, job: RenderJob) -> None:
-        assert job.model is not None and job.model.residual_net is not None
-        work = working.working_size(job.shot.size, job.model.residual_net.cfg.factor, job.settings.residual_pixels)
+        work = self.working_size(job.shot.size, job.settings, job.model)
         if work is not None:
             log.info("shot size %dx%d: the tier-1 net runs at %dx%d (residual_pixels %d), its correction of the formula brought"
                      " back on the full-resolution formula", job.shot.size[1], job.shot.size[0], work[1], work[0], job.settings.residual_pixels)

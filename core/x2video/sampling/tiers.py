@@ -60,6 +60,13 @@ def generative(name: str | None) -> bool:
     return cls is not None and cls.generative
 
 
+def windowed(name: str | None) -> bool:
+    """Whether `name` is a registered tier that renders in windows (not `Tier.per_frame`): the sampler's steps, its preset
+    and its engine are this tier's; False for '', None, 'auto' and names no tier has."""
+    cls = TIERS.get(name or "")
+    return cls is not None and not cls.per_frame
+
+
 #: channels the formula (albedo x irradiance) does not read: auto renders tier 0 when only these are missing
 FORMULA_IGNORES = ("normal", "roughness", "metallic")
 
@@ -173,4 +180,4 @@ def choose_tier(quality: str, reasons: list[str], only_regions: bool, has_residu
 
 __all__ = ["FEATHER_PX", "FORMULA_IGNORES", "QUALITIES", "RenderPlan", "Tier", "TierChoice", "TIERS", "choose_tier", "coarse_to_fine",
            "decide", "dropped_channels", "feathered", "formula_frame", "generated_region", "generation_reasons", "generative", "get",
-           "keep_formula_where_unseen", "plan_render", "qualities", "residual_frames"]
+           "keep_formula_where_unseen", "plan_render", "qualities", "residual_frames", "windowed"]
