@@ -57,6 +57,30 @@ def test_addon_setup_equals_passes_py():
     assert "x2video" not in imported, "the add-on must be self-contained"
 
 
+
+def function_bodies(path: Path, rename: dict[str, str] | None = None) -> dict[str, str]:
+    """Top-level function name -> its body without the docstring (ast.dump; names in `rename` renamed), no import."""
+    out = {}
+    for fn in ast.parse(path.read_text()).body:
+        if not isinstance(fn, ast.FunctionDef):
+            continue
+        body = fn.body[1:] if isinstance(fn.body[0], ast.Expr) and isinstance(fn.body[0].value, ast.Constant) else fn.body
+        module = ast.Module(body=body, type_ignores=[])
+        for node in ast.walk(module):
+            if isinstance(node, ast.Name) and node.id in (rename or {}):
+                node.id = rename[node.id]
+        out[rename.get(fn.name, fn.name) if rename else fn.name] = ast.dump(module)
+    return out
+
+
+def test_addon_wires_materials_as_passes_py_does():
+    """The add-on's material wiring (the AOVs' sources) is x2video.cycles.passes' to the statement; only the helper's name
+    and the docstrings differ. (Its view layer and compositor set-up differ on purpose: older Blenders' Cycles pass
+    flags, OpenImageDenoise's ACCURATE prefilter for a user's shot; their pass table is the one compared above.)"""
+    addon, passes = function_bodies(ADDON, {"_principled": "_principled_nodes"}), function_bodies(PASSES)
+    for name in ("wire_material", "_principled_nodes"):
+        assert addon[name] == passes[name], f"{name}: the add-on's copy differs from x2video.cycles.passes"
+
 SCENE = textwrap.dedent("""
     import importlib.util, math, os, sys
     devnull = os.open(os.devnull, os.O_WRONLY); os.dup2(devnull, 1)  # Blender's progress lines

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import logging
 import sys
+from operator import attrgetter
 from pathlib import Path
 
 from PySide6.QtCore import QSettings, Qt, QTimer
@@ -41,6 +42,34 @@ from x2video_app.viewer import Viewer
 from x2video_app.window_render import WindowRender
 
 log = logging.getLogger(__name__)
+
+#: signal -> slot of the window's parts (dotted attributes of the window): the viewer's and the panels' gestures that go
+#: straight to an edit action or to the document, and the chosen tool back to the viewer and the mask panel
+EDIT_WIRING: tuple[tuple[str, str], ...] = (
+    ("viewer.sigPick", "edits.pick"),
+    ("edits.sigTool", "viewer.set_tool"),
+    ("edits.sigTool", "mask_panel.set_tool"),
+    ("mask_panel.sigTool", "edits.set_tool"),
+    ("mask_panel.sigBrushSize", "viewer.set_brush_radius"),
+    ("mask_panel.sigAdd", "edits.add_mask"),
+    ("mask_panel.sigRemove", "edits.remove_mask"),
+    ("mask_panel.sigSelect", "doc.select_mask"),
+    ("mask_panel.sigVisible", "edits.set_visible"),
+    ("mask_panel.sigColour", "edits.set_mask_colour"),
+    ("mask_panel.sigRename", "edits.rename_mask"),
+    ("mask_panel.sigPrompt", "edits.set_local_prompt"),
+    ("mask_panel.sigMaskOut", "edits.set_mask_out"),
+    ("mask_panel.sigPropagate", "edits.propagate"),
+    ("mask_panel.sigClearFrame", "edits.clear_frame"),
+    ("edit_panel.sigParam", "edits.set_param"),
+    ("edit_panel.sigTarget", "doc.set_edit_global"),
+    ("edit_panel.sigReset", "edits.reset_params"),
+    ("scene_panel.sigGlobalPrompt", "edits.set_global_prompt"),
+    ("scene_panel.sigDrop", "edits.set_dropped"),
+    ("scene_panel.sigLoadReference", "edits.load_reference_dialog"),
+    ("scene_panel.sigUseRendered", "edits.use_rendered_reference"),
+    ("scene_panel.sigClearReference", "edits.clear_reference"),
+)
 APP_NAME = "X2Video Studio"
 BENCH_RESULTS = Path(__file__).resolve().parents[1] / "bench" / "results"
 
@@ -189,33 +218,12 @@ class MainWindow(QMainWindow):
         self._connect_edits()
 
     def _connect_edits(self) -> None:
-        """The viewer's and the panels' gestures go to the edit actions; the chosen tool comes back to both."""
-        a, v, mp, ep, sp = self.edits, self.viewer, self.mask_panel, self.edit_panel, self.scene_panel
+        """The viewer's and the panels' gestures go to the edit actions; the chosen tool comes back to both (`EDIT_WIRING`)."""
+        a, v = self.edits, self.viewer
         v.sigStrokePoint.connect(lambda x, y, starting: a.stroke_point(x, y, starting, v.brush_radius, v.tool == "eraser"))
         v.sigStrokeEnd.connect(lambda: a.stroke_end(v.tool == "eraser"))
-        v.sigPick.connect(a.pick)
-        a.sigTool.connect(v.set_tool)
-        a.sigTool.connect(mp.set_tool)
-        mp.sigTool.connect(a.set_tool)
-        mp.sigBrushSize.connect(v.set_brush_radius)
-        mp.sigAdd.connect(a.add_mask)
-        mp.sigRemove.connect(a.remove_mask)
-        mp.sigSelect.connect(self.doc.select_mask)
-        mp.sigVisible.connect(a.set_visible)
-        mp.sigColour.connect(a.set_mask_colour)
-        mp.sigRename.connect(a.rename_mask)
-        mp.sigPrompt.connect(a.set_local_prompt)
-        mp.sigMaskOut.connect(a.set_mask_out)
-        mp.sigPropagate.connect(a.propagate)
-        mp.sigClearFrame.connect(a.clear_frame)
-        ep.sigParam.connect(a.set_param)
-        ep.sigTarget.connect(self.doc.set_edit_global)
-        ep.sigReset.connect(a.reset_params)
-        sp.sigGlobalPrompt.connect(a.set_global_prompt)
-        sp.sigDrop.connect(a.set_dropped)
-        sp.sigLoadReference.connect(a.load_reference_dialog)
-        sp.sigUseRendered.connect(a.use_rendered_reference)
-        sp.sigClearReference.connect(a.clear_reference)
+        for signal, slot in EDIT_WIRING:
+            attrgetter(signal)(self).connect(attrgetter(slot)(self))
 
     # -- rendering (x2video_app.window_render) ------------------------------------
     def device(self) -> str:

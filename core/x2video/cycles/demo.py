@@ -24,9 +24,11 @@ import resource
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable
+
+from x2video.fields import add_fields, from_args, to_flags
 
 #: progress(frames done, frames in all, seconds of the last frame); done is 0 while the room is being set up
 Progress = Callable[[int, int, float], None]
@@ -34,19 +36,24 @@ Progress = Callable[[int, int, float], None]
 
 @dataclass(frozen=True)
 class CyclesDemo:
-    """Which room, how long, how large and how many samples the demo is rendered at."""
+    """Which room, how long, how large and how many samples the demo is rendered at (field docstrings are the help of
+    the child's flags, `python -m x2video.cycles.demo --help`)."""
 
-    #: a v3 test room (the cycles-v3-s41 sets' test/room_00019): a study on a sunny afternoon, two windows in view and
-    #: mirrored in a glossy floor (roughness 0.06), sun patches, a copper piece of furniture
     seed: int = 41000142
+    """Room seed: a v3 test room (the cycles-v3-s41 sets' test/room_00019), a study on a sunny afternoon, two windows
+    in view and mirrored in a glossy floor (roughness 0.06), sun patches, a copper piece of furniture."""
     frames: int = 33
+    """Frames of the shot."""
     width: int = 320
+    """Frame width in pixels."""
     height: int = 224
-    #: 16 spp, OpenImageDenoise'd: what the data sets use (about 3 s a 320x224 frame on a 2-core machine)
+    """Frame height in pixels."""
     samples: int = 16
+    """Samples per pixel, OpenImageDenoise'd: what the data sets use (about 3 s a 320x224 frame on a 2-core machine)."""
     version: int = 3
-    #: Cycles threads (0: every core; the render is the only job when the demo is made)
+    """Room generator version (the seed names a room of this version)."""
     threads: int = 0
+    """Cycles threads (0: every core; the render is the only job when the demo is made)."""
 
     @property
     def folder_name(self) -> str:
@@ -72,9 +79,7 @@ def bpy_missing() -> str | None:
 def _command(folder: Path, spec: CyclesDemo) -> list[str]:
     # in a frozen bundle sys.executable is the editor itself, which runs a module for `--run-module` (x2video_app.__main__)
     run = [sys.executable, "--run-module" if getattr(sys, "frozen", False) else "-m", "x2video.cycles.demo"]
-    return run + [str(folder), "--seed", str(spec.seed), "--frames", str(spec.frames), "--width", str(spec.width),
-                  "--height", str(spec.height), "--samples", str(spec.samples), "--version", str(spec.version),
-                  "--threads", str(spec.threads)]
+    return run + [str(folder), *to_flags(CyclesDemo, spec, only_changed=False)]
 
 
 def _last_line(log: Path) -> str:
@@ -134,11 +139,9 @@ def main(argv: list[str] | None = None) -> int:
     (Blender's per-tile prints go to stderr instead), and records wall and CPU seconds in FOLDER/x2video-demo.json."""
     ap = argparse.ArgumentParser(prog="python -m x2video.cycles.demo", description="Render the path-traced demo room with Cycles.")
     ap.add_argument("folder", type=Path)
-    d = CYCLES_DEMO
-    for name in ("seed", "frames", "width", "height", "samples", "version", "threads"):
-        ap.add_argument(f"--{name}", type=int, default=getattr(d, name))
+    add_fields(ap, CyclesDemo)
     args = ap.parse_args(argv)
-    spec = replace(d, **{k: getattr(args, k) for k in ("seed", "frames", "width", "height", "samples", "version", "threads")})
+    spec = from_args(CyclesDemo, args)
     report = os.fdopen(os.dup(1), "w", buffering=1)
     os.dup2(2, 1)  # Blender prints a line per tile and sample to the C stdout: to stderr (the caller's log) with it
     t0, c0 = time.perf_counter(), resource.getrusage(resource.RUSAGE_SELF)
