@@ -70,13 +70,24 @@ def masked_psnr(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> tuple[flo
     return float(d.sum() / 3.0), int(mask.sum())
 
 
-def render_tier(renderer: Renderer, shot, tier: str, condition: str, **overrides) -> tuple[list[np.ndarray], float]:
-    from x2video.edits import Edits
+def condition_edits(shot, name: str, condition: str):
+    """(Edits or None, per-frame (H, W) bool masks of the masked objects or None) of a `--conditions` entry: "all" (every
+    channel), "drop_irradiance", or "mask_amr" (albedo, roughness and metallic of 3 visible objects masked out, drawn
+    with seed 0 per shot as `x2video eval` draws them; `x2video.eval.conditions`)."""
+    from x2video.eval.conditions import Condition, build_edits
 
-    edits = None
-    if condition == "drop_irradiance":
-        edits = Edits()
-        edits.dropped = {"irradiance"}
+    if condition == "all":
+        return None, None
+    if condition not in ("drop_irradiance", "mask_amr"):
+        raise ValueError(f"unknown condition {condition!r} (all, drop_irradiance, mask_amr)")
+    edits, desc = build_edits(shot, name, Condition(condition), seed=0)
+    if condition != "mask_amr":
+        return edits, None
+    objects = [int(i) for i in desc["objects"]]
+    return edits, [np.isin(shot.channel("ids", t)[..., 0], objects) for t in range(shot.num_frames)]
+
+
+def render_tier(renderer: Renderer, shot, tier: str, edits=None, **overrides) -> tuple[list[np.ndarray], float]:
     windowed = not tiers.get(tier).per_frame  # a tier with sampler steps takes the fast preset
     settings = RenderSettings(quality=tier, preset="fast" if windowed else None, **overrides)
     return render_timed(renderer, shot, settings, edits)
@@ -84,17 +95,20 @@ def render_tier(renderer: Renderer, shot, tier: str, condition: str, **overrides
 
 LABELS = {"albedo_x_irradiance|all": "formula: albedo × irradiance", "formula|all": "tier 0 (formula)", "residual|all": "tier 1 (residual net)",
           "residual_guess|all": "tier 1, --guess-unseen (net's guess in sky and glass)",
-          "diffusion|all": "tier 2 (diffusion, fast preset)", "diffusion|drop_irradiance": "tier 2, irradiance dropped"}
+          "diffusion|all": "tier 2 (diffusion, fast preset)", "diffusion|drop_irradiance": "tier 2, irradiance dropped",
+          "residual|mask_amr": "tier 1, A|M|R of 3 objects masked out", "diffusion|mask_amr": "tier 2, A|M|R of 3 objects masked out"}
 
 
 def markdown(summary: dict) -> list[str]:
     """The summary as a Markdown table: PSNR, SSIM, TC, seconds per frame, then PSNR per material class."""
     classes = [c for c in CLASSES if any(v["pixel_share"].get(c) for v in summary.values())]
-    head = ["render", "PSNR↑", "SSIM↑", "TC↓", "s/frame↓"] + [f"{c} PSNR" for c in classes]
+    in_masks = any("psnr_in_masks" in v for v in summary.values())
+    head = ["render", "PSNR↑", "SSIM↑", "TC↓", "s/frame↓"] + (["PSNR in masks↑"] if in_masks else []) + [f"{c} PSNR" for c in classes]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for key, v in summary.items():
         cells = [LABELS.get(key, key), f"{v['psnr']:.2f}", f"{v['ssim']:.4f}", "—" if v["tc"] is None else f"{v['tc']:.3f}",
-                 f"{v['sec_per_frame']:.3f}"] + ["—" if v["psnr_by_material"][c] is None else f"{v['psnr_by_material'][c]:.2f}" for c in classes]
+                 f"{v['sec_per_frame']:.3f}"] + ([f"{v['psnr_in_masks']:.2f}" if "psnr_in_masks" in v else "—"] if in_masks else []) + [
+                 "—" if v["psnr_by_material"][c] is None else f"{v['psnr_by_material'][c]:.2f}" for c in classes]
         lines.append("| " + " | ".join(cells) + " |")
     share = ", ".join(f"{c} {100 * next(iter(summary.values()))['pixel_share'][c]:.1f} %" for c in classes)
     lines.append("")
@@ -118,13 +132,20 @@ def evaluate(renderer: Renderer, shots: list[Path], runs: list[tuple[str, str, s
             classes.append(material_classes(files[t], fr) if len(files) == shot.num_frames else np.zeros(gts[-1].shape[:2], np.int8))
         tc_gt_ok = shot.num_frames >= 2
         results = {"albedo_x_irradiance|all": (forms, 0.0)}
+        conds = {cond: condition_edits(shot, sp.name, cond) for cond in {c for _, _, c, _ in runs}}
         for key, tier, cond, overrides in runs:
-            frames, secs = render_tier(renderer, shot, tier, cond, **overrides)
+            frames, secs = render_tier(renderer, shot, tier, conds[cond][0], **overrides)
             results[key] = (display(frames, s), secs)
         shot_row = {"shot": f"{sp.parent.name}/{sp.name}", "frames": shot.num_frames, "size": list(shot.size[::-1])}
         for key, (disp, secs) in results.items():
-            r = rows.setdefault(key, {"psnr": [], "ssim": [], "tc": [], "sec_per_frame": [], "sse": np.zeros(len(CLASSES)), "npx": np.zeros(len(CLASSES))})
+            r = rows.setdefault(key, {"psnr": [], "ssim": [], "tc": [], "sec_per_frame": [], "sse": np.zeros(len(CLASSES)), "npx": np.zeros(len(CLASSES)),
+                                      "sse_mask": 0.0, "npx_mask": 0})
             m = score(disp, gts)
+            masks = conds.get(key.split("|")[1], (None, None))[1]
+            for p, g, mk in zip(disp, gts, masks or []):  # inside the masked objects (mask_amr): what had to be generated
+                e, n = masked_psnr(p, g, mk)
+                r["sse_mask"] += e
+                r["npx_mask"] += n
             tc = m["tc"] if tc_gt_ok else None
             for p, g, c in zip(disp, gts, classes):
                 for k in range(len(CLASSES)):
@@ -148,6 +169,8 @@ def evaluate(renderer: Renderer, shots: list[Path], runs: list[tuple[str, str, s
             "psnr_by_material": {c: (round(10 * math.log10(n / max(e, 1e-12)), 2) if n else None) for c, e, n in zip(CLASSES, r["sse"], r["npx"])},
             "pixel_share": {c: round(float(n / max(r["npx"].sum(), 1)), 4) for c, n in zip(CLASSES, r["npx"])},
         }
+        if r["npx_mask"]:
+            summary[key]["psnr_in_masks"] = round(10 * math.log10(r["npx_mask"] / max(r["sse_mask"], 1e-12)), 2)
     return summary, per_shot
 
 
@@ -156,7 +179,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", required=True, help="data set folder (DATA/<split>/<shot>/) or a folder of shots with --split ''")
     ap.add_argument("--split", default="test")
     ap.add_argument("--tiers", default="formula,residual,diffusion", help="comma-separated: formula, residual, diffusion")
-    ap.add_argument("--conditions", default="all", help="comma-separated: all, drop_irradiance")
+    ap.add_argument("--conditions", default="all", help="comma-separated: all, drop_irradiance, mask_amr (3 objects' A|M|R masked out; "
+                    "tier 1 is rendered under it too, and PSNR inside the masks is reported)")
     ap.add_argument("--weights", default=None, help="model folder (default: the shipped weights)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--max-shots", type=int, default=0)
@@ -175,7 +199,8 @@ def main(argv: list[str] | None = None) -> int:
         shots = shots[: args.max_shots]
     names = [t for t in args.tiers.split(",") if t]
     conditions = [c for c in args.conditions.split(",") if c]
-    runs = [(f"{t}|{cond}", t, cond, {}) for cond in conditions for t in names if tiers.get(t).generative or cond == "all"]
+    runs = [(f"{t}|{cond}", t, cond, {}) for cond in conditions for t in names
+            if tiers.get(t).generative or cond == "all" or (cond == "mask_amr" and t == tiers.RESIDUAL)]
     if tiers.RESIDUAL in names and "all" in conditions:  # tier 1 with its guess where the channels hold no light (off by default)
         runs.append(("residual_guess|all", "residual", "all", {"guess_unseen": True}))
     summary, per_shot = evaluate(renderer, shots, runs)

