@@ -22,7 +22,7 @@ log = logging.getLogger(__name__)
 
 RENDERERS = ("auto", "cycles", "raster")
 #: what a user is told the first start costs (README "First commands"; measured in x2video-demo.json of the shot)
-STATED_TIME = "2-3 minutes on a free 2-core CPU, once"
+STATED_TIME = "about 2 minutes on a free 2-core CPU, once"
 
 
 def demo_renderer() -> str:
