@@ -96,7 +96,7 @@ def render_tier(renderer: Renderer, shot, tier: str, edits=None, **overrides) ->
 LABELS = {"albedo_x_irradiance|all": "formula: albedo × irradiance", "formula|all": "tier 0 (formula)", "residual|all": "tier 1 (residual net)",
           "residual_guess|all": "tier 1, --guess-unseen (net's guess in sky and glass)",
           "diffusion|all": "tier 2 (diffusion, fast preset)", "diffusion|drop_irradiance": "tier 2, irradiance dropped",
-          "residual|mask_amr": "tier 1, A|M|R of 3 objects masked out", "diffusion|mask_amr": "tier 2, A|M|R of 3 objects masked out"}
+          "residual|mask_amr": "tier 1, A\\|M\\|R of 3 objects masked out", "diffusion|mask_amr": "tier 2, A\\|M\\|R of 3 objects masked out"}
 
 
 def markdown(summary: dict) -> list[str]:
