@@ -24,8 +24,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Render SHOT (a shot folder, or --demo) to OUT: a .mp4 file or a folder of EXR frames.",
     )
     p.add_argument("shot", nargs="?", type=Path, help="shot folder (or any layout `x2video info` reads)")
-    p.add_argument("--demo", action="store_true", help="render the demo shot: a room path-traced with Cycles on first use (about 2 minutes on a free 2-core CPU;"
-                   " the rasterized procedural room where bpy is missing or $X2VIDEO_DEMO_RENDERER=raster)")
+    p.add_argument("--demo", action="store_true", help="render the demo shot: a room path-traced with Cycles on first use (about 2 minutes on a free"
+                   " 2-core CPU; the rasterized procedural room where bpy is missing or $X2VIDEO_DEMO_RENDERER=raster)")
     p.add_argument("--demo-dir", type=Path, default=None, help="where the demo shot is cached (default $X2VIDEO_DEMO_DIR, else ~/.cache/x2video/demo)")
     p.add_argument("--project", type=Path, help="project file with edits, masks, prompts and reference frame (its shot is used when SHOT is not given)")
     p.add_argument("--out", type=Path, required=True, help="output: OUT.mp4 (H.264, sRGB) or a folder of linear EXR frames")
