@@ -87,8 +87,17 @@ def condition_edits(shot, name: str, condition: str):
     return edits, [np.isin(shot.channel("ids", t)[..., 0], objects) for t in range(shot.num_frames)]
 
 
+def mask_ring(mask: np.ndarray, px: int = 6) -> np.ndarray:
+    """(H, W) bool: the band of `px` pixels just outside `mask`, where a composite of two tiers would show a seam."""
+    import cv2
+
+    grown = cv2.dilate(mask.astype(np.uint8), np.ones((2 * px + 1, 2 * px + 1), np.uint8)).astype(bool)
+    return grown & ~mask
+
+
 def render_tier(renderer: Renderer, shot, tier: str, edits=None, **overrides) -> tuple[list[np.ndarray], float]:
-    windowed = not tiers.get(tier).per_frame  # a tier with sampler steps takes the fast preset
+    """Frames and seconds of one tier (or "auto": what the product picks) with `edits`."""
+    windowed = tier == "auto" or not tiers.get(tier).per_frame  # what may run the sampler takes the fast preset
     settings = RenderSettings(quality=tier, preset="fast" if windowed else None, **overrides)
     return render_timed(renderer, shot, settings, edits)
 
@@ -96,18 +105,22 @@ def render_tier(renderer: Renderer, shot, tier: str, edits=None, **overrides) ->
 LABELS = {"albedo_x_irradiance|all": "formula: albedo × irradiance", "formula|all": "tier 0 (formula)", "residual|all": "tier 1 (residual net)",
           "residual_guess|all": "tier 1, --guess-unseen (net's guess in sky and glass)",
           "diffusion|all": "tier 2 (diffusion, fast preset)", "diffusion|drop_irradiance": "tier 2, irradiance dropped",
-          "residual|mask_amr": "tier 1, A\\|M\\|R of 3 objects masked out", "diffusion|mask_amr": "tier 2, A\\|M\\|R of 3 objects masked out"}
+          "residual|mask_amr": "tier 1, A\\|M\\|R of 3 objects masked out", "diffusion|mask_amr": "tier 2, A\\|M\\|R of 3 objects masked out",
+          "auto|mask_amr": "auto (tier 2 in the masks, tier 1 around), A\\|M\\|R of 3 objects masked out"}
 
 
 def markdown(summary: dict) -> list[str]:
     """The summary as a Markdown table: PSNR, SSIM, TC, seconds per frame, then PSNR per material class."""
     classes = [c for c in CLASSES if any(v["pixel_share"].get(c) for v in summary.values())]
     in_masks = any("psnr_in_masks" in v for v in summary.values())
-    head = ["render", "PSNR↑", "SSIM↑", "TC↓", "s/frame↓"] + (["PSNR in masks↑"] if in_masks else []) + [f"{c} PSNR" for c in classes]
+    ring = any("psnr_mask_ring" in v for v in summary.values())
+    head = (["render", "PSNR↑", "SSIM↑", "TC↓", "s/frame↓"] + (["PSNR in masks↑"] if in_masks else []) + (["PSNR 6 px around masks↑"] if ring else [])
+            + [f"{c} PSNR" for c in classes])
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for key, v in summary.items():
         cells = [LABELS.get(key, key), f"{v['psnr']:.2f}", f"{v['ssim']:.4f}", "—" if v["tc"] is None else f"{v['tc']:.3f}",
-                 f"{v['sec_per_frame']:.3f}"] + ([f"{v['psnr_in_masks']:.2f}" if "psnr_in_masks" in v else "—"] if in_masks else []) + [
+                 f"{v['sec_per_frame']:.3f}"] + ([f"{v['psnr_in_masks']:.2f}" if "psnr_in_masks" in v else "—"] if in_masks else []) + (
+                 [f"{v['psnr_mask_ring']:.2f}" if "psnr_mask_ring" in v else "—"] if ring else []) + [
                  "—" if v["psnr_by_material"][c] is None else f"{v['psnr_by_material'][c]:.2f}" for c in classes]
         lines.append("| " + " | ".join(cells) + " |")
     share = ", ".join(f"{c} {100 * next(iter(summary.values()))['pixel_share'][c]:.1f} %" for c in classes)
@@ -139,13 +152,19 @@ def evaluate(renderer: Renderer, shots: list[Path], runs: list[tuple[str, str, s
         shot_row = {"shot": f"{sp.parent.name}/{sp.name}", "frames": shot.num_frames, "size": list(shot.size[::-1])}
         for key, (disp, secs) in results.items():
             r = rows.setdefault(key, {"psnr": [], "ssim": [], "tc": [], "sec_per_frame": [], "sse": np.zeros(len(CLASSES)), "npx": np.zeros(len(CLASSES)),
-                                      "sse_mask": 0.0, "npx_mask": 0})
+                                      "sse_mask": 0.0, "npx_mask": 0, "sse_ring": 0.0, "npx_ring": 0})
             m = score(disp, gts)
             masks = conds.get(key.split("|")[1], (None, None))[1]
             for p, g, mk in zip(disp, gts, masks or []):  # inside the masked objects (mask_amr): what had to be generated
                 e, n = masked_psnr(p, g, mk)
                 r["sse_mask"] += e
                 r["npx_mask"] += n
+            # the 6-pixel band around the mask_amr objects, in every row: where auto's composite meets tier 1 (a seam
+            # shows as a lower PSNR there than tier 1's on all channels)
+            for p, g, mk in zip(disp, gts, conds.get("mask_amr", (None, None))[1] or []):
+                e, n = masked_psnr(p, g, mask_ring(mk))
+                r["sse_ring"] += e
+                r["npx_ring"] += n
             tc = m["tc"] if tc_gt_ok else None
             for p, g, c in zip(disp, gts, classes):
                 for k in range(len(CLASSES)):
@@ -171,6 +190,8 @@ def evaluate(renderer: Renderer, shots: list[Path], runs: list[tuple[str, str, s
         }
         if r["npx_mask"]:
             summary[key]["psnr_in_masks"] = round(10 * math.log10(r["npx_mask"] / max(r["sse_mask"], 1e-12)), 2)
+        if r["npx_ring"]:
+            summary[key]["psnr_mask_ring"] = round(10 * math.log10(r["npx_ring"] / max(r["sse_ring"], 1e-12)), 2)
     return summary, per_shot
 
 
@@ -201,6 +222,8 @@ def main(argv: list[str] | None = None) -> int:
     conditions = [c for c in args.conditions.split(",") if c]
     runs = [(f"{t}|{cond}", t, cond, {}) for cond in conditions for t in names
             if tiers.get(t).generative or cond == "all" or (cond == "mask_amr" and t == tiers.RESIDUAL)]
+    if "mask_amr" in conditions and any(tiers.get(t).generative for t in names):  # auto's composite under the masks
+        runs.append(("auto|mask_amr", "auto", "mask_amr", {}))
     if tiers.RESIDUAL in names and "all" in conditions:  # tier 1 with its guess where the channels hold no light (off by default)
         runs.append(("residual_guess|all", "residual", "all", {"guess_unseen": True}))
     summary, per_shot = evaluate(renderer, shots, runs)

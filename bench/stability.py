@@ -628,6 +628,9 @@ def merge_results(outs: list[dict]) -> dict:
         for c in o["cells"]:
             cells[(c["family"], c["name"], c["method"])] = {**c, "run": i}  # which run it comes from (the report says)
     merged["cells"] = list(cells.values())
+    datas = list(dict.fromkeys(o["data"] for o in outs if o.get("data")))  # every run's data, in order (each run's command names its own)
+    if datas:
+        merged["data"] = " and ".join(datas)
     merged["command"] = " ; ".join(o["command"] for o in outs)
     merged["wall_seconds"] = sum(o.get("wall_seconds", 0.0) for o in outs)
     merged["findings"] = findings(merged["cells"])

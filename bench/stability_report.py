@@ -434,8 +434,10 @@ def write_report(out: dict, md: Path, figs: Path) -> None:
         "",
         "Reading it: timings are wall seconds on 2 CPU cores shared with other jobs whose load varied a lot during the runs "
         "(a 2-frame diffusion cell took from under 1 s to 30 s), so compare seconds only between neighbouring cells; "
-        + tier1_note(out["model"]) + ("; in a merged report each cell is its last run's (listed above): the diffusion tier does "
-                                      "not involve the tier-1 net, so its cells stay valid when only the tier-1 weights change"
+        + tier1_note(out["model"]) + ("; in a merged report each cell is its last run's (listed above), measured with that run's data and "
+                                      "the weights shipped on its day: a run before a change of weights describes the earlier "
+                                      "weights (the diffusion tier's cells of runs before 2026-12-04 are the classical-prior "
+                                      "model's, which that day's tier-1-prior model replaced; docs/evaluations/)"
                                       if " ; " in out["command"] else "")
         + "; peak RSS is the whole process's (the loaded model is most of it), and after a 1920x1080 tier-1 frame the "
         "process keeps about 2 GB more (ONNX Runtime's memory arena, switched off since these runs: 0.3 GB stays after such a frame now), "

@@ -105,6 +105,7 @@ def test_cycles_clip_trains_tier1_one_step(tmp_path, monkeypatch):
     assert {"albedo_x_irradiance|all", "formula|all", "residual|all", "residual|mask_amr"} <= set(res)
     assert "psnr_in_masks" in res["residual|mask_amr"] and "psnr_in_masks" not in res["residual|all"]
     assert np.isfinite(res["residual|mask_amr"]["psnr_in_masks"]) and res["residual|all"]["psnr"] > 5
+    assert np.isfinite(res["residual|all"]["psnr_mask_ring"])  # the band around the masks, in every row (auto's seam)
     # the diffusion tier over tier 1 (`ModelConfig.prior` "tier1"): a latent cache of tier 1's frames made with the net just
     # trained, then one video step from the shipped weights and one LCM step from that
     import torch

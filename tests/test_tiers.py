@@ -154,9 +154,9 @@ def test_a_local_prompt_is_generated_inside_its_mask_and_the_rest_is_tier_1():
     _, tier1 = render(model, shot, RenderSettings(quality="residual"), e)
     _, whole = render(model, shot, RenderSettings(steps=2, quality="diffusion"), e)  # forced: the sampler's whole frame
     far = np.ones((48, 64), bool)
-    far[16 - 12:28 + 12, 24 - 12:40 + 12] = False  # beyond grow + blur (2 x 6 px)
+    far[16:28, 24:40] = False  # everywhere outside the mask: the seam lies inside it
     np.testing.assert_allclose(frames[1][far], tier1[1][far], atol=1e-5)
-    np.testing.assert_allclose(frames[1][16:28, 24:40], whole[1][16:28, 24:40], atol=1e-5)  # the sampler's pixels inside
+    np.testing.assert_allclose(frames[1][19:25, 27:37], whole[1][19:25, 27:37], atol=1e-5)  # the sampler's pixels 3 px in
     assert not np.allclose(whole[1][far], tier1[1][far], atol=1e-3)
 
 
@@ -168,7 +168,7 @@ def test_masked_region_is_generated_and_the_rest_is_tier_1():
     assert next(x for x in events if isinstance(x, RenderStarted)).tier == "diffusion"
     _, tier1 = render(model, shot, RenderSettings(quality="residual"), e)  # tier 1 of the same edited channels
     far = np.ones((48, 64), bool)
-    far[16 - 12:28 + 12, 24 - 12:40 + 12] = False  # beyond grow + blur (2 x 6 px)
+    far[16:28, 24:40] = False  # everywhere outside the mask
     np.testing.assert_allclose(frames[1][far], tier1[1][far], atol=1e-5)
     assert not np.allclose(frames[1][16:28, 24:40], tier1[1][16:28, 24:40], atol=1e-3)
     # a net auto does not trust: the formula around the generated region, not the sampler on the whole frame
@@ -420,3 +420,18 @@ def test_a_tier_exact_in_part_renders_any_part_of_a_range_to_the_same_bytes():
     _, whole = render(None, shot, RenderSettings(quality="formula"))
     _, part = render(None, shot, RenderSettings(quality="formula", frames=(2, 5)))
     assert sorted(part) == [2, 3, 4] and all(np.array_equal(part[t], whole[t]) for t in part)
+
+
+def test_the_composite_seam_lies_inside_the_generated_region():
+    """auto's regional composite: tier 2's weight is 0 outside the region, 1 deeper than SEAM_PX inside, a linear ramp
+    between (so the surfaces around a masked object keep tier 1's frame untouched)."""
+    from x2video.sampling.regions import SEAM_PX, composite_weight
+
+    m = np.zeros((40, 40), bool)
+    m[10:30, 5:35] = True
+    w = composite_weight(m)
+    assert w.dtype == np.float32 and not w[~m].any()
+    assert np.all(w[10 + int(SEAM_PX):30 - int(SEAM_PX), 5 + int(SEAM_PX):35 - int(SEAM_PX)] == 1)
+    assert w[20, 5] == pytest.approx(1 / SEAM_PX, abs=1e-6) and w[20, 6] == pytest.approx(2 / SEAM_PX, abs=1e-6)  # the edge ramps in
+    assert np.all(np.diff(w[20, 5:20]) >= 0)
+    assert not composite_weight(np.zeros((8, 8), bool)).any() and np.all(composite_weight(np.ones((8, 8), bool), 0) == 1)

@@ -69,7 +69,7 @@ class RenderSettings:
     'residual' = one pass of the tier-1 network over it (needs residual.safetensors beside the weights);
     'diffusion' = the video diffusion sampler. 'auto': the tier-1 network where nothing must be generated, the
     diffusion sampler where something must (a dropped channel, a masked A|M|R region, a local prompt, a
-    reference) and, when only some regions must be generated, tier 1 around them with a feathered seam; a model
+    reference) and, when only some regions must be generated, tier 1 around them, the seam feathered inside the regions; a model
     without the tier-1 network renders with the diffusion sampler. The log says what ran and why."""
     exposure: float | str = "auto"
     """MP4 exposure in stops on the input's radiometric units, or 'auto': the shot's own irradiance

@@ -5,7 +5,7 @@ prompt, a reference. Per render: prompts encoded once, each frame's conditioning
 content-keyed cache (`x2video.sampling.setup.Encoder`), initial noise seeded per window or frame
 (`x2video.sampling.noise`), and only the latents later windows read as references kept; decoded frames leave
 through `FramesReady` events. A regional render keeps the sampler's pixels inside the generated regions only,
-over the base tier's frame (`TierChoice.base`) with a feathered seam.
+over the base tier's frame (`TierChoice.base`), the seam feathered just inside the region.
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from x2video.sampling.cache import conditioning_key
 from x2video.sampling.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted, StepDone, WindowStarted
 from x2video.sampling.noise import frame_noise, inferred_region, mean_anchor, window_seed
 from x2video.sampling.planner import Window, last_use, plan, shift
-from x2video.sampling.regions import feathered, generated_region
+from x2video.sampling.regions import composite_weight, generated_region
 from x2video.sampling.samplers import Known, sample_ddim, sample_lcm
 from x2video.sampling.settings import RenderSettings
 from x2video.sampling.tier import TIERS, Emit, PerFrameTier, RenderJob, RenderPlan, Tier, TierChoice
@@ -131,7 +131,7 @@ class DiffusionTier(Tier):
 
 def composite(job: RenderJob, emit: Emit, base: PerFrameTier) -> Emit:
     """Wrap `emit` so each generated frame keeps tier 2 only inside its A|M|R regions and local prompts' masks
-    (`generated_region`, feathered), `base`'s frame elsewhere (`PerFrameTier.base_frames`)."""
+    (`generated_region`, with the seam just inside it: `composite_weight`), `base`'s frame elsewhere (`PerFrameTier.base_frames`)."""
 
     def wrapped(event: RenderEvent) -> None:
         if isinstance(event, FramesReady):
@@ -140,7 +140,7 @@ def composite(job: RenderJob, emit: Emit, base: PerFrameTier) -> Emit:
             under = base.base_frames(job, conds)
             frames = {}
             for f, c, b in zip(fs, conds, under):
-                w = feathered(generated_region(c))[..., None]  # (H, W, 1)
+                w = composite_weight(generated_region(c))[..., None]  # (H, W, 1), the seam inside the region
                 frames[f] = (w * event.frames[f] + (1 - w) * b).astype(np.float32)
             event = dataclasses.replace(event, frames=frames)
         emit(event)

@@ -9,7 +9,7 @@
 The tiers themselves are classes registered in `x2video.sampling.tier.TIERS` (one new class adds one: docs/
 ARCHITECTURE.md). `decide` picks one for a render (quality 'auto') and says why; `auto` composites per region:
 frames whose channels are all present take tier 1 outside the regions tier 2 must generate (A|M|R regions and
-local prompts' masks, `generated_region`), and the two meet over a feathered seam (`feathered`). The user can
+local prompts' masks, `generated_region`), and the two meet over a seam feathered just inside the region (`composite_weight`). The user can
 force any tier. `plan_render` is the pure plan of a render: the editor and the farm read it.
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Sequence
 
 from x2video.channels import INTRINSIC
 from x2video.sampling import setup
-from x2video.sampling.regions import FEATHER_PX, feathered, generated_region
+from x2video.sampling.regions import FEATHER_PX, composite_weight, feathered, generated_region
 from x2video.sampling.settings import RenderSettings
 from x2video.sampling.tier import TIERS, RenderPlan, Tier, TierChoice, coarse_to_fine
 from x2video.sampling.tier_diffusion import DiffusionTier
@@ -179,5 +179,5 @@ def choose_tier(quality: str, reasons: list[str], only_regions: bool, has_residu
 
 
 __all__ = ["FEATHER_PX", "FORMULA_IGNORES", "QUALITIES", "RenderPlan", "Tier", "TierChoice", "TIERS", "choose_tier", "coarse_to_fine",
-           "decide", "dropped_channels", "feathered", "formula_frame", "generated_region", "generation_reasons", "generative", "get",
+           "composite_weight", "decide", "dropped_channels", "feathered", "formula_frame", "generated_region", "generation_reasons", "generative", "get",
            "keep_formula_where_unseen", "plan_render", "qualities", "residual_frames", "windowed"]
