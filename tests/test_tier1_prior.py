@@ -141,3 +141,26 @@ def test_video_and_lcm_stages_train_over_tier_one(tier1_runs):
     # a tier-1 prior model folder without its tier-1 net refuses to load, and names what is missing
     with pytest.raises(FileNotFoundError, match="residual.safetensors"):
         X2VideoModel.from_pretrained(tier1_runs["lcm"]["model"], text_encoder=FakeTextEncoder())
+
+
+def test_a_shipped_folder_warns_when_its_tier_one_net_is_not_the_prior_s(tmp_path, caplog):
+    """A tier-1-prior model whose residual.safetensors is not the net its training.json says the prior came from loads,
+    but says so: the sampler would start from another net's frames."""
+    import json
+    import logging
+
+    from x2video.model.residual import load, save, weights_sha
+
+    net = _tier1_net(5)
+    m = _model(net)
+    m.save_pretrained(tmp_path)
+    save(net, tmp_path)
+    sha = weights_sha(load(tmp_path))  # the net as a folder holds it (fp16)
+    (tmp_path / "training.json").write_text(json.dumps({"shipped": {"model": {"prior_net": sha}}}))
+    with caplog.at_level(logging.WARNING, logger="x2video.model.pipeline"):
+        X2VideoModel.from_pretrained(tmp_path, text_encoder=FakeTextEncoder())
+    assert "not the one the diffusion model was trained over" not in caplog.text
+    save(_tier1_net(6), tmp_path)  # another net copied in alone
+    with caplog.at_level(logging.WARNING, logger="x2video.model.pipeline"):
+        X2VideoModel.from_pretrained(tmp_path, text_encoder=FakeTextEncoder())
+    assert "not the one the diffusion model was trained over" in caplog.text

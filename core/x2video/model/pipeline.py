@@ -169,10 +169,26 @@ class X2VideoModel:
             model.residual_net = engine(load_residual(directory, model.device), model.device)
             #: whether quality 'auto' may use it: residual.json's "auto", set when the net beat the formula on the outside check
             model.residual_auto = bool(json.loads((directory / "residual.json").read_text()).get("auto", False))
+            if cfg.prior == "tier1":
+                model._check_prior_net(directory)
         elif cfg.prior == "tier1":
             raise FileNotFoundError(f"{directory / 'residual.safetensors'} is missing: this model samples its residual over tier 1's "
                                     f"frame (config prior 'tier1'), so it needs the tier-1 net it was trained with beside its weights")
         return model
+
+    def _check_prior_net(self, directory: Path) -> None:
+        """Warn when the tier-1 net beside a tier-1-prior model is not the one its training latents were made with (the
+        `prior_net` its training.json records): the sampler then starts from frames it was not trained over."""
+        import json
+
+        from x2video.model.residual import weights_sha
+
+        doc = directory / "training.json"
+        want = json.loads(doc.read_text()).get("shipped", {}).get("model", {}).get("prior_net") if doc.is_file() else None
+        if want and want != (got := weights_sha(self.residual_net)):
+            log.warning("%s: the tier-1 net beside the weights (sha %s) is not the one the diffusion model was trained over "
+                        "(sha %s, training.json): the diffusion tier samples its residual over another net's frames; ship both "
+                        "together", directory, got, want)
 
     def save_pretrained(self, directory: str | os.PathLike, *, dtype: torch.dtype = torch.float32) -> Path:
         """Write config.json + unet/vae[/lcm_unet].safetensors (fp32, bf16 or fp16) into `directory`."""

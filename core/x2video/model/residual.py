@@ -18,6 +18,7 @@ formula. Deterministic and per frame: it cannot flicker more than its inputs.
 from __future__ import annotations
 
 import functools
+import hashlib
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -468,11 +469,19 @@ class _Bottom(nn.Module):
 
 def torch_module(net) -> ResidualNet:
     """The PyTorch net behind `net` (a `ResidualNet`, or what `engine` made of one)."""
-    if isinstance(net, ResidualNet):
-        return net
-    if isinstance(net, OnnxResidual):
-        return net.module
+    if isinstance(net, (ResidualNet, OnnxResidual)):
+        return net if isinstance(net, ResidualNet) else net.module
     raise TypeError(f"not a tier-1 net: {type(net).__name__}")
+
+
+def weights_sha(net) -> str:
+    """sha256 (first 16 hex digits) of a tier-1 net's weights: which net a diffusion model's tier-1 prior was made with
+    (`x2video.train.cache`'s `prior_net`, the shipped `training.json`'s)."""
+    h = hashlib.sha256()
+    for k, v in sorted(torch_module(net).state_dict().items()):
+        h.update(k.encode())
+        h.update(v.detach().to("cpu", torch.float32).contiguous().numpy().tobytes())
+    return h.hexdigest()[:16]
 
 
 def engine(net: ResidualNet, device: torch.device | str = "cpu", prefer: str = "auto"):

@@ -254,15 +254,9 @@ def build_cache(
 
 def net_sha(net) -> str:
     """sha256 (first 16 hex digits) of a tier-1 net's weights: which net a tier-1 prior came from."""
-    import hashlib
+    from x2video.model.residual import weights_sha
 
-    from x2video.model.residual import torch_module
-
-    h = hashlib.sha256()
-    for k, v in sorted(torch_module(net).state_dict().items()):
-        h.update(k.encode())
-        h.update(v.detach().to("cpu", torch.float32).contiguous().numpy().tobytes())
-    return h.hexdigest()[:16]
+    return weights_sha(net)
 
 
 def read_info(cache_dir: str | Path) -> CacheInfo:
