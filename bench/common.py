@@ -3,6 +3,7 @@ and sampling flags (generated from `RenderSettings` and `ModelOptions`, as `x2vi
 from __future__ import annotations
 
 import argparse
+import math
 import shlex
 import sys
 import time
@@ -18,6 +19,17 @@ from x2video.weights import ModelOptions
 RESULTS = Path(__file__).resolve().parent / "results"
 #: the sampling flags the accuracy benches take (the rest of RenderSettings is each bench's business)
 SAMPLING_FIELDS = ("seed", "window", "replace_refs", "seams", "max_levels", "noise", "noise_shared", "ref_dc", "resample")
+
+
+def clean_json(x: Any, digits: int = 5) -> Any:
+    """`x` made fit for a results JSON: floats rounded to `digits`, non-finite ones None, keys as strings, tuples as lists."""
+    if isinstance(x, float):
+        return None if not math.isfinite(x) else round(x, digits)
+    if isinstance(x, dict):
+        return {str(k): clean_json(v, digits) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [clean_json(v, digits) for v in x]
+    return x
 
 
 def results_path(bench: str, name: str | None = None, suffix: str = ".json") -> Path:

@@ -59,7 +59,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from bench.common import command, results_path
+from bench.common import clean_json, command, results_path
 from bench.ptscore import display, render_timed, score, shot_dirs, truth
 from x2video.cli.fields import add_fields, from_args
 from x2video.sampling import tiers
@@ -897,16 +897,6 @@ def markdown(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _clean(x: Any) -> Any:
-    if isinstance(x, float):
-        return None if not math.isfinite(x) else round(x, 5)
-    if isinstance(x, dict):
-        return {str(k): _clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
-    return x
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     add_fields(ap, ParetoOptions)
@@ -930,19 +920,19 @@ def main(argv: list[str] | None = None) -> int:
         old = json.loads(origin.read_text())
         out = Path(opts.out) if opts.out else origin
         if opts.from_result:
-            result = _clean(merge(old, json.loads(Path(opts.from_result).read_text()), opts.section, origin, command("pareto", argv)))
+            result = clean_json(merge(old, json.loads(Path(opts.from_result).read_text()), opts.section, origin, command("pareto", argv)))
         else:
             if _section(old, opts.section) is not None:
                 keys = [t.strip().lower() for t in opts.methods.split(",") if t.strip()]
                 opts = dataclasses.replace(opts, methods=",".join([tiers.FORMULA] + [k for k in keys if k != tiers.FORMULA]))
                 print("--merge: formula is measured first (a deterministic row: it checks this run's reference against the kept rows')",
                       file=sys.stderr)
-            result = _clean(merge(old, _clean(measure(opts, argv, lambda partial: write_json_atomic(
-                out, _clean(merge(old, _clean(partial), opts.section, origin))))), opts.section, origin))
+            result = clean_json(merge(old, clean_json(measure(opts, argv, lambda partial: write_json_atomic(
+                out, clean_json(merge(old, clean_json(partial), opts.section, origin))))), opts.section, origin))
     else:
         out = Path(opts.out) if opts.out else DOCS / "pareto.json"
         out.parent.mkdir(parents=True, exist_ok=True)
-        result = _clean(measure(opts, argv, lambda partial: write_json_atomic(out, _clean(partial))))
+        result = clean_json(measure(opts, argv, lambda partial: write_json_atomic(out, clean_json(partial))))
     write_json_atomic(out, result)
     md = results_path("pareto", out.stem, ".md") if out.resolve().parent == DOCS.resolve() else out.with_suffix(".md")
     md.parent.mkdir(parents=True, exist_ok=True)

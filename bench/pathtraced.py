@@ -146,6 +146,7 @@ def evaluate(renderer: Renderer, shots: list[Path], runs: list[tuple[str, str, s
         tc_gt_ok = shot.num_frames >= 2
         results = {"albedo_x_irradiance|all": (forms, 0.0)}
         conds = {cond: condition_edits(shot, sp.name, cond) for cond in {c for _, _, c, _ in runs}}
+        rings = [mask_ring(m) for m in conds.get("mask_amr", (None, None))[1] or []]  # the band around the masks, per frame
         for key, tier, cond, overrides in runs:
             frames, secs = render_tier(renderer, shot, tier, conds[cond][0], **overrides)
             results[key] = (display(frames, s), secs)
@@ -161,8 +162,8 @@ def evaluate(renderer: Renderer, shots: list[Path], runs: list[tuple[str, str, s
                 r["npx_mask"] += n
             # the 6-pixel band around the mask_amr objects, in every row: where auto's composite meets tier 1 (a seam
             # shows as a lower PSNR there than tier 1's on all channels)
-            for p, g, mk in zip(disp, gts, conds.get("mask_amr", (None, None))[1] or []):
-                e, n = masked_psnr(p, g, mask_ring(mk))
+            for p, g, ring in zip(disp, gts, rings):
+                e, n = masked_psnr(p, g, ring)
                 r["sse_ring"] += e
                 r["npx_ring"] += n
             tc = m["tc"] if tc_gt_ok else None

@@ -34,7 +34,6 @@ from __future__ import annotations
 import argparse
 import io
 import json
-import math
 import multiprocessing as mp
 import os
 import sys
@@ -45,7 +44,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from bench.common import command, results_path
+from bench.common import clean_json, command, results_path
 from bench.ptscore import display, render_timed, truth
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
@@ -100,8 +99,8 @@ def _cycles_worker(job: dict) -> dict:
 
     from x2video.cycles.outside.build import add_camera, camera_poses
     from x2video.cycles.outside.render import build_scene
-    from x2video.cycles.passes import PASS_FLAGS, wire_all_materials
-    from x2video.cycles.shot import CyclesConfig, render_beauty, scale_lights, setup_render
+    from x2video.cycles.passes import wire_all_materials
+    from x2video.cycles.shot import CyclesConfig, beauty_only, render_beauty, scale_lights, setup_render
 
     t0 = t_build = time.perf_counter()
     _, spec = build_scene(job["scene"])
@@ -111,14 +110,7 @@ def _cycles_worker(job: dict) -> dict:
     wire_all_materials()  # as the data set's build did, so that the scene is the same one
     scene.frame_start, scene.frame_end = 0, n - 1
     scale_lights(job["gain"])
-    layer = scene.view_layers[0]
-    for flag in PASS_FLAGS:
-        setattr(layer, flag, flag == "use_pass_combined")
-    while len(layer.aovs):
-        layer.aovs.remove(layer.aovs[0])
-    scene.use_nodes = False
-    s = scene.render.image_settings
-    s.file_format, s.color_depth, s.color_mode = "OPEN_EXR", "32", "RGB"
+    beauty_only(scene)
     build = time.perf_counter() - t0
     t0 = time.perf_counter()
     render_beauty(scene, job["frame"], 1, seed=job["seed"])  # kernels, OIDN and the first scene sync: untimed
@@ -260,16 +252,6 @@ def compose(panels: list[Panel], path: Path, footer: str = "") -> dict:
     return {"bytes": len(out.getvalue()), "palette": palette, "size": list(img.size)}
 
 
-def _clean(x: Any) -> Any:
-    if isinstance(x, float):
-        return None if not math.isfinite(x) else round(x, 5)
-    if isinstance(x, dict):
-        return {str(k): _clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
-    return x
-
-
 def panel_rows(panels: list[Panel]) -> list[dict]:
     return [{"key": p.key, "label": p.label, "psnr": p.psnr, "ssim": p.ssim, "psnr_shot": p.psnr_shot, "ssim_shot": p.ssim_shot,
              "seconds_per_frame": p.seconds_per_frame, "cpu_seconds_per_frame": p.cpu_seconds_per_frame, "caption": panel_caption(p), **p.extra}
@@ -282,7 +264,7 @@ def write_outputs(panels: list[Panel], png: Path, out: Path, header: dict, foote
     from x2video.io.paths import portable_path
 
     drawn = compose(panels, png, footer)
-    result = _clean({**header, "png": {"path": portable_path(png), **drawn}, "panels": panel_rows(panels)})
+    result = clean_json({**header, "png": {"path": portable_path(png), **drawn}, "panels": panel_rows(panels)})
     out.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out, result)
     return result

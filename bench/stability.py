@@ -638,16 +638,6 @@ def merge_results(outs: list[dict]) -> dict:
 
 
 
-def _clean(x: Any) -> Any:
-    if isinstance(x, float):
-        return None if not math.isfinite(x) else round(x, 4)
-    if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
-    return x
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="a reduced grid (a few cells per family, small sizes, short shots)")
@@ -671,7 +661,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     import torch
 
-    from bench.common import command, results_path
+    from bench.common import clean_json, command, results_path
     from x2video.eval.machine import machine_info
     from x2video.io.atomic import write_json_atomic
     from x2video.io.paths import portable_path
@@ -711,7 +701,7 @@ def main(argv: list[str] | None = None) -> int:
                        f"{TC_FRAMES} frames); seconds exclude scoring and model loading; peak_rss_mb = the process's VmHWM reset "
                        "before each cell (includes the loaded model); delta_e = mean CIE76 Lab dE to the ground truth",
                "wall_seconds": time.perf_counter() - t_all, "cells": results, "findings": findings(results)}
-        write_json_atomic(dest, _clean(out))
+        write_json_atomic(dest, clean_json(out, 4))
         return out
 
     for i, cell in enumerate(cells):
@@ -728,7 +718,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_docs:
         from bench.stability_report import write_report
 
-        write_report(_clean(out), DOCS / "STABILITY.md", DOCS / "stability")
+        write_report(clean_json(out, 4), DOCS / "STABILITY.md", DOCS / "stability")
     return 0
 
 

@@ -113,7 +113,8 @@ def test_cycles_clip_trains_tier1_one_step(tmp_path, monkeypatch):
 
     from x2video.model.checkpoint import read_config
     from x2video.model.residual import load as load_residual
-    from x2video.train.cache import build_cache, net_sha
+    from x2video.model.residual import weights_sha
+    from x2video.train.cache import build_cache
     from x2video.train.data import open_dataset
     from x2video.train.diffusion_stages import VideoStageConfig, run_video_stage
     from x2video.train.lcm_stage import LCMStageConfig, run_lcm_stage
@@ -125,7 +126,7 @@ def test_cycles_clip_trains_tier1_one_step(tmp_path, monkeypatch):
     cfg_v, vae = load_vae(shipped)
     net = load_residual(tmp_path / "run" / "best").eval()
     info = build_cache(open_dataset(out, need_test=False), vae, cfg_v, tmp_path / "cache", text_encoder=FakeTextEncoder(), prior_net=net)
-    assert info.prior == "tier1" and info.prior_net == net_sha(net) and info.size == (32, 24)
+    assert info.prior == "tier1" and info.prior_net == weights_sha(net) and info.size == (32, 24)
     n = torch.get_num_threads()
     torch.set_num_threads(1)
     try:

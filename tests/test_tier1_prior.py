@@ -109,12 +109,13 @@ def tier1_runs(tmp_path_factory):
 
 def test_cache_holds_tier_one_frames(tier1_runs):
     from x2video.conditioning import FrameConditioning
+    from x2video.model.residual import weights_sha
     from x2video.model.vae import encode_mode, images_to_tensor, to_vae_range
     from x2video.sampling.tier_residual import residual_frames
-    from x2video.train.cache import TIER1_KEYS, load_split, net_sha
+    from x2video.train.cache import TIER1_KEYS, load_split
 
     info, net = tier1_runs["info"], tier1_runs["net"]
-    assert info.prior == "tier1" and info.prior_net == net_sha(net)
+    assert info.prior == "tier1" and info.prior_net == weights_sha(net)
     tr = load_split(tier1_runs["root"] / "cache", "train")
     assert all(k in tr for k in TIER1_KEYS) and "shading_11" not in tr
     # row 1 of tier1_101 (roughness dropped) is the VAE latent of tier 1's frame of those channels

@@ -259,6 +259,12 @@ def beauty_scene(seed: int, poses: list[CameraPose], width: int, height: int, li
     add_camera([CameraPose(axes.T @ np.asarray(p.cam_to_world, float), p.fov_y_deg) for p in poses])
     wire_all_materials()  # as the room's build did, so that the scene is the same one
     scale_lights(light_gain)
+    return beauty_only(scene)
+
+
+def beauty_only(scene: "bpy.types.Scene") -> "bpy.types.Scene":
+    """`scene` set to render the picture alone, as a Blender user would: Combined only (no passes, AOVs or
+    compositor), single-layer float EXR."""
     layer = scene.view_layers[0]
     for flag in PASS_FLAGS:
         setattr(layer, flag, flag == "use_pass_combined")

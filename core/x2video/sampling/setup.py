@@ -24,6 +24,7 @@ import torch
 
 from x2video.channels import INTRINSIC
 from x2video.conditioning import FrameConditioning, camera_view
+from x2video.model.shading import shading_available
 from x2video.sampling import working
 from x2video.sampling.cache import ConditioningCache
 from x2video.sampling.settings import RenderSettings
@@ -219,7 +220,7 @@ class Encoder:
         Filled in place: it is derived from the channels, like a cache."""
         if self.model.prior != "tier1":
             return conds
-        todo = [c for c in conds if c.prior is None]
+        todo = [c for c in conds if c.prior is None and shading_available(c.channels)]  # no albedo or irradiance: no prior
         if todo:
             if self.model.residual_net is None:
                 raise ValueError("this model samples its residual over tier 1's frame (prior 'tier1') and has no tier-1 net")

@@ -37,6 +37,7 @@ from x2video.channels import INTRINSIC
 from x2video.io.atomic import atomic_path, write_json_atomic
 from x2video.model.checkpoint import save_checkpoint
 from x2video.model.config import LATENT_SCALE_KEYS, ModelConfig
+from x2video.model.residual import weights_sha
 from x2video.model.shading import classical_shading
 from x2video.model.text import TextEncoder, build_text_encoder
 from x2video.model.vae import area_downsample, encode_mode, images_to_tensor, irradiance_to_unit, measure_latent_scales, to_vae_range
@@ -114,7 +115,7 @@ def _tier1_images(frames: list[dict[str, np.ndarray]], net) -> list[dict[str, np
             conds.append(FrameConditioning(ch, np.zeros((h, w), np.float32), np.zeros((0, h, w), np.float32), frame_index=i))
             keys.append((i, key))
     out: list[dict[str, np.ndarray]] = [{} for _ in frames]
-    for (i, key), img in zip(keys, residual_frames(net, conds, "cpu", batch=8)):
+    for (i, key), img in zip(keys, residual_frames(net, conds, next(net.parameters()).device, batch=8)):
         out[i][key] = to_vae_range("shading", img)
     return out
 
@@ -247,16 +248,9 @@ def build_cache(
     save_checkpoint(out / "model", cfg, {"vae": vae})
     assert latent_size is not None and frame_size is not None
     info = CacheInfo(size=frame_size, latent_size=latent_size, rooms=rooms, prompts=prompt_list,
-                     prior="tier1" if prior_net is not None else "shading", prior_net=net_sha(prior_net) if prior_net is not None else "")
+                     prior="tier1" if prior_net is not None else "shading", prior_net=weights_sha(prior_net) if prior_net is not None else "")
     write_json_atomic(out / "meta.json", dataclasses.asdict(info))
     return info
-
-
-def net_sha(net) -> str:
-    """sha256 (first 16 hex digits) of a tier-1 net's weights: which net a tier-1 prior came from."""
-    from x2video.model.residual import weights_sha
-
-    return weights_sha(net)
 
 
 def read_info(cache_dir: str | Path) -> CacheInfo:

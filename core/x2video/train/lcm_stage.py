@@ -111,9 +111,10 @@ def run_lcm_stage(teacher: str | Path, cache: str | Path, out_dir: str | Path, s
     check_same_vae(cfg, read_config(cache / "model"), f"teacher {teacher}")
     from x2video.train.cache import read_info
 
-    if cfg.shading_prior and read_info(cache).prior != cfg.prior:
+    cache_prior = read_info(cache).prior
+    if cfg.shading_prior and cache_prior != cfg.prior:
         raise ValueError(f"teacher {teacher} samples over the {cfg.prior!r} prior, the cache {cache} holds the "
-                         f"{read_info(cache).prior!r} prior; distil on a cache of the teacher's prior")
+                         f"{cache_prior!r} prior; distil on a cache of the teacher's prior")
     teacher_unet = build_unet(cfg)
     load_into(teacher_unet, d / "unet.safetensors", "unet")
     teacher_unet.eval().requires_grad_(False)
