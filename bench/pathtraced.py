@@ -105,6 +105,7 @@ def render_tier(renderer: Renderer, shot, tier: str, edits=None, **overrides) ->
 LABELS = {"albedo_x_irradiance|all": "formula: albedo × irradiance", "formula|all": "tier 0 (formula)", "residual|all": "tier 1 (residual net)",
           "residual_guess|all": "tier 1, --guess-unseen (net's guess in sky and glass)",
           "diffusion|all": "tier 2 (diffusion, fast preset)", "diffusion|drop_irradiance": "tier 2, irradiance dropped",
+          "formula|mask_amr": "tier 0 (formula), A\\|M\\|R of 3 objects masked out",
           "residual|mask_amr": "tier 1, A\\|M\\|R of 3 objects masked out", "diffusion|mask_amr": "tier 2, A\\|M\\|R of 3 objects masked out",
           "auto|mask_amr": "auto (tier 2 in the masks, tier 1 around), A\\|M\\|R of 3 objects masked out"}
 
@@ -202,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--split", default="test")
     ap.add_argument("--tiers", default="formula,residual,diffusion", help="comma-separated: formula, residual, diffusion")
     ap.add_argument("--conditions", default="all", help="comma-separated: all, drop_irradiance, mask_amr (3 objects' A|M|R masked out; "
-                    "tier 1 is rendered under it too, and PSNR inside the masks is reported)")
+                    "the formula and tier 1 are rendered under it too, and PSNR inside the masks is reported)")
     ap.add_argument("--weights", default=None, help="model folder (default: the shipped weights)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--max-shots", type=int, default=0)
@@ -222,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
     names = [t for t in args.tiers.split(",") if t]
     conditions = [c for c in args.conditions.split(",") if c]
     runs = [(f"{t}|{cond}", t, cond, {}) for cond in conditions for t in names
-            if tiers.get(t).generative or cond == "all" or (cond == "mask_amr" and t == tiers.RESIDUAL)]
+            if tiers.get(t).generative or cond == "all" or (cond == "mask_amr" and not tiers.get(t).generative)]  # the per-frame tiers beside it
     if "mask_amr" in conditions and any(tiers.get(t).generative for t in names):  # auto's composite under the masks
         runs.append(("auto|mask_amr", "auto", "mask_amr", {}))
     if tiers.RESIDUAL in names and "all" in conditions:  # tier 1 with its guess where the channels hold no light (off by default)
