@@ -8,7 +8,8 @@ import numpy as np
 #: The five intrinsic channels the model reads, in UNet input order (XRGB layout).
 INTRINSIC = ("albedo", "normal", "roughness", "metallic", "irradiance")
 #: Channels a shot may carry besides the intrinsic ones.
-EXTRA = ("ids", "rgb", "depth")
+#: emission: light the surface emits itself (Blender's Emit + Env passes), linear HDR, in the shot's exposure.
+EXTRA = ("ids", "rgb", "depth", "emission")
 ALL = INTRINSIC + EXTRA
 #: The intrinsic channels the VAE encodes (irradiance is area-downsampled to latent size instead).
 VAE_ENCODED = INTRINSIC[:4]
@@ -36,6 +37,7 @@ SPECS: dict[str, ChannelSpec] = {
     "rgb": ChannelSpec("rgb", 3, ("R", "G", "B"), 0.0, None),
     "ids": ChannelSpec("ids", 1, ("id",), 0, None, dtype="int32"),
     "depth": ChannelSpec("depth", 1, ("Z",), 0.0, None),
+    "emission": ChannelSpec("emission", 3, ("R", "G", "B"), 0.0, None),
 }
 
 

@@ -43,6 +43,9 @@ class ShotInfo:
     irradiance_scale: float = 1.0
     source: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    #: the frames that carry path-traced rgb (keyframes: Cycles rendered 1 frame in N, the rest are G-buffers
+    #: only), sorted; None when every frame of a shot with an rgb channel carries it
+    rgb_frames: tuple[int, ...] | None = None
 
 
 class Shot(ABC):
@@ -70,12 +73,27 @@ class Shot(ABC):
     def has(self, name: str) -> bool:
         return name in self.info.channels
 
+    def has_rgb(self, t: int) -> bool:
+        """Frame t carries the shot's own path-traced rgb (every frame of a shot with rgb, or a keyframe)."""
+        if "rgb" not in self.info.channels:
+            return False
+        return self.info.rgb_frames is None or t in self.info.rgb_frames
+
+    @property
+    def keyframes(self) -> tuple[int, ...]:
+        """The frames that carry rgb, in order (all frames when every one does; none without rgb)."""
+        if "rgb" not in self.info.channels:
+            return ()
+        return tuple(range(self.num_frames)) if self.info.rgb_frames is None else self.info.rgb_frames
+
     def channel(self, name: str, t: int) -> np.ndarray:
         """One channel of frame t: float32 (H, W, C) (int32 for ids), in the convention of docs/ARCHITECTURE.md."""
         if name not in self.info.channels:
             raise KeyError(f"shot {self.info.source!r} has no channel {name!r} (has {', '.join(self.info.channels)})")
         if not 0 <= t < self.info.num_frames:
             raise IndexError(f"frame {t} outside shot {self.info.source!r} of {self.info.num_frames} frames")
+        if name == "rgb" and not self.has_rgb(t):
+            raise KeyError(f"shot {self.info.source!r}: frame {t} has no rgb (keyframes: {_frames_text(self.keyframes)})")
         return self._read(name, t)
 
     def frame(self, t: int, names: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
@@ -91,6 +109,12 @@ class Shot(ABC):
     @abstractmethod
     def _read(self, name: str, t: int) -> np.ndarray:
         """Read one channel of one frame from the source, already in memory convention."""
+
+
+def _frames_text(frames: tuple[int, ...], most: int = 12) -> str:
+    """'0, 8, 16' (the first `most`, then how many more)."""
+    head = ", ".join(str(f) for f in frames[:most])
+    return head + (f" and {len(frames) - most} more" if len(frames) > most else "") if frames else "none"
 
 
 class ArrayShot(Shot):
