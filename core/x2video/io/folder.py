@@ -19,7 +19,7 @@ from x2video.io.cache import LRU
 from x2video.io.convention import exposure_scale, log_luminance_sum, sanitize, scale_irradiance, to_memory, zero_nonfinite
 from x2video.io.image import FileStamps, ImageData, read_image, read_spec
 from x2video.io.metadata import find_poses, parse_shot_json
-from x2video.io.sequence import find_frames
+from x2video.io.sequence import FRAME_RE, find_frames, numbered_frames
 from x2video.shot import Shot, ShotInfo
 
 log = logging.getLogger(__name__)
@@ -126,7 +126,9 @@ class FolderShot(Shot):
             raise ValueError(
                 f"{self.root}: no channel folders (expected some of {', '.join((*SPECS, 'motion'))}/ with numbered frames)"
             )
-        self._frames: dict[str, list[Path]] = passes or {name: find_frames(d) for name, d in folders.items()}
+        keyed = folders.get("rgb") if len(folders) > 1 and not passes else None
+        self._frames: dict[str, list[Path]] = passes or {name: find_frames(d) for name, d in folders.items() if d is not keyed}
+        rgb_frames = self._keyframes(keyed, meta) if keyed is not None else None
         #: channel -> component index, for channels read from a packed material folder
         self._packed = {name: PACKED[d.name.lower()][name] for name, d in folders.items() if d.name.lower() in PACKED}
         motion = self._frames.pop("motion", None)
@@ -142,8 +144,12 @@ class FolderShot(Shot):
                 raise ValueError(f"{where}: {c} frames, but {ref_name} has {n}")
         if motion is not None and len(motion) not in (n, n - 1):
             raise ValueError(f"{folders['motion']}: {len(motion)} motion frames for a shot of {n} frames (expected {n - 1} or {n})")
+        if rgb_frames is not None and all(t is not None for t in rgb_frames):
+            self._frames["rgb"], rgb_frames = list(rgb_frames), None  # type: ignore[list-item]  (rgb on every frame)
+        elif rgb_frames is not None:
+            self._frames["rgb"] = rgb_frames  # type: ignore[assignment]  (None on frames between keyframes)
         self._motion = motion
-        self._stamps = FileStamps([f for files in (*self._frames.values(), motion or []) for f in files])
+        self._stamps = FileStamps([f for files in (*self._frames.values(), motion or []) for f in files if f is not None])
         h, w = self._check_headers(meta)
         poses = find_poses(self.root, n, (h, w))
         order = tuple(c for c in SPECS if c in self._frames)
@@ -159,22 +165,40 @@ class FolderShot(Shot):
             poses=poses,
             source=str(self.root),
             extra=dict(meta.get("extra", {})),
+            rgb_frames=None if rgb_frames is None else tuple(t for t, f in enumerate(rgb_frames) if f is not None),
         )
         if normalize_irradiance is None:
             normalize_irradiance = not meta.get("irradiance_normalized", False)
         if normalize_irradiance and "irradiance" in self._frames:
             self.info.irradiance_scale = self._measure_exposure()
 
+    def _keyframes(self, folder: Path, meta: dict[str, Any]) -> list[Path | None]:
+        """rgb/'s files per frame, None where a frame has none (a keyframe shot): frame numbers line up with the first
+        other channel's (its first file is frame 0); a frame number outside the shot is an error naming the file."""
+        numbered = numbered_frames(folder)
+        ref = next(iter(self._frames.values()))
+        m = FRAME_RE.match(ref[0].name)
+        first = int(m["num"]) if m is not None else 0
+        n = int(meta.get("num_frames", len(ref)))
+        out: list[Path | None] = [None] * n
+        for num, path in numbered.items():
+            if not 0 <= num - first < n:
+                raise ValueError(f"{path}: frame number {num} is outside the shot's frames {first}..{first + n - 1}"
+                                 f" (numbered like {ref[0].parent.name}/{ref[0].name})")
+            out[num - first] = path
+        return out
+
     def _check_headers(self, meta: dict[str, Any]) -> tuple[int, int]:
         sizes: dict[str, tuple[int, int]] = {}
         for name, files in self._frames.items():
+            files = [f for f in files if f is not None]
             spec = read_spec(files[0])
             sizes[name] = (spec.height, spec.width)
         want = (meta["height"], meta["width"]) if "height" in meta and "width" in meta else next(iter(sizes.values()))
         where = "shot.json" if "height" in meta else f"{next(iter(sizes))}/{self._frames[next(iter(sizes))][0].name}"
         for name, s in sizes.items():
             if s != want:
-                raise ValueError(f"{self._frames[name][0]}: size {s[1]}x{s[0]}, but {where} says {want[1]}x{want[0]}")
+                raise ValueError(f"{next(f for f in self._frames[name] if f is not None)}: size {s[1]}x{s[0]}, but {where} says {want[1]}x{want[0]}")
         return want
 
     def _measure_exposure(self) -> float:

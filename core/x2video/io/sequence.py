@@ -13,13 +13,9 @@ def is_image(path: Path) -> bool:
     return path.suffix.lower() in IMAGE_EXTENSIONS and not path.name.startswith(".")
 
 
-def find_frames(folder: str | Path) -> list[Path]:
-    """The frames of the sequence in `folder`, in order.
-
-    Accepts any prefix and zero padding, as long as all frames share prefix and extension and the
-    numbers are consecutive. Raises ValueError naming the folder/file for: no frames, a file that
-    is not numbered, mixed prefixes or extensions, duplicate or missing numbers.
-    """
+def numbered_frames(folder: str | Path) -> dict[int, Path]:
+    """Frame number -> file of the sequence in `folder`, gaps allowed (a keyframe shot's rgb/). Raises ValueError naming
+    the folder/file for: no frames, a file that is not numbered, mixed prefixes or extensions, duplicate numbers."""
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: not a folder")
@@ -40,6 +36,17 @@ def find_frames(folder: str | Path) -> list[Path]:
     if len(kinds) > 1:
         a, b = list(kinds.values())[:2]
         raise ValueError(f"{folder}: mixed sequences: {a.name} and {b.name} differ in prefix or extension")
+    return numbered
+
+
+def find_frames(folder: str | Path) -> list[Path]:
+    """The frames of the sequence in `folder`, in order.
+
+    Accepts any prefix and zero padding, as long as all frames share prefix and extension and the
+    numbers are consecutive. Raises ValueError naming the folder/file for: no frames, a file that
+    is not numbered, mixed prefixes or extensions, duplicate or missing numbers.
+    """
+    numbered = numbered_frames(folder)
     nums = sorted(numbered)
     for prev, cur in zip(nums, nums[1:]):
         if cur != prev + 1:

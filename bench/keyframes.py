@@ -1,0 +1,181 @@
+"""Path-traced keyframes (issue 51): fill the frames between 1 keyframe in N, and score every method beside Cycles.
+
+On the clips of `bench.clips` (one Cycles render of a room's passes, whose Combined is used on the keyframes only,
+and a truth rendered apart at more samples with another seed), for N in `--every`:
+
+- methods on the frames between: hold (the nearest keyframe), RIFE (colour only: `bench.rife`), the classical
+  fill by reprojection (`x2video.base.fill`, by depth and camera), the same by G-buffer flow (as on a shot without
+  depth or camera), each scored by PSNR and SSIM on the frames between and TC over the whole clip (keyframes
+  included), against the truth;
+- cost per frame = keyframe cost / N + G-buffer frame cost + the method's own seconds, beside Cycles at the
+  keyframes' samples and at 1, 2, 4 samples + OIDN on every frame (their PSNR against the same truth).
+
+    python -m bench.keyframes [--clips DIR] [--every 2,4,8,16] [--validation]
+
+`--validation` scores the validation clip only (where the fill's settings are chosen); without it, the test clips
+(`bench.clips.TEST_SEEDS`) are scored and written to bench/results/keyframes/keyframes.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from bench.clips import TEST_SEEDS, VALIDATION_SEEDS, default_root
+from bench.common import clean_json, command, results_path
+from x2video.channels import tonemap
+from x2video.metrics.image import psnr, ssim
+from x2video.metrics.temporal import temporal_consistency
+
+GBUFFER_COST = Path(__file__).parent / "results" / "keyframes" / "gbuffer_cost.json"
+
+
+def read_exr_rgb(path: Path) -> np.ndarray:
+    from x2video.io.image import read_image
+
+    return read_image(path).stack(["R", "G", "B"]).astype(np.float32)
+
+
+def load_clip(folder: Path) -> tuple[Any, list[np.ndarray], dict]:
+    """(the passes shot, the truth's linear frames, clip.json) of one clip."""
+    from x2video.io.load import load_shot
+
+    meta = json.loads((folder / "clip.json").read_text())
+    shot = load_shot(folder / "passes")
+    truth = [read_exr_rgb(folder / "truth" / f"{t:06d}.exr") for t in range(shot.num_frames)]
+    return shot, truth, meta
+
+
+def hold(shot: Any, keys: list[int], t: int) -> np.ndarray:
+    """The nearest keyframe's rgb (the earlier one on a tie)."""
+    return shot.channel("rgb", min(keys, key=lambda k: (abs(k - t), k)))
+
+
+def rife(shot: Any, keys: list[int], t: int) -> np.ndarray:
+    """RIFE between the two keyframes around t, on display images; returned as linear (sRGB decoded)."""
+    from bench.rife import interpolate
+    from x2video.base.fill import nearest_keyframes
+    from x2video.channels import srgb_to_linear
+
+    near = nearest_keyframes(t, keys)
+    if len(near) == 1:
+        return shot.channel("rgb", near[0])
+    a, b = near
+    return srgb_to_linear(interpolate(tonemap(shot.channel("rgb", a)), tonemap(shot.channel("rgb", b)), (t - a) / (b - a)))
+
+
+def classical(shot: Any, keys: list[int], t: int, cache: dict) -> np.ndarray:
+    from x2video.base.fill import fill_frame
+
+    return fill_frame(shot, t, keyframes=keys, shading=cache).rgb
+
+
+class NoDepth:
+    """The shot as one without depth and camera (the fill falls back to G-buffer flow)."""
+
+    def __init__(self, shot: Any):
+        self._shot = shot
+        from dataclasses import replace
+
+        self.info = replace(shot.info, poses=None, channels=tuple(c for c in shot.channels if c != "depth"))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._shot, name)
+
+    def has(self, name: str) -> bool:
+        return name in self.info.channels
+
+    @property
+    def keyframes(self) -> tuple[int, ...]:
+        return self._shot.keyframes
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return self._shot.size
+
+
+def methods() -> dict[str, Callable[..., np.ndarray]]:
+    return {
+        "hold": lambda shot, keys, t, cache: hold(shot, keys, t),
+        "rife": lambda shot, keys, t, cache: rife(shot, keys, t),
+        "classical": classical,
+        "classical_flow": lambda shot, keys, t, cache: classical(NoDepth(shot), keys, t, cache),
+    }
+
+
+def score_clip(folder: Path, every: list[int], names: list[str]) -> dict:
+    shot, truth, meta = load_clip(folder)
+    n = shot.num_frames
+    gts = [tonemap(f) for f in truth]
+    key_cost = float(np.mean(meta["passes"]["seconds"])) if "passes" in meta else None
+    rows = []
+    for N in every:
+        keys = list(range(0, n, N))
+        if keys[-1] != n - 1:
+            keys.append(n - 1)
+        between = [t for t in range(n) if t not in keys]
+        for name in names:
+            fn, cache, secs = methods()[name], {}, []
+            disp = {}
+            for t in range(n):
+                if t in keys:
+                    disp[t] = tonemap(shot.channel("rgb", t))
+                    continue
+                t0 = time.perf_counter()
+                disp[t] = tonemap(fn(shot, keys, t, cache))
+                secs.append(time.perf_counter() - t0)
+            video = [disp[t] for t in range(n)]
+            p = [psnr(disp[t], gts[t]) for t in between]
+            rows.append({"clip": folder.name, "every": N, "method": name, "psnr": float(np.mean(p)), "psnr_min": float(np.min(p)),
+                         "psnr_frames": {str(t): float(v) for t, v in zip(between, p)},
+                         "ssim": float(np.mean([ssim(disp[t], gts[t]) for t in between])),
+                         "tc": float(temporal_consistency(video, gts).tc),
+                         "fill_seconds": float(np.mean(secs)) if secs else 0.0, "keyframe_seconds": key_cost})
+            print(f"{folder.name} N={N:2d} {name:15s} {rows[-1]['psnr']:6.2f} dB (min {rows[-1]['psnr_min']:.2f}) "
+                  f"SSIM {rows[-1]['ssim']:.4f} TC {rows[-1]['tc']:.3f} {rows[-1]['fill_seconds']:.3f} s", flush=True)
+    cycles = []
+    for name, rec in meta.items():
+        if isinstance(rec, dict) and name.startswith("cycles-"):
+            frames = [read_exr_rgb(folder / name / f"{t:06d}.exr") for t in range(n)]
+            cycles.append({"clip": folder.name, "samples": rec["samples"], "seconds_per_frame": float(np.mean(list(rec["seconds"].values()))),
+                           "psnr": float(np.mean([psnr(tonemap(f), g) for f, g in zip(frames, gts)]))})
+    truth_cost = float(np.mean(list(meta["truth"]["seconds"].values())))
+    keys_psnr = float(np.mean([psnr(tonemap(shot.channel("rgb", t)), gts[t]) for t in range(n)]))
+    return {"rows": rows, "cycles": cycles, "truth": {"samples": meta["truth"]["samples"], "seconds_per_frame": truth_cost},
+            "keyframes": {"samples": meta["passes"]["samples"], "seconds_per_frame": key_cost, "psnr_vs_truth": keys_psnr}}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--clips", default=None, help="root of bench.clips' clips (default its cache folder at --size)")
+    ap.add_argument("--size", default="320x224")
+    ap.add_argument("--every", default="2,4,8,16")
+    ap.add_argument("--methods", default="hold,rife,classical,classical_flow")
+    ap.add_argument("--validation", action="store_true", help="score the validation clip (deciding settings), not the test clips")
+    args = ap.parse_args(argv)
+    w, h = (int(v) for v in args.size.split("x"))
+    root = Path(args.clips) if args.clips else default_root(w, h)
+    seeds = VALIDATION_SEEDS if args.validation else TEST_SEEDS
+    folders = [root / f"room_{s}" for s in seeds.split(",")]
+    missing = [f for f in folders if not (f / "clip.json").is_file()]
+    if missing:
+        raise SystemExit(f"{missing[0]}: no clip (make it with python -m bench.clips --seeds {seeds} --size {args.size})")
+    every = [int(v) for v in args.every.split(",")]
+    out = {"bench": "keyframes", "command": command("keyframes", argv), "split": "validation" if args.validation else "test",
+           "size": args.size, "clips": [score_clip(f, every, args.methods.split(",")) for f in folders]}
+    if GBUFFER_COST.is_file():
+        out["gbuffer_cost"] = json.loads(GBUFFER_COST.read_text())
+    path = results_path("keyframes", "keyframes_validation" if args.validation else "keyframes")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(clean_json(out), indent=1))
+    print(path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

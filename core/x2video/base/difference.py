@@ -1,0 +1,109 @@
+"""Edits as differences over the base: Debevec's differential rendering, out = base + R(edited) - R(original).
+
+R is a tier's render of a frame's channels; its systematic errors (light the five channels do not hold: sky, lamps,
+mirrors, glass) appear in both renders and cancel, so the base keeps them. An edit reaches the pixels whose
+channels it changed, plus a margin for the light it spills onto its surroundings (`reach`); every other pixel is
+the base, bit for bit.
+"""
+from __future__ import annotations
+
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from x2video.channels import INTRINSIC
+from x2video.conditioning import FrameConditioning
+
+#: pixels around an edit where its spill (a red sofa tints the floor beside it) may change the frame
+SPILL_MARGIN = 6
+#: channels whose change tier 0's difference renders exactly (diffuse light: the compositor's rebuild from passes)
+DIFFUSE_CHANNELS = ("albedo", "irradiance")
+#: channels whose change only a network's difference renders (the glossy term)
+GLOSSY_CHANNELS = ("normal", "roughness", "metallic")
+
+Mode = Literal["difference", "ratio"]
+
+
+def changed(original: FrameConditioning, edited: FrameConditioning, names: tuple[str, ...] = INTRINSIC) -> np.ndarray:
+    """(H, W) bool: pixels where any of `names` differs between the two conditionings (a channel present in one and
+    dropped in the other changes every pixel), or that an A|M|R mask or local prompt covers."""
+    h, w = edited.size
+    out = np.zeros((h, w), bool)
+    for name in names:
+        a, b = original.channels.get(name), edited.channels.get(name)
+        if a is None and b is None:
+            continue
+        if a is None or b is None:
+            return np.ones((h, w), bool)
+        out |= np.any(np.asarray(a) != np.asarray(b), axis=-1)
+    if names == INTRINSIC:
+        if np.size(edited.amr_mask):
+            out |= np.asarray(edited.amr_mask) > 0.5
+        if np.size(edited.local_masks):
+            out |= np.asarray(edited.local_masks).max(0) > 0
+    return out
+
+
+def grow(mask: np.ndarray, px: int) -> np.ndarray:
+    """`mask` (H, W) bool dilated by `px` pixels (a disc)."""
+    if px <= 0 or not mask.any():
+        return mask
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * px + 1, 2 * px + 1))
+    return cv2.dilate(mask.astype(np.uint8), k).astype(bool)
+
+
+def reach(original: FrameConditioning, edited: FrameConditioning, margin: int = SPILL_MARGIN) -> np.ndarray:
+    """(H, W) bool: the pixels an edit may change: what it changed, grown by `margin` for its spill."""
+    return grow(changed(original, edited), margin)
+
+
+def over_base(base: np.ndarray, r_edited: np.ndarray, r_original: np.ndarray, where: np.ndarray, mode: Mode = "difference") -> np.ndarray:
+    """The base (H, W, 3, float64) with the edit's change inside `where`: base + R(edited) - R(original), or as a ratio
+    base x R(edited) / R(original); never below 0. Outside `where` the base's values are returned untouched."""
+    e, o = np.asarray(r_edited, np.float64), np.asarray(r_original, np.float64)
+    if mode == "ratio":
+        new = base * np.where(o > 1e-6, e / np.maximum(o, 1e-6), 1.0) + np.where(o > 1e-6, 0.0, e)
+    else:
+        new = base + (e - o)
+    return np.where(where[..., None], np.maximum(new, 0.0), base)
+
+
+def spread_into(values: np.ndarray, hole: np.ndarray) -> np.ndarray:
+    """`values` (H, W, C) with the pixels of `hole` (H, W) filled from the pixels around them: normalised convolution at
+    growing Gaussian scales (the nearest known values weigh most), in log space so light levels blend as exposures."""
+    if not hole.any():
+        return values
+    known = (~hole).astype(np.float32)
+    if not known.any():
+        return values
+    logs = np.log1p(np.maximum(values, 0)).astype(np.float32) * known[..., None]
+    out = np.zeros_like(logs)
+    todo = hole.copy()
+    sigma = 1.0
+    while todo.any():
+        num = cv2.GaussianBlur(logs, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+        den = cv2.GaussianBlur(known, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+        ok = todo & (den > 1e-3)
+        out[ok] = num[ok] / den[ok][:, None]
+        todo &= ~ok
+        sigma *= 2
+        if sigma > 4 * max(hole.shape):
+            out[todo] = logs[known > 0].mean(0)
+            break
+    return np.where(hole[..., None], np.expm1(out), values).astype(np.float32)
+
+
+def relit_metal(original: FrameConditioning, edited: FrameConditioning) -> FrameConditioning:
+    """`edited` with irradiance inferred where a metal was made non-metal: Cycles' diffuse passes are black on metals, so
+    the irradiance there says nothing; it is spread in from the surfaces around (`spread_into`)."""
+    mo, me, irr = original.channels.get("metallic"), edited.channels.get("metallic"), edited.channels.get("irradiance")
+    if mo is None or me is None or irr is None:
+        return edited
+    hole = (np.asarray(mo)[..., 0] > 0.5) & (np.asarray(me)[..., 0] <= 0.5)
+    if not hole.any():
+        return edited
+    channels = dict(edited.channels)
+    channels["irradiance"] = spread_into(np.asarray(irr, np.float32), grow(hole, 1))
+    return FrameConditioning(channels=channels, amr_mask=edited.amr_mask, local_masks=edited.local_masks, frame_index=edited.frame_index,
+                             depth_source=edited.depth_source, fov_y_deg=edited.fov_y_deg)

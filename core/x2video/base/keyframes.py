@@ -1,0 +1,63 @@
+"""Which frames are keyframes: `--keyframes every:N|LIST` on a fully rendered shot, so the frames between can be scored.
+
+A keyframe shot carries path-traced rgb on some frames only (`ShotInfo.rgb_frames`); `only_keyframes` makes one from
+any shot with rgb on every frame, keeping rgb on the frames named and hiding it on the others, which then render from
+their keyframes as a shot exported with keyframes would.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from x2video.shot import Shot
+
+
+def parse_keyframes(text: str, num_frames: int) -> tuple[int, ...]:
+    """'every:8' -> 0, 8, 16, ... and the last frame; '0,8,20' -> those frames. ValueError names what is wrong."""
+    text = text.strip()
+    if text.startswith("every:"):
+        try:
+            n = int(text[len("every:"):])
+        except ValueError:
+            raise ValueError(f"--keyframes {text!r}: expected every:N with N a whole number") from None
+        if n < 1:
+            raise ValueError(f"--keyframes {text!r}: N must be at least 1")
+        frames = list(range(0, num_frames, n))
+        if frames[-1] != num_frames - 1:
+            frames.append(num_frames - 1)
+        return tuple(frames)
+    try:
+        frames = sorted({int(v) for v in text.split(",") if v.strip()})
+    except ValueError:
+        raise ValueError(f"--keyframes {text!r}: expected every:N or a comma-separated list of frame numbers") from None
+    if not frames:
+        raise ValueError("--keyframes: no frames given")
+    bad = [f for f in frames if not 0 <= f < num_frames]
+    if bad:
+        raise ValueError(f"--keyframes: frame {bad[0]} is outside the shot's {num_frames} frames (0..{num_frames - 1})")
+    return tuple(frames)
+
+
+class KeyframeShot(Shot):
+    """`shot` with rgb only on `frames` (they must carry rgb in `shot`)."""
+
+    def __init__(self, shot: Shot, frames: tuple[int, ...]) -> None:
+        missing = [f for f in frames if not shot.has_rgb(f)]
+        if missing:
+            raise ValueError(f"shot {shot.info.source!r}: frame {missing[0]} has no rgb to be a keyframe")
+        self.base_shot = shot
+        self.info = replace(shot.info, rgb_frames=tuple(sorted(frames)))
+
+    def _read(self, name: str, t: int) -> np.ndarray:
+        return self.base_shot.channel(name, t)
+
+    def __getattr__(self, name: str):
+        return getattr(self.base_shot, name)  # a loader's extras (motion, frame_path)
+
+
+def only_keyframes(shot: Shot, spec: str) -> Shot:
+    """`shot` with rgb kept on the keyframes `spec` names (`parse_keyframes`); ValueError when it has no rgb."""
+    if not shot.has("rgb"):
+        raise ValueError(f"--keyframes: shot {shot.info.source!r} has no rgb channel to take keyframes from")
+    return KeyframeShot(shot, parse_keyframes(spec, shot.num_frames))
