@@ -13,7 +13,7 @@ import pytest
 from test_tiers import with_net
 
 from bench import pareto as P
-from bench.stability import SyntheticShot
+from bench.stability_shots import SyntheticShot
 from x2video.channels import tonemap
 from x2video.io.paths import portable_path
 from x2video.io.shotdir import write_shot_folder
