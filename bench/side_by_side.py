@@ -318,7 +318,7 @@ def main(argv: list[str] | None = None) -> int:
               f"first render {cycles['first_render_seconds']:.1f} s, process {cycles['process_seconds']:.1f} s)", flush=True)
     panels.append(ground_truth_panel(info, gts[args.frame]))
 
-    from bench.pareto import weights_digest
+    from bench.pareto.measure import weights_digest
 
     machine = machine_info(model.device)
     scene = info.get("extra", {}).get("scene") or args.shot.name

@@ -12,8 +12,13 @@ import numpy as np
 import pytest
 from test_tiers import with_net
 
-from bench import pareto as P
-from bench.stability import SyntheticShot
+from bench.pareto import methods as pareto_methods
+from bench.pareto.chart import draw
+from bench.pareto.cli import main
+from bench.pareto.measure import NEAR_BEST_DB
+from bench.pareto.merge import MergeError
+from bench.pareto.methods import Method, parse_method, warm_up
+from bench.stability_shots import SyntheticShot
 from x2video.channels import tonemap
 from x2video.io.paths import portable_path
 from x2video.io.shotdir import write_shot_folder
@@ -30,15 +35,15 @@ def test_parse_method_and_round_trip_with_the_editor_key():
     from x2video.sampling.events import RenderSettings
     from x2video_app.charts import pareto_key
 
-    assert P.parse_method("lcm-2-seq") == P.Method("lcm-2-seq", "diffusion", "lcm", 2, "sequential")
-    assert P.parse_method("cycles-64").label == "Cycles 64 spp + OIDN"
+    assert parse_method("lcm-2-seq") == Method("lcm-2-seq", "diffusion", "lcm", 2, "sequential")
+    assert parse_method("cycles-64").label == "Cycles 64 spp + OIDN"
     for key in ("formula", "residual", "ddim-20", "lcm-2-seq"):
-        m = P.parse_method(key)
+        m = parse_method(key)
         tier = m.kind
         s = RenderSettings(sampler=m.sampler or "ddim", steps=m.steps or 20, scheme=m.scheme)
         assert pareto_key(tier, s) == key
     with pytest.raises(ValueError, match="unknown method"):
-        P.parse_method("euler-3")
+        parse_method("euler-3")
 
 
 def test_pareto_rows_summary_and_markdown(tmp_path, monkeypatch):
@@ -48,7 +53,7 @@ def test_pareto_rows_summary_and_markdown(tmp_path, monkeypatch):
     shot = fake_data(tmp_path / "data")
     out = tmp_path / "pareto.json"
     methods = "formula,residual,ddim-1,ddim-2,lcm-1,ddim-1-seq,cycles-4"
-    assert P.main(["--data", str(tmp_path / "data"), "--sizes", "48x32", "--rooms", "1", "--frames", "3", "--methods", methods,
+    assert main(["--data", str(tmp_path / "data"), "--sizes", "48x32", "--rooms", "1", "--frames", "3", "--methods", methods,
                    "--reference-samples", "0", "--threads", "1", "--out", str(out), "--no-png"]) == 0
     res = json.loads(out.read_text())
     rows = {r["method"]: r for r in res["rows"]}
@@ -68,18 +73,18 @@ def test_pareto_rows_summary_and_markdown(tmp_path, monkeypatch):
     assert res["ground_truth"]["48x32"]["kind"] == "data set frames"
     s = res["summary"]["48x32"]
     assert s["fastest_near_best"] in {r["label"] for r in rows.values()} and s["speedup_over_ddim20_cpu"] is None and s["speedup_over_cycles64_wall"] is None
-    assert s["fastest_psnr"] >= s["best_psnr"] - P.NEAR_BEST_DB
+    assert s["fastest_psnr"] >= s["best_psnr"] - NEAR_BEST_DB
     md = out.with_suffix(".md").read_text()
     assert "formula (tier 0)" in md and "Ground truth at 48x32" in md
     pytest.importorskip("matplotlib")
-    png = P.draw(res, tmp_path / "pareto.png")
+    png = draw(res, tmp_path / "pareto.png")
     assert png.stat().st_size > 10_000
 
 
 def test_missing_size_names_what_is_there(tmp_path):
     fake_data(tmp_path / "data", 2)
     with pytest.raises(SystemExit, match="no finished shot of 160x112.*48x32 \\(1\\)"):
-        P.main(["--data", str(tmp_path / "data"), "--sizes", "160x112", "--methods", "formula", "--reference-samples", "0",
+        main(["--data", str(tmp_path / "data"), "--sizes", "160x112", "--methods", "formula", "--reference-samples", "0",
                 "--out", str(tmp_path / "p.json")])
 
 
@@ -95,7 +100,7 @@ def test_cycles_rows_rebuild_the_same_room(tmp_path):
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = tmp_path / "p.json"
-    assert P.main(["--data", str(data), "--sizes", "48x32", "--rooms", "1", "--frames", "2", "--methods", "formula,cycles-1,cycles-4",
+    assert main(["--data", str(data), "--sizes", "48x32", "--rooms", "1", "--frames", "2", "--methods", "formula,cycles-1,cycles-4",
                    "--reference-samples", "16", "--threads", "1", "--out", str(out), "--no-png"]) == 0
     res = json.loads(out.read_text())
     rows = {r["method"]: r for r in res["rows"]}
@@ -118,7 +123,7 @@ class DimmerShot(SyntheticShot):
 
 
 def _run(data, out, methods, frames="3", *extra):
-    return P.main(["--data", str(data), "--sizes", "48x32", "--rooms", "1", "--frames", frames, "--methods", methods,
+    return main(["--data", str(data), "--sizes", "48x32", "--rooms", "1", "--frames", frames, "--methods", methods,
                    "--reference-samples", "0", "--threads", "1", "--out", str(out), "--no-png", *extra])
 
 
@@ -155,10 +160,10 @@ def test_merge_refuses_other_frames_other_data_and_another_reference(tmp_path, m
     old = tmp_path / "pareto.json"
     assert _run(tmp_path / "data", old, "formula,residual") == 0
     kept = old.read_text()
-    with pytest.raises(P.MergeError, match=r"frames \[2\].*\[3\]"):
+    with pytest.raises(MergeError, match=r"frames \[2\].*\[3\]"):
         _run(tmp_path / "data", tmp_path / "m.json", "residual", "2", "--merge", str(old))
     write_shot_folder(DimmerShot(3, (32, 48)), tmp_path / "data" / "test" / "shot_000", overwrite=True)
-    with pytest.raises(P.MergeError, match="data set was rebuilt"):
+    with pytest.raises(MergeError, match="data set was rebuilt"):
         _run(tmp_path / "data", tmp_path / "m.json", "residual", "3", "--merge", str(old))
     assert old.read_text() == kept and not (tmp_path / "m.json").exists()  # refused before anything was written
     # a result from before digests were recorded: the re-scored formula row is the check, and it catches the other frames
@@ -167,7 +172,7 @@ def test_merge_refuses_other_frames_other_data_and_another_reference(tmp_path, m
         for k in ("shots", "frames", "data_sha256", "reference_sha256"):
             g.pop(k)
     (tmp_path / "legacy.json").write_text(json.dumps(legacy))
-    with pytest.raises(P.MergeError, match="formula row re-scored.*differs"):
+    with pytest.raises(MergeError, match="formula row re-scored.*differs"):
         _run(tmp_path / "data", tmp_path / "m.json", "residual", "3", "--merge", str(tmp_path / "legacy.json"))
     fake_data(tmp_path / "data2")  # the original frames again (another folder, same name as recorded)
     legacy["data"] = [portable_path(tmp_path / "data2")]  # as the bench records it
@@ -185,7 +190,7 @@ def test_a_section_of_its_own_compares_the_schemes_and_leaves_the_main_rows(tmp_
     assert _run(tmp_path / "data", old, "formula,residual") == 0
     long = tmp_path / "long.json"
     assert _run(tmp_path / "data", long, "ddim-1,ddim-1-seq", "7") == 0  # measured alone, merged after (--from-result)
-    assert P.main(["--merge", str(old), "--section", "long shot", "--from-result", str(long), "--out", str(tmp_path / "m.json"), "--no-png"]) == 0
+    assert main(["--merge", str(old), "--section", "long shot", "--from-result", str(long), "--out", str(tmp_path / "m.json"), "--no-png"]) == 0
     res = json.loads((tmp_path / "m.json").read_text())
     assert [r["method"] for r in res["rows"]] == ["formula", "residual"] and all(r["run"] == 1 for r in res["rows"])
     assert "--from-result" in res["runs"][1]["merged_with"] == res["command"] and "--out" in res["runs"][1]["command"]
@@ -195,16 +200,16 @@ def test_a_section_of_its_own_compares_the_schemes_and_leaves_the_main_rows(tmp_
     assert c["setting"] == "ddim-1" and c["psnr_recursive"] != c["psnr_sequential"]
     assert "## long shot" in (tmp_path / "m.md").read_text()
     with pytest.raises(SystemExit, match="go with --merge"):
-        P.main(["--section", "x", "--data", str(tmp_path / "data")])
+        main(["--section", "x", "--data", str(tmp_path / "data")])
     pytest.importorskip("matplotlib")
-    assert P.draw(res, tmp_path / "m.png").stat().st_size > 10_000
+    assert draw(res, tmp_path / "m.png").stat().st_size > 10_000
 
 
 def test_warm_up_renders_the_frames_and_schemes_the_rows_render(monkeypatch):
     """The engine exports a graph per window size and kind: a warm-up of other frames leaves that to the first row."""
     seen = []
-    monkeypatch.setattr(P, "render_timed", lambda r, shot, s: seen.append((shot, s.quality, s.sampler, s.scheme, s.steps, s.frames)))
+    monkeypatch.setattr(pareto_methods, "render_timed", lambda r, shot, s: seen.append((shot, s.quality, s.sampler, s.scheme, s.steps, s.frames)))
     a, b = object(), object()
-    P.warm_up(with_net(), [a, b], [8, 8], [P.parse_method(k) for k in ("formula", "residual", "lcm-2", "lcm-2-seq", "ddim-4", "ddim-20")])
+    warm_up(with_net(), [a, b], [8, 8], [parse_method(k) for k in ("formula", "residual", "lcm-2", "lcm-2-seq", "ddim-4", "ddim-20")])
     assert sorted(seen, key=str) == sorted([(a, "residual", "ddim", "recursive", 20, (0, 8)), (a, "diffusion", "lcm", "recursive", 1, (0, 8)),
                                             (a, "diffusion", "lcm", "sequential", 1, (0, 8)), (a, "diffusion", "ddim", "recursive", 1, (0, 8))], key=str)

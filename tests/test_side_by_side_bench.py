@@ -11,7 +11,7 @@ import pytest
 from test_tiers import with_net
 
 from bench import side_by_side as S
-from bench.stability import SyntheticShot
+from bench.stability_shots import SyntheticShot
 from x2video.channels import tonemap
 from x2video.io.shotdir import write_shot_folder
 from x2video.metrics.image import psnr

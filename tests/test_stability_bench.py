@@ -1,4 +1,4 @@
-"""bench/stability.py's cell function on a few tiny cells: numbers recorded, no crash (a fake model, a synthetic shot)."""
+"""bench.stability's cells (bench/stability_cells.py) on a few tiny cells: numbers recorded, no crash (a fake model, a synthetic shot)."""
 from __future__ import annotations
 
 import math
@@ -7,11 +7,13 @@ import pytest
 from test_tiers import with_net
 
 from bench import stability as S
+from bench import stability_cells as C
+from bench.stability_shots import SyntheticShot
 
 
 @pytest.fixture(scope="module")
 def ctx():
-    c = S.Context([S.SyntheticShot(4, (24, 32))])
+    c = C.Context([SyntheticShot(4, (24, 32))])
     c._model = with_net()  # FakeModel (diffusion) with a tier-1 net: no weights to load
     return c
 
@@ -28,13 +30,13 @@ def cell(family: str, name: str, method: str, **params) -> dict:
     ("limits", "shot0", {}),
 ])
 def test_cells_record_numbers_without_crashing(ctx, method, family, name, params):
-    rec = S.run_cell(cell(family, name, method, **params), ctx)
+    rec = C.run_cell(cell(family, name, method, **params), ctx)
     assert not rec["crashed"], rec["error"]
     assert rec["frames_out"] == 2 and rec["frames_missing"] == 0
     assert math.isfinite(rec["psnr"]) and rec["nonfinite_frac"] == 0.0
     assert rec["seconds"] >= 0 and rec["peak_rss_mb"] > 0
     if family == "limits":
-        assert set(rec["psnr_by_class"]) == set(S.CLASS_SETS["limits"])
+        assert set(rec["psnr_by_class"]) == set(C.CLASS_SETS["limits"])
     if method == "auto":
         assert rec["tier"] == ("residual" if family != "channels" else "diffusion")
     if min(rec["size"]) >= 12:
@@ -42,18 +44,18 @@ def test_cells_record_numbers_without_crashing(ctx, method, family, name, params
 
 
 def test_length_cell_measures_drift_and_a_crash_is_recorded(ctx):
-    rec = S.run_cell(cell("length", "3f", "formula", frames=3), ctx)
+    rec = C.run_cell(cell("length", "3f", "formula", frames=3), ctx)
     assert rec["delta_e"] > 0 and len(rec["delta_e_series"]) == 3
-    bad = S.run_cell(cell("nope", "x", "formula"), ctx)
+    bad = C.run_cell(cell("nope", "x", "formula"), ctx)
     assert bad["crashed"] and "unknown family" in bad["error"]
 
 
 def test_quick_grid_covers_every_family_and_skips_big_diffusion():
     cells = S.grid(True, 2, True, S.FAMILIES, S.METHODS)
     assert {c["family"] for c in cells} == set(S.FAMILIES)
-    c = S.Context([S.SyntheticShot()])
+    c = C.Context([SyntheticShot()])
     big = [x for x in cells if x["method"] == "diffusion" and x["params"].get("size") == [1920, 1080]]
-    assert big and all(S.skip_reason(x, c) for x in big)
+    assert big and all(C.skip_reason(x, c) for x in big)
     assert len(S.grid(False, 6, True, ("channels",), ("formula",))) == 32
 
 
