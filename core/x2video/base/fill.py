@@ -81,21 +81,37 @@ def can_reproject(shot: Shot) -> bool:
 
 
 def warp_by_depth(shot: Shot, t: int, k: int, shading_k: np.ndarray, cfg: FillConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Keyframe k's `shading_k` seen from frame t through depth and camera: ((H, W, 3) shading, (H, W) validity)."""
+    """Keyframe k's `shading_k` seen from frame t through depth and camera: ((H, W, 3) shading, (H, W) validity).
+
+    Bilinear over the four keyframe pixels around each reprojected position, each weighed by whether it is the same
+    surface (depth and normal agree): an interpolation never mixes a foreground object's shading into the wall
+    behind it, which is where most of a plain bilinear warp's error lay (measured on the validation clip)."""
     assert shot.info.poses is not None
     vt, vk = View.of(shot.info.poses[t], shot.size), View.of(shot.info.poses[k], shot.size)
-    depth_t = shot.channel("depth", t)[..., 0]
-    x, y, d = project(vk, unproject(vt, depth_t))
-    warped = cv2.remap(shading_k, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    depth_k = cv2.remap(shot.channel("depth", k)[..., 0], x, y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     h, w = shot.size
-    valid = (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5) & (d > 0)
-    valid &= np.abs(depth_k - d) <= cfg.depth_tolerance * np.maximum(d, 1e-6)
-    if shot.has("normal"):
-        nk = cv2.remap(world_normals(vk, shot.channel("normal", k)), x, y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    x, y, d = project(vk, unproject(vt, shot.channel("depth", t)[..., 0]))
+    depth_k = shot.channel("depth", k)[..., 0]
+    normals = shot.has("normal")
+    if normals:
         nt = world_normals(vt, shot.channel("normal", t))
-        valid &= np.sum(nk * nt, -1) >= cfg.normal_cos
-    return warped.astype(np.float32), valid
+        nk = world_normals(vk, shot.channel("normal", k))
+    x0, y0 = np.floor(x), np.floor(y)
+    fx, fy = x - x0, y - y0
+    acc = np.zeros((h, w, 3), np.float32)
+    wsum = np.zeros((h, w), np.float32)
+    inside = (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5) & (d > 0)
+    for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        xi = np.clip(x0 + dx, 0, w - 1).astype(np.int32)
+        yi = np.clip(y0 + dy, 0, h - 1).astype(np.int32)
+        wb = (fx if dx else 1 - fx) * (fy if dy else 1 - fy)
+        ok = inside & (np.abs(depth_k[yi, xi] - d) <= cfg.depth_tolerance * np.maximum(d, 1e-6))
+        if normals:
+            ok &= np.sum(nk[yi, xi] * nt, -1) >= cfg.normal_cos
+        wt = np.where(ok, np.maximum(wb, 1e-4), 0).astype(np.float32)
+        acc += shading_k[yi, xi] * wt[..., None]
+        wsum += wt
+    valid = wsum > 0
+    return np.where(valid[..., None], acc / np.maximum(wsum, 1e-12)[..., None], 0).astype(np.float32), valid
 
 
 def fill_frame(shot: Shot, t: int, cfg: FillConfig = FillConfig(), keyframes: Sequence[int] | None = None,
