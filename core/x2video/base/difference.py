@@ -58,6 +58,16 @@ def reach(original: FrameConditioning, edited: FrameConditioning, margin: int = 
     return grow(changed(original, edited), margin)
 
 
+def feathered_reach(original: FrameConditioning, edited: FrameConditioning, margin: int = SPILL_MARGIN) -> np.ndarray | None:
+    """(H, W) float32 weight of a generated frame over the base: 1 on what the edit changed, falling to 0 across the
+    spill margin (a distance ramp), 0 beyond; None when the edit changes nothing in this frame."""
+    core = changed(original, edited)
+    if not core.any():
+        return None
+    dist = cv2.distanceTransform((~core).astype(np.uint8), cv2.DIST_L2, 3)
+    return np.clip(1.0 - dist / max(margin, 1), 0.0, 1.0).astype(np.float32)
+
+
 def over_base(base: np.ndarray, r_edited: np.ndarray, r_original: np.ndarray, where: np.ndarray, mode: Mode = "difference") -> np.ndarray:
     """The base (H, W, 3, float64) with the edit's change inside `where`: base + R(edited) - R(original), or as a ratio
     base x R(edited) / R(original); never below 0. Outside `where` the base's values are returned untouched."""

@@ -22,9 +22,11 @@ import numpy as np
 
 from x2video.base.difference import GLOSSY_CHANNELS, SPILL_MARGIN, changed, grow, over_base, relit_metal
 from x2video.base.fill import FillConfig, fill_frame
+from x2video.sampling.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted
 
 if TYPE_CHECKING:
     from x2video.conditioning import FrameConditioning
+    from x2video.sampling.tier import Emit, RenderJob, Tier
     from x2video.shot import Shot
 
 #: what `RenderStarted.tier` and `FramesReady.mode` say for frames that are the base with no tier's change
@@ -79,6 +81,76 @@ def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameCon
     return np.where(glossy[..., None], over_base(base, r_e, r_o, glossy), out), "formula+residual"
 
 
-def timed(fn: Callable[[], np.ndarray]) -> tuple[np.ndarray, float]:
-    t0 = time.perf_counter()
-    return fn(), time.perf_counter() - t0
+def render_over_base(job: RenderJob, tier: Tier, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:
+    """Render `job` over the shot's base: every frame the base where no edit reaches it, else base + the tiers'
+    differences (per-frame tiers) or the tier's frame inside the edit's reach (a generative tier); emits the events
+    every tier emits (RenderStarted, FramesReady), coarse to fine, a few frames per event."""
+    from x2video.sampling.setup import frame_conditioning
+    from x2video.sampling.tier import coarse_to_fine
+
+    shot = job.shot
+    bases = BaseFrames(shot)
+    original = frame_conditioning(shot, None)
+    generative = not tier.per_frame
+    glossy = tier.name != "formula" and job.model is not None and getattr(job.model, "residual_net", None) is not None
+    residual = _residual_fn(job) if glossy else None
+    if generative:
+        _generative_over_base(job, tier, bases, original, emit, cancel, done)
+        return
+    order = coarse_to_fine(*job.frames)
+    emit(RenderStarted(num_frames=len(order), num_windows=0, levels=[0], tier=job.choice.tier, reason=f"{job.choice.reason}; over the"
+                       f" shot's path-traced frames ({_keys_text(shot)})", per_frame=True))
+    for index, i in enumerate([0, *range(1, len(order), 4)]):
+        if cancel is not None and cancel.cancelled:
+            raise Cancelled(f"cancelled after {len(done)} frames")
+        tw = time.perf_counter()
+        fs = order[i:i + 4] if i else order[:1]
+        frames, modes = {}, set()
+        for t in fs:
+            with job.clock.stage("base"):
+                base = bases(t)
+            if job.edits is None:
+                frames[t], mode = base, BASE
+            else:
+                frames[t], mode = edited_frame(base, original(t), job.conditioning(t), glossy_tier=glossy, residual=residual)
+            modes.add(mode)
+        done.update(fs)
+        emit(FramesReady(window=index, frames=frames, level=0, mode="+".join(sorted(modes)), seconds=time.perf_counter() - tw))
+
+
+def _residual_fn(job: RenderJob) -> Callable[[list[FrameConditioning]], list[np.ndarray]]:
+    from x2video.sampling.tier_residual import residual_frames
+
+    def run(conds: list[FrameConditioning]) -> list[np.ndarray]:
+        assert job.model is not None
+        with job.clock.stage("residual"):
+            return residual_frames(job.model.residual_net, conds, job.model.device, 4, job.settings.guess_unseen, job.settings.residual_pixels)
+
+    return run
+
+
+def _generative_over_base(job: RenderJob, tier: Tier, bases: BaseFrames, original: Callable[[int], FrameConditioning], emit: Emit,
+                          cancel: CancelToken | None, done: set[int]) -> None:
+    """A tier that generates renders its frames as it would; each leaves as the base with the tier's frame inside the
+    edit's reach (feathered over the spill margin), the base bit for bit everywhere else."""
+    from x2video.base.difference import feathered_reach
+
+    def over(event: RenderEvent) -> None:
+        if isinstance(event, FramesReady):
+            out = {}
+            for t, f in event.frames.items():
+                base = bases(t)
+                w = feathered_reach(original(t), job.conditioning(t)) if job.edits is not None else None
+                out[t] = base if w is None else np.where(w[..., None] > 0, w[..., None] * f + (1 - w[..., None]) * base, base)
+            event = FramesReady(window=event.window, frames=out, level=event.level, mode=event.mode, seconds=event.seconds,
+                                replaces=event.replaces, window_done=event.window_done)
+        emit(event)
+
+    tier.render(job, over, cancel, done)
+
+
+def _keys_text(shot: Shot) -> str:
+    keys = shot.keyframes
+    if len(keys) == shot.num_frames:
+        return "rgb on every frame"
+    return f"{len(keys)} keyframes of {shot.num_frames} frames, the rest filled"
