@@ -191,7 +191,32 @@ def readme_pareto() -> str:
     gt = next(iter(p["ground_truth"].values()))
     return ("On the chart's rooms (ground truth Cycles at " + f"{gt['samples']} spp + OIDN): "
             + "; ".join(f"{rows[m]['label']} {rows[m]['psnr']:.2f} dB at {rows[m]['cpu_seconds_per_frame']:.3g} CPU s a frame" for m in pick)
-            + f" (`{SOURCES['pareto']}`).")
+            + f" (`{SOURCES['pareto']}`). " + _pick_sentence(p, rows))
+
+
+def _pick_sentence(p: dict, rows: dict) -> str:
+    """What a user who must render the passes should pick: each tier's total with the passes' Cycles render beside the
+    cheapest Cycles row that scores at least as well (bench/results/pareto/input_cost.json)."""
+    from bench.pareto.inputs import input_costs, with_inputs
+
+    costs = input_costs()
+    tiers_ = [with_inputs(r, costs) for r in p["rows"] if r["kind"] != "cycles" and r.get("psnr") is not None]
+    cycles = sorted((r for r in p["rows"] if r["kind"] == "cycles" and r.get("psnr") is not None), key=lambda r: r["seconds_per_frame"])
+    best = max(tiers_, key=lambda r: r["psnr"])
+    if best["seconds_rendered_for_this"] is None or not cycles:
+        return ""
+    beat = next((c for c in cycles if c["psnr"] >= best["psnr"]), None)
+    passes = best["inputs"]["cpu_seconds_per_frame"]
+    text = (f"The tiers read passes that are themselves a path trace ({passes:.3g} CPU s a frame here, {best['inputs']['what']}): "
+            f"with the passes rendered for this, the best tier row ({best['label']}) costs {best['seconds_rendered_for_this']:.3g} CPU s "
+            f"a frame for {best['psnr']:.2f} dB")
+    if beat is not None and beat["seconds_per_frame"] <= best["seconds_rendered_for_this"]:
+        text += (f", where {beat['label']} gives {beat['psnr']:.2f} dB in {beat['seconds_per_frame']:.3g}: a user who must render the passes"
+                 " should render the picture with Cycles; the tiers pay off where the passes, or the path-traced frames, already exist"
+                 " (editing an existing shot, keyframes).")
+    else:
+        text += "."
+    return text
 
 
 BLOCKS: dict[str, Callable[[], str]] = {"tier1": tier1_table, "diffusion": diffusion_table, "reproduce": reproduce,

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from bench.pareto.inputs import input_costs, with_inputs
 from bench.pareto.methods import FAMILY_NAMES
 from bench.pareto.report import shots_text
 from x2video.sampling import tiers
@@ -46,6 +47,11 @@ def _panels(axes: Any, rows: list[dict], clock: str | None) -> list[tuple[int, i
                 marker, colour = FAMILY_STYLE.get(fam, ("x", "grey"))
                 ax.plot([r["seconds_per_frame"] for r in pts], [r[key] for r in pts], ls=dashes[size], marker=marker, color=colour,
                         ms=7 if marker != "*" else 11, label=f"{FAMILY_NAMES.get(fam, fam)} {size[0]}x{size[1]}")
+                for r in pts:  # the passes' own Cycles render, when rendered for this: a dotted segment to an open marker
+                    total = r.get("seconds_rendered_for_this")
+                    if r.get("inputs") and total:
+                        ax.plot([r["seconds_per_frame"], total], [r[key], r[key]], ls=":", lw=0.9, color=colour, alpha=0.7)
+                        ax.plot([total], [r[key]], marker=marker, mfc="none", color=colour, ms=6, ls="none")
                 for r in pts:
                     tag = r["label"].replace(" + OIDN", "").replace("tier 1 (residual net)", "tier 1").replace("formula (tier 0)", "formula")
                     tag = tag.replace(" sequential", " seq") + (f" [run {r['run']}]" if r.get("run") not in (None, usual) else "")
@@ -77,7 +83,8 @@ def draw(result: dict, path: Path) -> Path:
     from x2video.eval.machine import machine_label
     from x2video.io.atomic import atomic_path
 
-    ok = lambda rs: [r for r in rs if r.get("psnr") is not None and r["seconds_per_frame"] > 0]  # noqa: E731
+    costs = input_costs()
+    ok = lambda rs: [with_inputs(r, costs) for r in rs if r.get("psnr") is not None and r["seconds_per_frame"] > 0]  # noqa: E731
     rows = ok(result["rows"])
     if not rows:
         raise ValueError("pareto chart: no row with PSNR and seconds per frame")
@@ -98,7 +105,9 @@ def draw(result: dict, path: Path) -> Path:
     fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=7, frameon=False)
     fig.suptitle(f"speed vs accuracy on path-traced test rooms ({machine_label(result['machine'])}, {result['threads']} threads; "
                  f"{_runs_line(result)})\nground truth: {_gt_line(result['ground_truth'])}\nformula: horizontal line; solid = "
-                 f"{sizes[0][0]}x{sizes[0][1]}" + (f", dashed = {sizes[1][0]}x{sizes[1][1]}" if len(sizes) > 1 else ""), fontsize=8)
+                 f"{sizes[0][0]}x{sizes[0][1]}" + (f", dashed = {sizes[1][0]}x{sizes[1][1]}" if len(sizes) > 1 else "")
+                 + "; filled marker: the passes already rendered (editing an existing shot); dotted to an open marker: the passes"
+                 " rendered for this (their Cycles render's CPU seconds added)", fontsize=8)
     top = 1 - 0.55 / fig.get_figheight()
     fig.tight_layout(rect=(0, (0.5 if len(labels) > 6 else 0.3) / fig.get_figheight(), 1, top))
     with atomic_path(path) as tmp:

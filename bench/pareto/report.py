@@ -12,11 +12,17 @@ def shots_text(g: dict) -> str:
 
 
 def _table(rows: list[dict], with_run: bool) -> list[str]:
+    from bench.pareto.inputs import input_costs, with_inputs
+
     f = lambda v, d: "—" if v is None else f"{v:.{d}f}"  # noqa: E731
-    lines = ["| size | setting | wall s/frame ↓ | CPU s/frame ↓ | PSNR ↑ | SSIM ↑ | TC ↓ | PSNR vs data set frames |" + (" run |" if with_run else ""),
-             "|---|---|---|---|---|---|---|---|" + ("---|" if with_run else "")]
+    costs = input_costs()
+    lines = ["| size | setting | wall s/frame ↓ | CPU s/frame ↓ | + passes rendered for this, CPU s/frame | PSNR ↑ | SSIM ↑ | TC ↓ | "
+             "PSNR vs data set frames |" + (" run |" if with_run else ""),
+             "|---|---|---|---|---|---|---|---|---|" + ("---|" if with_run else "")]
     for r in rows:
-        lines.append(f"| {r['size'][0]}x{r['size'][1]} | {r['label']} | {r['wall_seconds_per_frame']:.3f} | {f(r['cpu_seconds_per_frame'], 3)} | "
+        full = with_inputs(r, costs)
+        total = "none read" if full["inputs"] is None else f(full["seconds_rendered_for_this"], 3)
+        lines.append(f"| {r['size'][0]}x{r['size'][1]} | {r['label']} | {r['wall_seconds_per_frame']:.3f} | {f(r['cpu_seconds_per_frame'], 3)} | {total} | "
                      f"{f(r['psnr'], 2)} | {f(r['ssim'], 4)} | {f(r['tc'], 3)} | {f(r['psnr_dataset'], 2)} |"
                      + (f" {r.get('run', '—')} |" if with_run else ""))
     return lines
