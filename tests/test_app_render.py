@@ -16,7 +16,7 @@ from PySide6.QtCore import Qt  # noqa: E402
 from PySide6.QtWidgets import QMessageBox  # noqa: E402
 
 from x2video.sampling.events import FramesReady, RenderCancelled, StepDone  # noqa: E402
-from x2video_app.main_window import MainWindow  # noqa: E402
+from x2video_app._qt.main_window import MainWindow  # noqa: E402
 
 RENDER_TIMEOUT_MS = 240_000
 
@@ -90,7 +90,7 @@ def test_render_keyframes_first_reuse_cache_reference_and_export(win, qtbot, tmp
     assert "Finished 5 frames" in win.render_panel.status_label.text()
     # the viewer shows the rendered frame (not the checkerboard of an unrendered one)
     win.doc.set_frame(3)
-    from x2video_app.display import channel_to_u8
+    from x2video_app.state.display import channel_to_u8
 
     assert np.array_equal(win.doc.display_image(), channel_to_u8("rgb", st.frames[3].astype(np.float32), (32, 48)))
 

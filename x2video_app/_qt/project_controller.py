@@ -2,7 +2,7 @@
 a crash; a lock file that tells a second editor the project is open; the unsaved-changes guard; and export (MP4 /
 EXR sequence) with a progress dialog. Works on the Document, the undo stack (clean = saved) and the render controller
 it is given; asks and reports through a `Host`. The files are Qt-free: `x2video.edits.autosave`, `x2video.edits.lock`;
-the undo side is `x2video_app.recovery`."""
+the undo side is `x2video_app._qt.recovery`."""
 from __future__ import annotations
 
 import logging
@@ -32,11 +32,12 @@ from x2video.edits.lock import ProjectLock, ProjectLocked
 from x2video.io import load_shot
 from x2video.io.units import OutputUnits
 from x2video.sampling.events import RenderSettings
-from x2video_app import exporter, recovery
-from x2video_app.demo import ensure_demo
-from x2video_app.document import Document
-from x2video_app.host import Host
-from x2video_app.render_controller import RenderController
+from x2video_app._qt import recovery
+from x2video_app._qt.host import Host
+from x2video_app._qt.render_controller import RenderController
+from x2video_app.state import exporter
+from x2video_app.state.demo import ensure_demo
+from x2video_app.state.document import Document
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +88,7 @@ class ProjectController(QObject):
         #: recovered autosave: unsaved under the project's name although the undo stack is clean
         self.force_dirty = False
         undo.cleanChanged.connect(self._clean_changed)
-        #: the Edits at each undo index, for autosave (`x2video_app.recovery`)
+        #: the Edits at each undo index, for autosave (`x2video_app._qt.recovery`)
         self.history = recovery.HistoryTracker(doc, undo)
         #: the lock of the open project (or unsaved shot); None when nothing is open
         self.lock: ProjectLock | None = None

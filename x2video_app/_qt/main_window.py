@@ -23,23 +23,23 @@ from PySide6.QtWidgets import (
 )
 from shiboken6 import isValid
 
-from x2video_app.charts import Charts, pareto_path
-from x2video_app.compare import Compare
-from x2video_app.display import VIEW_MODES
-from x2video_app.document import Document
-from x2video_app.edit_actions import EditActions
-from x2video_app.edit_panel import EditPanel
-from x2video_app.live_preview import LivePreview
-from x2video_app.mask_panel import MaskPanel
-from x2video_app.model_source import cuda_available, weights_hint
-from x2video_app.project_controller import ProjectController
-from x2video_app.render_controller import RenderController
-from x2video_app.render_panel import RenderPanel
-from x2video_app.scene_panel import ScenePanel
-from x2video_app.style import apply_style
-from x2video_app.timeline import Timeline
-from x2video_app.viewer import Viewer
-from x2video_app.window_render import WindowRender
+from x2video_app._qt.charts import Charts, pareto_path
+from x2video_app._qt.compare import Compare
+from x2video_app._qt.edit_actions import EditActions
+from x2video_app._qt.edit_panel import EditPanel
+from x2video_app._qt.live_preview import LivePreview
+from x2video_app._qt.mask_panel import MaskPanel
+from x2video_app._qt.project_controller import ProjectController
+from x2video_app._qt.render_controller import RenderController
+from x2video_app._qt.render_panel import RenderPanel
+from x2video_app._qt.scene_panel import ScenePanel
+from x2video_app._qt.style import apply_style
+from x2video_app._qt.timeline import Timeline
+from x2video_app._qt.viewer import Viewer
+from x2video_app._qt.window_render import WindowRender
+from x2video_app.state.display import VIEW_MODES
+from x2video_app.state.document import Document
+from x2video_app.state.model_source import cuda_available, weights_hint
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +71,7 @@ EDIT_WIRING: tuple[tuple[str, str], ...] = (
     ("scene_panel.sigClearReference", "edits.clear_reference"),
 )
 APP_NAME = "X2Video Studio"
-BENCH_RESULTS = Path(__file__).resolve().parents[1] / "bench" / "results"
+BENCH_RESULTS = Path(__file__).resolve().parents[2] / "bench" / "results"
 
 
 class MainWindow(QMainWindow):
@@ -225,7 +225,7 @@ class MainWindow(QMainWindow):
         for signal, slot in EDIT_WIRING:
             attrgetter(signal)(self).connect(attrgetter(slot)(self))
 
-    # -- rendering (x2video_app.window_render) ------------------------------------
+    # -- rendering (x2video_app._qt.window_render) ------------------------------------
     def device(self) -> str:
         """The torch device renders use: the Render panel's choice, auto = cuda when available."""
         return self.rendering.device()
@@ -259,7 +259,7 @@ class MainWindow(QMainWindow):
         """Seconds from pressing Render to the render's own first frame painted in the viewer (last render)."""
         return self.rendering.first_keyframe_shown_s
 
-    # -- the controllers' host (x2video_app.host.Host) and the title ------------------
+    # -- the controllers' host (x2video_app._qt.host.Host) and the title ------------------
     def status(self, text: str, timeout_ms: int = 0) -> None:
         self.statusBar().showMessage(text, timeout_ms)
 

@@ -20,10 +20,10 @@ from superqt.utils import create_worker
 from x2video.sampling.events import CancelToken, FramesReady, RenderEvent, RenderStarted
 from x2video.sampling.settings import RenderSettings
 from x2video.sampling.tier import RenderPlan
-from x2video_app.document import Document
-from x2video_app.model_source import ModelChoice, load_model
-from x2video_app.preview import PreviewReady, preview_frame, preview_frames, preview_order
-from x2video_app.render_worker import RenderWorker
+from x2video_app._qt.render_worker import RenderWorker
+from x2video_app.state.document import Document
+from x2video_app.state.model_source import ModelChoice, load_model
+from x2video_app.state.preview import PreviewReady, preview_frame, preview_frames, preview_order
 
 log = logging.getLogger(__name__)
 
