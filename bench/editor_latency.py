@@ -2,7 +2,7 @@
 
     xvfb-run -a python -m bench.editor_latency [SHOT] [--renders 3] [--untrained] [--quality auto]
 
-Starts X2Video Studio as `python -m x2video_app` does (`x2video_app._qt.main_window.launch`: the demo shot,
+Starts X2Video Studio as `python -m x2video_app` does (`x2video_app._qt.launch.launch`: the demo shot,
 the shipped weights built in the background) and measures, on the wall clock:
 
   startup_to_demo_visible_s   process start -> the viewer painted the shot (the demo by default)
@@ -195,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     from PySide6.QtCore import QCoreApplication, QEvent, QEventLoop, QObject, Qt, QTimer
     from PySide6.QtTest import QTest
 
-    from x2video_app._qt.main_window import launch
+    from x2video_app._qt.launch import launch
     from x2video_app.state.preview import PreviewReady
 
     def age() -> float:

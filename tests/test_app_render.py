@@ -115,15 +115,15 @@ def test_render_keyframes_first_reuse_cache_reference_and_export(win, qtbot, tmp
     import av
 
     mp4 = tmp_path / "out.mp4"
-    wk = win.project.export("mp4", mp4)
-    qtbot.waitUntil(lambda: win.project.export_worker is None, timeout=60_000)
+    wk = win.exporting.export("mp4", mp4)
+    qtbot.waitUntil(lambda: win.exporting.export_worker is None, timeout=60_000)
     with av.open(str(mp4)) as c:
         frames = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
     assert len(frames) == 5 and frames[0].shape == (32, 48, 3)
     assert not win.errors_shown
     exr = tmp_path / "exr_out"
-    win.project.export("exr", exr, with_channels=True)
-    qtbot.waitUntil(lambda: win.project.export_worker is None, timeout=60_000)
+    win.exporting.export("exr", exr, with_channels=True)
+    qtbot.waitUntil(lambda: win.exporting.export_worker is None, timeout=60_000)
     from x2video.io import load_shot
 
     back = load_shot(exr)

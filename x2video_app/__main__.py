@@ -18,7 +18,7 @@ def main(argv=None) -> int:
         from x2video_app.tools.selftest import run as selftest  # Qt imported lazily, only when the app starts
 
         return selftest([a for a in argv if a != "--selftest"])
-    from x2video_app._qt.main_window import run  # Qt imported lazily, only when the app starts
+    from x2video_app._qt.launch import run  # Qt imported lazily, only when the app starts
 
     return run(argv)
 

@@ -42,7 +42,7 @@ class Document:
         self.hidden: set[str] = set()
         self.colours: dict[str, tuple[int, int, int]] = {}
         self._cond_cache: dict[int, tuple[int, FrameConditioning]] = {}
-        #: the live preview's frame on screen (`x2video_app._qt.live_preview.LiveResult`: `.t`, `.image`), newer than the
+        #: the live preview's frame on screen (`x2video_app.state.live_request.LiveResult`: `.t`, `.image`), newer than the
         #: render's frame of it; None when there is none (no edit since the render)
         self.live = None
         self._stroke: tuple[int, int, np.ndarray, np.ndarray] | None = None  # (mask, t, before, working)
