@@ -378,8 +378,7 @@ class MainWindow(QMainWindow):
             ev.ignore()
             return
         self.edits.cancel_propagation()
-        if (self.render_ctl.running or self.render_ctl.preload_worker is not None or self.render_ctl.preview_worker is not None
-                or self.render_ctl.prepare_worker is not None):
+        if self.render_ctl.busy:
             self.render_ctl.cancel()
             self.render_ctl.wait(120000)
         self.live.shutdown()
