@@ -22,9 +22,11 @@ def test_the_slot_empties_when_its_worker_finishes_and_reports(qtbot):
     def fails():
         raise ValueError("no model")
 
-    slot.start(fails, errored=errors.append)
-    qtbot.waitUntil(lambda: not slot.busy, timeout=10_000)
+    with qtbot.capture_exceptions() as raised:  # superqt also re-raises a worker's error in the event loop, as before
+        slot.start(fails, errored=errors.append)
+        qtbot.waitUntil(lambda: not slot.busy, timeout=10_000)
     assert len(errors) == 1 and isinstance(errors[0], ValueError) and done == [True, True]
+    assert [type(e[1]) for e in raised] == [ValueError]
 
 
 def test_a_replaced_worker_finishing_later_leaves_the_newer_one_in_the_slot(qtbot):
