@@ -2,7 +2,7 @@
 
     xvfb-run -a python -m bench.editor_latency [SHOT] [--renders 3] [--untrained] [--quality auto]
 
-Starts X2Video Studio as `python -m x2video_app` does (`x2video_app.main_window.launch`: the demo shot,
+Starts X2Video Studio as `python -m x2video_app` does (`x2video_app._qt.launch.launch`: the demo shot,
 the shipped weights built in the background) and measures, on the wall clock:
 
   startup_to_demo_visible_s   process start -> the viewer painted the shot (the demo by default)
@@ -100,7 +100,7 @@ def drag_scenario(win, quality: str, seconds: float, hz: float, pump: Callable[[
     release it, wait until the live preview settles; what the viewer showed and when (see the module docstring)."""
     import numpy as np
 
-    from x2video_app.tick_probe import TickProbe
+    from x2video_app.tools.tick_probe import TickProbe
 
     i = win.render_panel.quality.findData(quality)
     win.render_panel.quality.setCurrentIndex(i)
@@ -195,8 +195,8 @@ def main(argv: list[str] | None = None) -> int:
     from PySide6.QtCore import QCoreApplication, QEvent, QEventLoop, QObject, Qt, QTimer
     from PySide6.QtTest import QTest
 
-    from x2video_app.main_window import launch
-    from x2video_app.preview import PreviewReady
+    from x2video_app._qt.launch import launch
+    from x2video_app.state.preview import PreviewReady
 
     def age() -> float:
         """Seconds of start-up: interpreter start -> this module, then from `t_base` (after any stand-in)."""

@@ -11,8 +11,8 @@ pytest.importorskip("pytestqt")
 from test_app_live_preview import TIMEOUT_MS, shot_dir, win  # noqa: E402,F401 - the fixtures
 
 from x2video.channels import tonemap  # noqa: E402
-from x2video_app.compare_views import compose, difference, wipe  # noqa: E402
-from x2video_app.display import to_u8  # noqa: E402
+from x2video_app.state.compare_views import compose, difference, wipe  # noqa: E402
+from x2video_app.state.display import to_u8  # noqa: E402
 
 
 def test_wipe_and_difference_compose_two_images():

@@ -11,8 +11,8 @@ pytest.importorskip("pytestqt")
 from app_helpers import make_shot_dir  # noqa: E402
 from PySide6.QtWidgets import QProgressDialog  # noqa: E402
 
-import x2video_app.project_controller as pc  # noqa: E402
-from x2video_app.main_window import MainWindow  # noqa: E402
+import x2video_app._qt.project_controller as pc  # noqa: E402
+from x2video_app._qt.main_window import MainWindow  # noqa: E402
 
 
 @pytest.fixture

@@ -14,7 +14,7 @@ from app_helpers import make_shot_dir  # noqa: E402
 from PySide6.QtCore import QPointF, Qt  # noqa: E402
 from PySide6.QtWidgets import QMessageBox  # noqa: E402
 
-from x2video_app.main_window import MainWindow  # noqa: E402
+from x2video_app._qt.main_window import MainWindow  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -242,7 +242,7 @@ def test_render_start_marks_its_setting_on_the_pareto_chart(win, tmp_path):
     from sampling_fake import FakeModel
 
     from x2video.sampling.events import RenderSettings
-    from x2video_app.charts import load_pareto
+    from x2video_app._qt.charts import load_pareto
 
     h, w = win.doc.shot.size
     rows = [{"method": m, "label": m, "family": m, "size": [w, h], "seconds_per_frame": 0.5, "psnr": 20.0} for m in ("formula", "lcm-2", "ddim-4")]

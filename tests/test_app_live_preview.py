@@ -14,9 +14,9 @@ pytest.importorskip("pytestqt")
 from app_helpers import make_shot_dir  # noqa: E402
 from PySide6.QtWidgets import QMessageBox  # noqa: E402
 
-from x2video_app.display import channel_to_u8  # noqa: E402
-from x2video_app.main_window import MainWindow  # noqa: E402
-from x2video_app.tick_probe import TickProbe  # noqa: E402
+from x2video_app._qt.main_window import MainWindow  # noqa: E402
+from x2video_app.state.display import channel_to_u8  # noqa: E402
+from x2video_app.tools.tick_probe import TickProbe  # noqa: E402
 
 TIMEOUT_MS = 120_000
 #: each live frame takes at least this long in the drag test, so twenty inputs in a second outrun it

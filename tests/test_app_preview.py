@@ -17,9 +17,9 @@ from PySide6.QtCore import Qt  # noqa: E402
 from PySide6.QtWidgets import QMessageBox  # noqa: E402
 
 from x2video.sampling.events import FramesReady, RenderStarted  # noqa: E402
-from x2video_app.main_window import MainWindow  # noqa: E402
-from x2video_app.preview import PreviewReady, preview_order  # noqa: E402
-from x2video_app.render_panel import NO_RESIDUAL  # noqa: E402
+from x2video_app._qt.main_window import MainWindow  # noqa: E402
+from x2video_app._qt.render_panel import NO_RESIDUAL  # noqa: E402
+from x2video_app.state.preview import PreviewReady, preview_order  # noqa: E402
 
 TIMEOUT_MS = 240_000
 
@@ -82,7 +82,7 @@ def close_after():
 def test_formula_preview_shows_at_once_and_network_frames_replace_it(qtbot, tmp_path, monkeypatch, shot_dir, tiny_model, close_after):
     from x2video.edits import apply_edits
     from x2video.sampling.tiers import formula_frame
-    from x2video_app.display import channel_to_u8
+    from x2video_app.state.display import channel_to_u8
 
     win = open_window(qtbot, tmp_path, monkeypatch, shot_dir, tiny_model)
     close_after(win)
@@ -172,12 +172,12 @@ def test_the_window_opens_without_importing_torch(tmp_path):
     the window can tell there is no GPU without torch; else the Device list needs it)."""
     import os
 
-    from x2video_app.model_source import cuda_possible
+    from x2video_app.state.model_source import cuda_possible
 
     if cuda_possible():
         pytest.skip("a CUDA build of torch with a GPU driver: the Device list imports torch to ask")
     code = ("import sys\nfrom PySide6.QtWidgets import QApplication\napp = QApplication([])\n"
-            "from x2video_app.main_window import MainWindow\nw = MainWindow(preload=False, autosave_ms=0)\n"
+            "from x2video_app._qt.main_window import MainWindow\nw = MainWindow(preload=False, autosave_ms=0)\n"
             "assert 'torch' not in sys.modules, 'torch imported at start-up'\n")
     env = {**os.environ, "QT_QPA_PLATFORM": "offscreen", "XDG_CACHE_HOME": str(tmp_path), "X2VIDEO_WEIGHTS": str(tmp_path / "none")}
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
@@ -185,7 +185,7 @@ def test_the_window_opens_without_importing_torch(tmp_path):
 
 
 def test_render_state_preview_never_overwrites_a_rendered_frame():
-    from x2video_app.render_state import RenderState
+    from x2video_app.state.render_state import RenderState
 
     st = RenderState()
     st.begin(steps_per_window=1)

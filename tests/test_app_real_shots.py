@@ -12,7 +12,7 @@ from app_helpers import make_shot_dir  # noqa: E402
 from PySide6.QtWidgets import QMessageBox  # noqa: E402
 
 from x2video.sampling.events import FramesReady, RenderStarted  # noqa: E402
-from x2video_app.main_window import MainWindow  # noqa: E402
+from x2video_app._qt.main_window import MainWindow  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -90,7 +90,7 @@ def test_mask_propagation_can_be_cancelled_and_the_window_stays_live(win, qtbot,
     from PySide6.QtCore import QTimer
     from PySide6.QtWidgets import QProgressDialog
 
-    from x2video_app import edit_actions
+    from x2video_app._qt import edit_actions
 
     started = threading.Event()
 
@@ -125,7 +125,8 @@ def test_mask_propagation_can_be_cancelled_and_the_window_stays_live(win, qtbot,
 
 
 def test_device_setting_defaults_to_auto_and_shows_in_the_status_bar(qtbot, shot_dir, tmp_path, monkeypatch):
-    from x2video_app import main_window, model_source
+    from x2video_app._qt import main_window
+    from x2video_app.state import model_source
 
     monkeypatch.setenv("X2VIDEO_WEIGHTS", str(tmp_path / "no-weights"))
     for cuda in (False, True):
@@ -150,7 +151,7 @@ def test_device_setting_defaults_to_auto_and_shows_in_the_status_bar(qtbot, shot
 
 
 def test_model_is_built_on_the_chosen_device():
-    from x2video_app.model_source import ModelChoice, load_model
+    from x2video_app.state.model_source import ModelChoice, load_model
 
     m = load_model(ModelChoice("untrained", device="cpu"))
     assert str(m.device) == "cpu"
@@ -164,7 +165,7 @@ def test_editor_export_writes_the_inputs_units(tmp_path):
     from x2video.io import load_shot
     from x2video.io.units import OutputUnits
     from x2video.shot import ArrayShot
-    from x2video_app.exporter import export_exr, export_mp4
+    from x2video_app.state.exporter import export_exr, export_mp4
 
     T, h, w = 2, 8, 12
     shot = ArrayShot({"albedo": np.full((T, h, w, 3), 0.5, np.float32), "irradiance": np.full((T, h, w, 3), 0.4, np.float32)},

@@ -16,7 +16,7 @@ from PySide6.QtCore import Qt  # noqa: E402
 from PySide6.QtWidgets import QMessageBox  # noqa: E402
 
 from x2video.sampling.events import FramesReady, RenderCancelled, StepDone  # noqa: E402
-from x2video_app.main_window import MainWindow  # noqa: E402
+from x2video_app._qt.main_window import MainWindow  # noqa: E402
 
 RENDER_TIMEOUT_MS = 240_000
 
@@ -90,7 +90,7 @@ def test_render_keyframes_first_reuse_cache_reference_and_export(win, qtbot, tmp
     assert "Finished 5 frames" in win.render_panel.status_label.text()
     # the viewer shows the rendered frame (not the checkerboard of an unrendered one)
     win.doc.set_frame(3)
-    from x2video_app.display import channel_to_u8
+    from x2video_app.state.display import channel_to_u8
 
     assert np.array_equal(win.doc.display_image(), channel_to_u8("rgb", st.frames[3].astype(np.float32), (32, 48)))
 
@@ -115,15 +115,15 @@ def test_render_keyframes_first_reuse_cache_reference_and_export(win, qtbot, tmp
     import av
 
     mp4 = tmp_path / "out.mp4"
-    wk = win.project.export("mp4", mp4)
-    qtbot.waitUntil(lambda: win.project.export_worker is None, timeout=60_000)
+    wk = win.exporting.export("mp4", mp4)
+    qtbot.waitUntil(lambda: win.exporting.export_worker is None, timeout=60_000)
     with av.open(str(mp4)) as c:
         frames = [f.to_ndarray(format="rgb24") for f in c.decode(video=0)]
     assert len(frames) == 5 and frames[0].shape == (32, 48, 3)
     assert not win.errors_shown
     exr = tmp_path / "exr_out"
-    win.project.export("exr", exr, with_channels=True)
-    qtbot.waitUntil(lambda: win.project.export_worker is None, timeout=60_000)
+    win.exporting.export("exr", exr, with_channels=True)
+    qtbot.waitUntil(lambda: win.exporting.export_worker is None, timeout=60_000)
     from x2video.io import load_shot
 
     back = load_shot(exr)

@@ -10,11 +10,11 @@ pytest.importorskip("pytestqt")
 from PySide6.QtCore import QPoint, QPointF, Qt  # noqa: E402
 
 from x2video.sampling.events import FramesReady, RenderFinished, RenderSettings, RenderStarted, StepDone, WindowStarted  # noqa: E402
-from x2video_app.charts import Charts, find_bench_points, pareto_key  # noqa: E402
-from x2video_app.display import channel_to_u8, ids_palette, overlay_masks, side_by_side  # noqa: E402
-from x2video_app.render_state import RenderState  # noqa: E402
-from x2video_app.timeline import Timeline  # noqa: E402
-from x2video_app.viewer import Viewer  # noqa: E402
+from x2video_app._qt.charts import Charts, find_bench_points, pareto_key  # noqa: E402
+from x2video_app._qt.timeline import Timeline  # noqa: E402
+from x2video_app._qt.viewer import Viewer  # noqa: E402
+from x2video_app.state.display import channel_to_u8, ids_palette, overlay_masks, side_by_side  # noqa: E402
+from x2video_app.state.render_state import RenderState  # noqa: E402
 
 
 def test_display_transforms():
@@ -165,8 +165,8 @@ def test_render_state_seam_pass_replaces_keyframes():
 
 
 def test_render_panel_seam_pass_only_with_the_recursive_scheme(qtbot):
-    from x2video_app.render_controller import RenderController
-    from x2video_app.render_panel import RenderPanel
+    from x2video_app._qt.render_controller import RenderController
+    from x2video_app._qt.render_panel import RenderPanel
 
     panel = RenderPanel()
     qtbot.addWidget(panel)
@@ -185,8 +185,8 @@ def test_render_panel_seam_pass_only_with_the_recursive_scheme(qtbot):
 
 def test_render_panel_noise_shared_reaches_the_settings(qtbot):
     from x2video.sampling.events import RenderSettings
-    from x2video_app.render_controller import RenderController
-    from x2video_app.render_panel import RenderPanel
+    from x2video_app._qt.render_controller import RenderController
+    from x2video_app._qt.render_panel import RenderPanel
 
     panel = RenderPanel()
     qtbot.addWidget(panel)
@@ -201,8 +201,8 @@ def test_render_panel_noise_shared_reaches_the_settings(qtbot):
 
 
 def test_render_panel_max_levels_reaches_the_settings(qtbot):
-    from x2video_app.render_controller import RenderController
-    from x2video_app.render_panel import RenderPanel
+    from x2video_app._qt.render_controller import RenderController
+    from x2video_app._qt.render_panel import RenderPanel
 
     panel = RenderPanel()
     qtbot.addWidget(panel)
@@ -233,7 +233,7 @@ def test_mask_overlay_reads_as_a_selection():
 def test_mask_list_shows_each_masks_prompt_after_its_name(qtbot):
     from PySide6.QtWidgets import QStyleOptionViewItem
 
-    from x2video_app.mask_panel import MaskPanel
+    from x2video_app._qt.mask_panel import MaskPanel
 
     panel = MaskPanel()
     qtbot.addWidget(panel)
@@ -257,7 +257,7 @@ def _docked_render_panel(qtbot, height: int):
     """A main window with the Render panel docked above another dock, as the editor lays them out."""
     from PySide6.QtWidgets import QDockWidget, QMainWindow, QWidget
 
-    from x2video_app.render_panel import RenderPanel
+    from x2video_app._qt.render_panel import RenderPanel
 
     win = QMainWindow()
     qtbot.addWidget(win)

@@ -89,8 +89,8 @@ def test_the_demo_renderer_comes_from_the_environment(tmp_path, monkeypatch, sma
 
 
 def test_the_editor_hears_each_frame_and_why_the_demo_is_rasterized(tmp_path, monkeypatch):
-    """x2video_app.demo reads the child's progress lines, its warnings and the folder it made."""
-    import x2video_app.demo as app_demo
+    """x2video_app.state.demo reads the child's progress lines, its warnings and the folder it made."""
+    import x2video_app.state.demo as app_demo
 
     (tmp_path / "shot").mkdir()
     (tmp_path / "shot" / "shot.json").write_text("{}")

@@ -118,7 +118,7 @@ def test_engine_threads_reach_the_graphs(monkeypatch) -> None:
     """`X2VideoModel.engine_threads` sets the graphs' threads (None: torch's count); the editor's factory gives them
     X2VIDEO_TORCH_THREADS, else every core."""
     pytest.importorskip("PySide6")
-    from x2video_app import render_controller as rc
+    from x2video_app._qt import render_controller as rc
 
     m = X2VideoModel.untrained("tiny", seed=5)
     for want, expected in ((None, torch.get_num_threads()), (3, 3)):

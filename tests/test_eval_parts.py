@@ -365,7 +365,7 @@ def test_speed_accuracy_chart_and_editor_shape(tmp_path):
     png = mod.draw_chart(result, tmp_path / "speed_accuracy.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     (tmp_path / "speed_accuracy.json").write_text(json.dumps(result))
-    from x2video_app.charts import load_bench_points
+    from x2video_app._qt.charts import load_bench_points
 
     pts = load_bench_points(tmp_path)
     assert [p[0] for p in pts] == ["DDIM-20", "DDIM-4", "classical shading"] and all(math.isfinite(p[2]) for p in pts)

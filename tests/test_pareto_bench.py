@@ -33,7 +33,7 @@ def fake_data(root, frames: int = 3):
 
 def test_parse_method_and_round_trip_with_the_editor_key():
     from x2video.sampling.events import RenderSettings
-    from x2video_app.charts import pareto_key
+    from x2video_app._qt.charts import pareto_key
 
     assert parse_method("lcm-2-seq") == Method("lcm-2-seq", "diffusion", "lcm", 2, "sequential")
     assert parse_method("cycles-64").label == "Cycles 64 spp + OIDN"
@@ -149,7 +149,7 @@ def test_merge_replaces_the_rerun_rows_keeps_the_others_and_names_their_runs(tmp
     assert res["summary"]["48x32"]["best_psnr"] == max(r["psnr"] for r in res["rows"])
     md = merged.with_suffix(".md").read_text()
     assert "2 runs" in md and "| run |" in md
-    from x2video_app.charts import load_pareto  # the editor reads the merged result as before
+    from x2video_app._qt.charts import load_pareto  # the editor reads the merged result as before
 
     assert [r["method"] for r in load_pareto(merged)["rows"]] == ["formula", "residual", "ddim-1"]
 

@@ -9,7 +9,7 @@ has already imported them: such a process runs threads (torch's and OpenMP's poo
 fork copies only the forking thread, so a lock another thread held at the fork stays held in the child forever (an
 earlier server that forked its editors hung so: an editor that never wrote a journal line).
 
-Each editor starts the way a person does: `x2video_app.main_window.launch([WORK/p.x2v.json])` (the window,
+Each editor starts the way a person does: `x2video_app._qt.launch.launch([WORK/p.x2v.json])` (the window,
 then on the event loop `offer_crashed()` and opening the project, whose autosave, when newer, is offered) with the
 editor's own autosave timer every X2VIDEO_AUTOSAVE_MS (set by the test). Every question the editor asks is answered
 Yes (recover the autosave, render with the untrained model); the model is a stand-in (`sampling_fake.FakeModel`,
@@ -47,9 +47,9 @@ import torch  # noqa: E402,F401  (before the editor's worker threads could impor
 from faults_helpers import edits_digest  # noqa: E402
 from sampling_fake import FakeModel  # noqa: E402
 
-import x2video_app.project_controller as pc  # noqa: E402
+import x2video_app._qt.project_controller as pc  # noqa: E402
 from x2video.sampling.renderer import Renderer  # noqa: E402
-from x2video_app.main_window import launch  # noqa: E402
+from x2video_app._qt.launch import launch  # noqa: E402
 
 ACTIONS = ["stroke", "stroke", "stroke", "mask", "prompt", "param", "undo", "undo", "redo", "save", "render"]
 TICK_MS = 15

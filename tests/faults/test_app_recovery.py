@@ -18,7 +18,7 @@ import torch  # noqa: E402,F401  (imported here, on the main thread, before any 
 from app_helpers import make_shot_dir  # noqa: E402
 from PySide6.QtWidgets import QMessageBox  # noqa: E402
 
-from x2video_app.main_window import MainWindow  # noqa: E402
+from x2video_app._qt.main_window import MainWindow  # noqa: E402
 
 YES, NO = QMessageBox.StandardButton.Yes, QMessageBox.StandardButton.No
 

@@ -46,7 +46,7 @@ from PySide6.QtWidgets import QMessageBox  # noqa: E402
 from x2video.edits import load_project  # noqa: E402
 from x2video.edits.autosave import read_autosave  # noqa: E402
 from x2video.edits.lock import lock_path, read_lock  # noqa: E402
-from x2video_app.main_window import MainWindow  # noqa: E402
+from x2video_app._qt.main_window import MainWindow  # noqa: E402
 
 DRIVER = Path(__file__).with_name("editor_driver.py")
 ROOT = Path(__file__).resolve().parents[2]

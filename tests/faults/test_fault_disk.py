@@ -106,7 +106,7 @@ def _frames(shot_dir):
 
 def test_editor_exr_export_on_a_full_disk_resumes(big_shot, small_disk, tmp_path):
     from x2video.io.image import read_image
-    from x2video_app.exporter import export_exr
+    from x2video_app.state.exporter import export_exr
 
     shot, frames = _frames(big_shot)
     disk = small_disk(60 * 1024)
@@ -131,7 +131,7 @@ def test_editor_exr_export_on_a_full_disk_resumes(big_shot, small_disk, tmp_path
 
 
 def test_editor_mp4_export_on_a_full_disk(big_shot, small_disk):
-    from x2video_app.exporter import export_mp4
+    from x2video_app.state.exporter import export_mp4
 
     _, frames = _frames(big_shot)
     disk = small_disk(8 * 1024)

@@ -17,8 +17,8 @@ from shiboken6 import isValid
 
 from x2video.edits import Edits
 from x2video.edits.autosave import Autosave, snapshot
-from x2video_app.document import Document
-from x2video_app.host import Host
+from x2video_app._qt.host import Host
+from x2video_app.state.document import Document
 
 _TAGS = itertools.count(1)
 

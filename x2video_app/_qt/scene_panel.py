@@ -17,8 +17,8 @@ from PySide6.QtWidgets import (
 )
 
 from x2video.channels import INTRINSIC
-from x2video_app.display import channel_to_u8
-from x2video_app.viewer import qimage_from_u8
+from x2video_app._qt.viewer import qimage_from_u8
+from x2video_app.state.display import channel_to_u8
 
 
 class ScenePanel(QWidget):

@@ -7,7 +7,7 @@ from typing import Any, Callable
 import numpy as np
 from PySide6.QtGui import QUndoCommand
 
-from x2video_app.document import Document
+from x2video_app.state.document import Document
 
 _MERGE_PARAM = 1001
 

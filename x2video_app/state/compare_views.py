@@ -8,7 +8,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from x2video_app.display import side_by_side, to_u8
+from x2video_app.state.display import side_by_side, to_u8
 
 #: compare modes, in the order the Compare toolbar lists them
 MODES = ("off", "wipe", "side by side", "difference")

@@ -26,7 +26,7 @@ from PySide6.QtWidgets import (
 )
 
 from x2video.sampling.settings import RenderSettings
-from x2video_app.render_state import RenderState
+from x2video_app.state.render_state import RenderState
 
 #: the Quality choices (RenderSettings.quality): (value, label, tooltip)
 QUALITY_ITEMS = (

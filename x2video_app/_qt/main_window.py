@@ -1,12 +1,12 @@
-"""The X2Video Studio main window: viewer, timeline, docks for masks/edits/scene/render/charts, menus; `run(argv)`."""
+"""The X2Video Studio main window: viewer, timeline, docks for masks/edits/scene/render/charts, menus (started by
+`x2video_app._qt.launch`)."""
 from __future__ import annotations
 
 import logging
-import sys
 from operator import attrgetter
 from pathlib import Path
 
-from PySide6.QtCore import QSettings, Qt, QTimer
+from PySide6.QtCore import Qt, QTimer
 from PySide6.QtGui import QKeySequence, QUndoStack
 from PySide6.QtWidgets import (
     QApplication,
@@ -23,23 +23,23 @@ from PySide6.QtWidgets import (
 )
 from shiboken6 import isValid
 
-from x2video_app.charts import Charts, pareto_path
-from x2video_app.compare import Compare
-from x2video_app.display import VIEW_MODES
-from x2video_app.document import Document
-from x2video_app.edit_actions import EditActions
-from x2video_app.edit_panel import EditPanel
-from x2video_app.live_preview import LivePreview
-from x2video_app.mask_panel import MaskPanel
-from x2video_app.model_source import cuda_available, weights_hint
-from x2video_app.project_controller import ProjectController
-from x2video_app.render_controller import RenderController
-from x2video_app.render_panel import RenderPanel
-from x2video_app.scene_panel import ScenePanel
-from x2video_app.style import apply_style
-from x2video_app.timeline import Timeline
-from x2video_app.viewer import Viewer
-from x2video_app.window_render import WindowRender
+from x2video_app._qt.charts import Charts, pareto_path
+from x2video_app._qt.compare import Compare
+from x2video_app._qt.edit_actions import EditActions
+from x2video_app._qt.edit_panel import EditPanel
+from x2video_app._qt.export_controller import ExportController
+from x2video_app._qt.live_preview import LivePreview
+from x2video_app._qt.mask_panel import MaskPanel
+from x2video_app._qt.project_controller import ProjectController
+from x2video_app._qt.render_controller import RenderController
+from x2video_app._qt.render_panel import RenderPanel
+from x2video_app._qt.scene_panel import ScenePanel
+from x2video_app._qt.timeline import Timeline
+from x2video_app._qt.viewer import Viewer
+from x2video_app._qt.window_render import WindowRender
+from x2video_app.state.display import VIEW_MODES
+from x2video_app.state.document import Document
+from x2video_app.state.model_source import cuda_available, weights_hint
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +71,7 @@ EDIT_WIRING: tuple[tuple[str, str], ...] = (
     ("scene_panel.sigClearReference", "edits.clear_reference"),
 )
 APP_NAME = "X2Video Studio"
-BENCH_RESULTS = Path(__file__).resolve().parents[1] / "bench" / "results"
+BENCH_RESULTS = Path(__file__).resolve().parents[2] / "bench" / "results"
 
 
 class MainWindow(QMainWindow):
@@ -152,6 +152,7 @@ class MainWindow(QMainWindow):
         self.rendering = WindowRender(self)  # model, device, the Render menu and what a render's events do here
         self.edits = EditActions(self.doc, self.undo, host=self, parent=self)
         self.project = ProjectController(self.doc, self.undo, self.render_ctl, host=self, parent=self, autosave_ms=autosave_ms)
+        self.exporting = ExportController(self.doc, host=self, parent=self)  # MP4 / EXR sequence of the rendered frames
         self.live = LivePreview(self)  # the frame on screen re-renders while an edit changes (issue 43)
         self.compare = Compare(self)  # A/B wipe, side by side, difference; PSNR vs ground truth (issue 43)
         self._build_menus()
@@ -172,8 +173,8 @@ class MainWindow(QMainWindow):
         self.act_save = f.addAction("Save project", self.project.save, QKeySequence.StandardKey.Save)
         self.act_save_as = f.addAction("Save project as…", self.project.save_as, QKeySequence.StandardKey.SaveAs)
         f.addSeparator()
-        self.act_export_mp4 = f.addAction("Export MP4…", lambda: self.project.export_dialog("mp4", self.render_panel.values()["exposure"]))
-        self.act_export_exr = f.addAction("Export EXR sequence…", lambda: self.project.export_dialog("exr", self.render_panel.values()["exposure"]))
+        self.act_export_mp4 = f.addAction("Export MP4…", lambda: self.exporting.export_dialog("mp4", self.render_panel.values()["exposure"]))
+        self.act_export_exr = f.addAction("Export EXR sequence…", lambda: self.exporting.export_dialog("exr", self.render_panel.values()["exposure"]))
         f.addSeparator()
         f.addAction("Quit", self.close, QKeySequence.StandardKey.Quit)
         e = mb.addMenu("&Edit")
@@ -225,7 +226,7 @@ class MainWindow(QMainWindow):
         for signal, slot in EDIT_WIRING:
             attrgetter(signal)(self).connect(attrgetter(slot)(self))
 
-    # -- rendering (x2video_app.window_render) ------------------------------------
+    # -- rendering (x2video_app._qt.window_render) ------------------------------------
     def device(self) -> str:
         """The torch device renders use: the Render panel's choice, auto = cuda when available."""
         return self.rendering.device()
@@ -259,7 +260,7 @@ class MainWindow(QMainWindow):
         """Seconds from pressing Render to the render's own first frame painted in the viewer (last render)."""
         return self.rendering.first_keyframe_shown_s
 
-    # -- the controllers' host (x2video_app.host.Host) and the title ------------------
+    # -- the controllers' host (x2video_app._qt.host.Host) and the title ------------------
     def status(self, text: str, timeout_ms: int = 0) -> None:
         self.statusBar().showMessage(text, timeout_ms)
 
@@ -377,8 +378,7 @@ class MainWindow(QMainWindow):
             ev.ignore()
             return
         self.edits.cancel_propagation()
-        if (self.render_ctl.running or self.render_ctl.preload_worker is not None or self.render_ctl.preview_worker is not None
-                or self.render_ctl.prepare_worker is not None):
+        if self.render_ctl.busy:
             self.render_ctl.cancel()
             self.render_ctl.wait(120000)
         self.live.shutdown()
@@ -386,52 +386,3 @@ class MainWindow(QMainWindow):
         self.project.shutdown()
         ev.accept()
 
-
-def run(argv: list[str]) -> int:
-    """Start the editor: `python -m x2video_app [--untrained] [SHOT|PROJECT]` (no path: the demo shot)."""
-    app, _win = launch(argv)
-    return app.exec()
-
-
-def launch(argv: list[str]) -> tuple[QApplication, MainWindow]:
-    """Build and show the editor for `run`'s arguments, with the shot's opening queued on the event loop (the
-    model builds in the background meanwhile); the caller runs the loop (`bench.editor_latency` measures it)."""
-    import argparse
-
-    ap = argparse.ArgumentParser(prog="x2video-studio", description="X2Video Studio: edit intrinsic channels, render video.")
-    ap.add_argument("path", nargs="?", help="a shot folder/file the loaders read, or a project file (.x2v.json); default: the demo shot")
-    ap.add_argument("--untrained", action="store_true", help="use the UNTRAINED tiny model (smoke test) instead of the shipped weights")
-    ap.add_argument("--smoke-test", action="store_true", help=argparse.SUPPRESS)  # open, report, quit (packaging checks)
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    app = QApplication.instance() or QApplication(sys.argv[:1])
-    app.setApplicationName(APP_NAME)
-    apply_style(app)
-    settings = QSettings("x2video", "studio")
-    win = MainWindow(preload=False)
-    if settings.value("geometry") is not None:
-        win.restoreGeometry(settings.value("geometry"))
-    app.aboutToQuit.connect(lambda: settings.setValue("geometry", win.saveGeometry()))
-    win.show()
-
-    def build_model() -> None:
-        if args.untrained:
-            win.act_untrained.setChecked(True)  # builds it too
-        else:
-            win.render_ctl.preload()
-
-    def start() -> None:
-        ok = (not args.smoke_test and win.project.offer_crashed()) or (  # an editor killed before: its autosave first
-            win.project.open_path(args.path) if args.path else win.project.open_demo())
-        # The model builds in the background once the shot is painted: importing torch in a thread holds
-        # the GIL through whole shared-library loads, which stalled opening the demo by seconds here.
-        QTimer.singleShot(100, build_model)
-        if args.smoke_test:
-            print(f"smoke-test: opened={ok} frames={win.doc.num_frames} errors={win.errors_shown}", flush=True)
-            win.render_ctl.wait(120_000)
-            win.undo.setClean()
-            win.close()
-            app.exit(0 if ok else 1)
-
-    QTimer.singleShot(0, start)
-    return app, win

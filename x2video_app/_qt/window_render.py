@@ -13,9 +13,9 @@ from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import QMenuBar, QMessageBox
 
 from x2video.sampling.events import FramesReady, RenderStarted, WindowStarted
-from x2video_app.charts import pareto_key
-from x2video_app.model_source import ModelChoice, has_weights, resolve_device, weights_dir, weights_hint
-from x2video_app.preview import PreviewReady
+from x2video_app._qt.charts import pareto_key
+from x2video_app.state.model_source import ModelChoice, has_weights, resolve_device, weights_dir, weights_hint
+from x2video_app.state.preview import PreviewReady
 
 log = logging.getLogger(__name__)
 

@@ -17,9 +17,9 @@ from x2video.channels import INTRINSIC
 from x2video.conditioning import FrameConditioning
 from x2video.edits import Edits, apply_edits, resolve_reference
 from x2video.shot import Shot
-from x2video_app.display import MASK_COLOURS, VIEW_MODES, channel_to_u8, checker, overlay_masks, side_by_side
-from x2video_app.render_state import RenderState
-from x2video_app.signals import Signal
+from x2video_app.state.display import MASK_COLOURS, VIEW_MODES, channel_to_u8, checker, overlay_masks, side_by_side
+from x2video_app.state.render_state import RenderState
+from x2video_app.state.signals import Signal
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +42,7 @@ class Document:
         self.hidden: set[str] = set()
         self.colours: dict[str, tuple[int, int, int]] = {}
         self._cond_cache: dict[int, tuple[int, FrameConditioning]] = {}
-        #: the live preview's frame on screen (`x2video_app.live_preview.LiveResult`: `.t`, `.image`), newer than the
+        #: the live preview's frame on screen (`x2video_app.state.live_request.LiveResult`: `.t`, `.image`), newer than the
         #: render's frame of it; None when there is none (no edit since the render)
         self.live = None
         self._stroke: tuple[int, int, np.ndarray, np.ndarray] | None = None  # (mask, t, before, working)

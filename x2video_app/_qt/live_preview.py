@@ -1,37 +1,29 @@
 """Live preview (issue 43): while an edit control changes, the frame on screen re-renders off the GUI thread.
 
 Every edit (slider drag, colour pick, brush stroke, mask-out toggle, exposure, tint, prompt, undo) asks
-`LivePreviewer` for the frame on screen with the fastest tier auto trusts (`x2video.sampling.live.preview_choice`:
-tier 1 where the render would use it, else the formula). The previewer is latest-wins: it holds at most one request
-waiting, which the next one replaces (the stale one is dropped, never queued), and one superqt generator worker
-drains it, so a preview in progress always finishes and shows while a newer one waits. When the edits rest for
-`DEBOUNCE_MS`, the frame gets its full quality: the preview's own frame where the render's tier is per-frame, else
-the sampler's window around it (`x2video.sampling.live.render_frame`). A whole-shot render starts only on Render, or
-on settling when "Auto re-render" is ticked. The frame shows in the rendered and side-by-side views, over the last
-render's frame, with a badge on the viewer saying it is a preview and which tier made it.
+`LivePreviewer` (x2video_app._qt.live_previewer) for the frame on screen with the fastest tier auto trusts
+(`x2video.sampling.live.preview_choice`: tier 1 where the render would use it, else the formula). The previewer is
+latest-wins: it holds at most one request waiting, which the next one replaces (the stale one is dropped, never
+queued), and one superqt generator worker drains it, so a preview in progress always finishes and shows while a
+newer one waits. When the edits rest for `DEBOUNCE_MS`, the frame gets its full quality: the preview's own frame
+where the render's tier is per-frame, else the sampler's window around it (`x2video.sampling.live.render_frame`). A
+whole-shot render starts only on Render, or on settling when "Auto re-render" is ticked. The frame shows in the
+rendered and side-by-side views, over the last render's frame, with a badge on the viewer saying it is a preview and
+which tier made it.
 """
 from __future__ import annotations
 
-import copy
-import dataclasses
-import logging
 import sys
-import threading
 import time
 from collections import deque
-from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
 from PySide6.QtCore import QObject, QTimer, Signal
 from PySide6.QtWidgets import QCheckBox, QLabel
-from superqt.utils import WorkerBase, create_worker
 
-from x2video.edits import Edits, Mask
-from x2video.sampling.events import CancelToken
 from x2video.sampling.settings import RenderSettings
-
-log = logging.getLogger(__name__)
+from x2video_app._qt.live_previewer import LivePreviewer
+from x2video_app.state.live_request import LiveRequest, LiveResult, snapshot_edits
 
 #: quiet edits for this long = the person stopped: the frame on screen gets its full quality
 DEBOUNCE_MS = 250
@@ -41,175 +33,6 @@ BUSY_RETRY_MS = 1000
 LIVE_VIEWS = ("rendered", "side-by-side")
 #: names the tiers go by on the badge
 TIER_NAMES = {"formula": "formula", "residual": "tier 1", "diffusion": "diffusion"}
-
-
-def snapshot_edits(edits: Edits) -> Edits:
-    """A copy of `edits` a worker may read while the person keeps editing: new containers, the masks' painted arrays
-    shared (a `Mask` never modifies an array in place: painting stores a new one), so a stroke copies no pixels."""
-    masks = {name: Mask(frames=dict(m.frames), ids=list(m.ids), hold=m.hold) for name, m in edits.masks.items()}
-    return dataclasses.replace(edits, masks=masks, ops=copy.deepcopy(edits.ops), dropped=set(edits.dropped),
-                               local_prompts=dict(edits.local_prompts), reference=copy.copy(edits.reference))
-
-
-@dataclass(frozen=True)
-class LiveRequest:
-    """Frame `t` of `shot` under `edits` (the Document's `version` of them), as a preview or at full quality (`final`).
-    `choice`: the tiers (`x2video.sampling.live.LiveChoice`), decided on the GUI thread once the model is built;
-    None before (the worker decides, with no model: the formula)."""
-
-    id: int
-    t: int
-    version: int
-    final: bool
-    shot: Any
-    edits: Edits
-    settings: RenderSettings
-    model: Any
-    choice: Any
-    asked_at: float
-
-
-@dataclass
-class LiveResult:
-    """What the worker made of `request`: `frame` (`x2video.sampling.live.LiveFrame`; None when cancelled or failed,
-    `error` says which), the tiers it ran under, and `newest`: the newest request's id when this one was taken (equal
-    to its own id: no newer request was waiting behind it)."""
-
-    request: LiveRequest
-    frame: Any
-    choice: Any
-    newest: int
-    error: str = ""
-    done_at: float = 0.0
-
-    @property
-    def t(self) -> int:
-        return self.request.t
-
-    @property
-    def image(self) -> np.ndarray:
-        return self.frame.image
-
-
-class _QuietHere(logging.Filter):
-    """Drops the Renderer's per-render INFO lines logged by a live preview's thread (20 a second while dragging)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.local = threading.local()
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        return record.levelno > logging.INFO or not getattr(self.local, "on", False)
-
-
-_QUIET = _QuietHere()
-for _name in ("x2video.sampling.renderer", "x2video.sampling.tier_residual", "x2video.sampling.tier_diffusion"):
-    logging.getLogger(_name).addFilter(_QUIET)
-
-
-class LivePreviewer(QObject):
-    """Latest-wins rendering of single frames in a superqt generator worker; sigResult(LiveResult) on the GUI thread.
-
-    `submit` replaces the waiting request (counted in `dropped`) and cancels a full-quality sampler frame in progress
-    (a per-frame preview in progress finishes: it is what keeps frames coming while a slider moves). `taken` records
-    (request id, newest id) as each request starts, so tests can check nothing stale ran."""
-
-    sigResult = Signal(object)
-
-    def __init__(self, parent: QObject | None = None) -> None:
-        super().__init__(parent)
-        self._lock = threading.Lock()
-        self._pending: LiveRequest | None = None
-        self._active = False  # a worker is draining (set and cleared under the lock, so no request is stranded)
-        self._newest = 0
-        self._token: CancelToken | None = None  # the running full-quality request's
-        self._workers: set[Any] = set()
-        self._renderer: Any = None
-        #: the conditioning cache the sampler's frames share with the window's Renderer (thread-safe), or None
-        self.cache: Any = None
-        self.submitted = 0
-        self.dropped = 0
-        self.taken: deque[tuple[int, int]] = deque(maxlen=10_000)
-
-    @property
-    def active(self) -> bool:
-        """A request is waiting or rendering."""
-        with self._lock:
-            return self._active
-
-    def submit(self, req: LiveRequest) -> None:
-        with self._lock:
-            self.submitted += 1
-            if self._pending is not None:
-                self.dropped += 1
-            self._pending, self._newest = req, req.id
-            if self._token is not None:
-                self._token.cancel()
-            start, self._active = not self._active, True
-        if start:
-            w = create_worker(self._drain)
-            w.yielded.connect(self.sigResult.emit)
-            w.finished.connect(lambda: self._workers.discard(w))
-            self._workers.add(w)
-            w.start()
-
-    def cancel_final(self) -> None:
-        """Stop a full-quality sampler frame in progress (a whole-shot render is starting) and drop what waits."""
-        with self._lock:
-            if self._pending is not None:
-                self.dropped += 1
-            self._pending = None
-            if self._token is not None:
-                self._token.cancel()
-
-    def shutdown(self, wait_ms: int = 30_000) -> None:
-        """Drop what waits, stop what runs, and wait for the worker's thread."""
-        self.cancel_final()
-        for w in list(self._workers):
-            w.quit()
-        if self._workers:
-            WorkerBase.await_workers(wait_ms)
-
-    # -- the worker thread -------------------------------------------------------
-    def _take(self) -> tuple[LiveRequest | None, int, CancelToken | None]:
-        with self._lock:
-            req, self._pending = self._pending, None
-            if req is None:
-                self._active, self._token = False, None
-                return None, self._newest, None
-            self._token = CancelToken() if req.final else None
-            self.taken.append((req.id, self._newest))
-            return req, self._newest, self._token
-
-    def _drain(self):
-        while True:
-            req, newest, token = self._take()
-            if req is None:
-                return
-            yield self._run(req, newest, token)
-
-    def _run(self, req: LiveRequest, newest: int, token: CancelToken | None) -> LiveResult:
-        from x2video.sampling.live import preview_choice, render_frame  # torch: loaded by the model build already
-
-        choice = req.choice if req.choice is not None else preview_choice(req.settings.quality, req.shot, req.edits, req.model)
-        full = req.final and choice.full is not None and not choice.same
-        settings = req.settings if full else dataclasses.replace(req.settings, quality=choice.preview.tier)
-        _QUIET.local.on = True
-        try:
-            frame = render_frame(self._renderer_for(req.model), req.shot, req.edits, settings, req.t, token)
-            return LiveResult(req, frame, choice, newest, "" if frame is not None else "cancelled", time.perf_counter())
-        except Exception as e:  # noqa: BLE001 - a preview never takes the editor down; the status bar says why
-            log.warning("live preview of frame %d failed: %s", req.t, e)
-            return LiveResult(req, None, choice, newest, f"{type(e).__name__}: {e}", time.perf_counter())
-        finally:
-            _QUIET.local.on = False
-
-    def _renderer_for(self, model: Any) -> Any:
-        from x2video.sampling.renderer import Renderer
-
-        if self._renderer is None or self._renderer.model is not model:
-            self._renderer = Renderer(model, cache=self.cache) if self.cache is not None else Renderer(model)
-        return self._renderer
 
 
 class LivePreview(QObject):

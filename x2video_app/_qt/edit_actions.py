@@ -19,9 +19,9 @@ from superqt.utils import WorkerBase, create_worker
 from x2video.edits import Edits, Reference
 from x2video.edits.propagate import propagate_mask
 from x2video.io.image import read_image, write_exr
-from x2video_app.commands import MaskCommand, PaintCommand, SetValueCommand, SnapshotCommand
-from x2video_app.document import Document
-from x2video_app.host import Host
+from x2video_app._qt.commands import MaskCommand, PaintCommand, SetValueCommand, SnapshotCommand
+from x2video_app._qt.host import Host
+from x2video_app.state.document import Document
 
 
 class _Progress(QObject):

@@ -21,7 +21,7 @@ def run(argv: list[str]) -> int:
     from PySide6.QtCore import QTimer
 
     from x2video.sampling.events import FramesReady, RenderSettings
-    from x2video_app.main_window import launch
+    from x2video_app._qt.launch import launch
 
     app, win = launch(argv)
     got: dict[int, np.ndarray] = {}

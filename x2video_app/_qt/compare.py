@@ -18,9 +18,10 @@ from PySide6.QtCore import QObject, Qt
 from PySide6.QtWidgets import QComboBox, QLabel, QSlider
 
 from x2video.channels import INTRINSIC, tonemap
-from x2video_app.compare_views import MODES, compose, psnr_db
-from x2video_app.display import channel_to_u8, checker
-from x2video_app.live_preview import LivePreviewer, LiveRequest, snapshot_edits
+from x2video_app._qt.live_previewer import LivePreviewer
+from x2video_app.state.compare_views import MODES, compose, psnr_db
+from x2video_app.state.display import channel_to_u8, checker
+from x2video_app.state.live_request import LiveRequest, snapshot_edits
 
 #: what A and B can be, in the order the toolbar lists them
 SOURCES = ("channel", "formula", "tier 1", "diffusion", "rendered", "reference", "ground truth")

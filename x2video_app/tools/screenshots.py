@@ -1,6 +1,6 @@
 """Drives the real editor on the demo shot and saves a screenshot at each stage of a render (docs/screenshots).
 
-    xvfb-run -s "-screen 0 1600x1000x24" python -m x2video_app.screenshots docs/screenshots [--untrained]
+    xvfb-run -s "-screen 0 1600x1000x24" python -m x2video_app.tools.screenshots docs/screenshots [--untrained]
 
 Also prints the seconds from pressing Render to the first keyframe on screen.
 """
@@ -85,8 +85,8 @@ def main(argv: list[str] | None = None) -> int:
     from PySide6.QtWidgets import QApplication
 
     from x2video.sampling.events import FramesReady
-    from x2video_app.main_window import MainWindow
-    from x2video_app.style import apply_style
+    from x2video_app._qt.main_window import MainWindow
+    from x2video_app._qt.style import apply_style
 
     app = QApplication.instance() or QApplication(sys.argv[:1])
     apply_style(app)
@@ -127,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         doc.stroke_to(x - reach + 2 * reach * k / 12, y - reach / 3 + 2 * reach / 3 * (k % 2), r, False)
     res = doc.end_stroke()
     if res is not None:
-        from x2video_app.commands import PaintCommand
+        from x2video_app._qt.commands import PaintCommand
 
         win.undo.push(PaintCommand(doc, *res))
     ed.set_local_prompt(1, "a wall of rough grey concrete")
@@ -194,8 +194,8 @@ def main(argv: list[str] | None = None) -> int:
     _settle(app, win, args.timeout)
     _save(win, args.out / "06_render_finished_side_by_side.png")
     # Compare: a wipe between the Cycles ground truth and the render, PSNR in the status bar
-    from x2video_app.compare import SOURCES
-    from x2video_app.compare_views import MODES
+    from x2video_app._qt.compare import SOURCES
+    from x2video_app.state.compare_views import MODES
 
     doc.set_view("rendered")
     win.compare.a.setCurrentIndex(SOURCES.index("ground truth"))

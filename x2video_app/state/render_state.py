@@ -18,8 +18,8 @@ from x2video.sampling.events import (
     StepDone,
     WindowStarted,
 )
-from x2video_app.preview import PreviewReady
-from x2video_app.signals import Signal
+from x2video_app.state.preview import PreviewReady
+from x2video_app.state.signals import Signal
 
 
 @dataclass

@@ -15,15 +15,15 @@ import time
 from typing import Any, Callable
 
 from PySide6.QtCore import QObject, Signal
-from superqt.utils import create_worker
 
 from x2video.sampling.events import CancelToken, FramesReady, RenderEvent, RenderStarted
 from x2video.sampling.settings import RenderSettings
 from x2video.sampling.tier import RenderPlan
-from x2video_app.document import Document
-from x2video_app.model_source import ModelChoice, load_model
-from x2video_app.preview import PreviewReady, preview_frame, preview_frames, preview_order
-from x2video_app.render_worker import RenderWorker
+from x2video_app._qt.render_worker import RenderWorker
+from x2video_app._qt.worker_slot import WorkerSlot
+from x2video_app.state.document import Document
+from x2video_app.state.model_source import ModelChoice, load_model
+from x2video_app.state.preview import PreviewReady, preview_frame, preview_frames, preview_order
 
 log = logging.getLogger(__name__)
 
@@ -102,9 +102,9 @@ class RenderController(QObject):
         #: replaceable for tests: builds a Renderer from a ModelChoice (runs in the worker thread)
         self.renderer_factory: Callable[[ModelChoice], Any] = self._default_factory
         self.pressed_at: float | None = None
-        self.preload_worker: Any = None
-        self.preview_worker: Any = None  # the formula's preview of the render in progress
-        self.prepare_worker: Any = None  # `Renderer.prepare` of the open shot, before Render is pressed
+        self._preload_slot = WorkerSlot(on_done=self._preload_done)  # the model build
+        self._preview_slot = WorkerSlot()  # the formula's preview of the render in progress
+        self._prepare_slot = WorkerSlot()  # `Renderer.prepare` of the open shot, before Render is pressed
         self._prepare_token: CancelToken | None = None
         self._prepare_pending: RenderSettings | None = None  # asked for before the model was built: run after it
         #: preview every frame (False: only the frame on screen, so the rest does not share the CPU with the render)
@@ -115,6 +115,26 @@ class RenderController(QObject):
         #: torch threads, set by the first model build (in its worker: importing torch on the GUI thread froze
         #: the window for seconds at start-up; the OpenMP setting is process-wide from any non-OpenMP thread)
         self.threads: int | None = None
+
+    @property
+    def preload_worker(self) -> Any:
+        """The worker building the model in the background; None when none."""
+        return self._preload_slot.worker
+
+    @property
+    def preview_worker(self) -> Any:
+        """The worker making the formula's preview of the render in progress; None when none."""
+        return self._preview_slot.worker
+
+    @property
+    def prepare_worker(self) -> Any:
+        """The worker preparing the open shot's conditioning before Render is pressed; None when none."""
+        return self._prepare_slot.worker
+
+    @property
+    def busy(self) -> bool:
+        """A render, model build, preview or preparation runs."""
+        return self.worker is not None or self._preload_slot.busy or self._preview_slot.busy or self._prepare_slot.busy
 
     def ensure_threads(self) -> None:
         if self.threads is None:
@@ -147,14 +167,10 @@ class RenderController(QObject):
 
     def preload(self) -> None:
         """Build the model in the background now, so the first Render does not wait for it."""
-        if self.choice is None or self.preload_worker is not None or (self.renderer is not None and self._renderer_for == self.choice):
+        if self.choice is None or self._preload_slot.busy or (self.renderer is not None and self._renderer_for == self.choice):
             return
-        w = create_worker(self._get_renderer)
-        w.errored.connect(lambda e: log.warning("model preload failed (the render will say why): %s", e))
-        w.finished.connect(self._preload_done)
-        self.preload_worker = w
         self.sigPreload.emit(True)
-        w.start()
+        self._preload_slot.start(self._get_renderer, errored=lambda e: log.warning("model preload failed (the render will say why): %s", e))
 
     def prepare(self, settings: RenderSettings) -> None:
         """Encode the open shot's conditioning and build the engine's graphs in a worker (`Renderer.prepare`, after
@@ -179,24 +195,14 @@ class RenderController(QObject):
                 return 0
             return renderer.prepare(shot, settings, edits, token, base_dir=base_dir)
 
-        w = create_worker(work)
-        w.errored.connect(lambda e: log.warning("preparing the shot failed (the render will say why): %s", e))
-        w.finished.connect(lambda: self._prepare_done(w))
-        self.prepare_worker = w
-        w.start()
+        self._prepare_slot.start(work, errored=lambda e: log.warning("preparing the shot failed (the render will say why): %s", e))
 
     def _quit_prepare(self) -> None:
         if self._prepare_token is not None:
             self._prepare_token.cancel()
-        if self.prepare_worker is not None:
-            self.prepare_worker.quit()
-
-    def _prepare_done(self, w: Any) -> None:
-        if self.prepare_worker is w:
-            self.prepare_worker = None
+        self._prepare_slot.quit()
 
     def _preload_done(self) -> None:
-        self.preload_worker = None
         self.sigPreload.emit(False)
         pending, self._prepare_pending = self._prepare_pending, None
         if pending is not None and self.renderer is not None and self.worker is None:
@@ -289,21 +295,12 @@ class RenderController(QObject):
         def frames():  # in the worker: the order needs the tier modules (torch), which may still be loading
             yield from preview_frames(shot, edits, preview_order(n, first, done) if preview_all else [first])
 
-        w = create_worker(frames)
         rid = self._render_id
-        w.yielded.connect(lambda ev: self._on_preview(rid, ev))
-        w.errored.connect(lambda e: log.warning("formula preview failed: %s", e))
-        w.finished.connect(lambda: self._preview_done(w))
-        self.preview_worker = w
-        w.start()
+        self._preview_slot.start(frames, yielded=lambda ev: self._on_preview(rid, ev),
+                                 errored=lambda e: log.warning("formula preview failed: %s", e))
 
     def _quit_preview(self) -> None:
-        if self.preview_worker is not None:
-            self.preview_worker.quit()
-
-    def _preview_done(self, w: Any) -> None:
-        if self.preview_worker is w:
-            self.preview_worker = None
+        self._preview_slot.quit()
 
     def cancel(self) -> None:
         self._quit_preview()
@@ -315,15 +312,11 @@ class RenderController(QObject):
         """Block (processing events) until the render, preview and preload workers end; for closing the window and tests."""
         from PySide6.QtCore import QCoreApplication, QDeadlineTimer
 
-        def busy() -> bool:
-            return (self.worker is not None or self.preload_worker is not None or self.preview_worker is not None
-                    or self.prepare_worker is not None)
-
         deadline = QDeadlineTimer(timeout_ms)
-        while busy() and not deadline.hasExpired():
+        while self.busy and not deadline.hasExpired():
             QCoreApplication.processEvents()
             time.sleep(0.005)
-        return not busy()
+        return not self.busy
 
     # -- slots (GUI thread) ----------------------------------------------------
     def _on_event(self, ev: RenderEvent | PreviewReady | RenderPlan) -> None:

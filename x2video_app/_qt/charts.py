@@ -13,7 +13,7 @@ from PySide6.QtCore import Qt
 from PySide6.QtWidgets import QLabel, QTabWidget, QVBoxLayout, QWidget
 
 from x2video.eval.report import labels_below
-from x2video_app.timeline import level_colour
+from x2video_app._qt.timeline import level_colour
 
 log = logging.getLogger(__name__)
 
@@ -21,7 +21,7 @@ _SPEED_KEYS = ("seconds_per_frame", "sec_per_frame", "s_per_frame", "spf")
 _ACC_KEYS = ("psnr", "PSNR")
 _LABEL_KEYS = ("name", "label", "preset", "setting", "config")
 #: where `bench.pareto` writes its chart's numbers (a source checkout), and a copy packaged with the weights
-PARETO_PATHS = (Path(__file__).resolve().parents[1] / "docs" / "pareto.json", Path(__file__).resolve().parents[1] / "resources" / "pareto.json")
+PARETO_PATHS = (Path(__file__).resolve().parents[2] / "docs" / "pareto.json", Path(__file__).resolve().parents[2] / "resources" / "pareto.json")
 #: pareto family -> point colour
 _FAMILY_COLOURS = {"formula": (200, 200, 200), "residual": (80, 200, 90), "ddim-recursive": (64, 150, 255), "ddim-sequential": (90, 210, 230),
                    "lcm-recursive": (255, 160, 40), "lcm-sequential": (240, 210, 60), "cycles": (230, 70, 70)}

@@ -1,8 +1,8 @@
-"""Opening shots, projects and the demo; saving; autosave (with the undo history) to a side file with recovery after
-a crash; a lock file that tells a second editor the project is open; the unsaved-changes guard; and export (MP4 /
-EXR sequence) with a progress dialog. Works on the Document, the undo stack (clean = saved) and the render controller
-it is given; asks and reports through a `Host`. The files are Qt-free: `x2video.edits.autosave`, `x2video.edits.lock`;
-the undo side is `x2video_app.recovery`."""
+"""Opening shots, projects and the demo; saving; autosave (with the undo history) to a side file with recovery after a
+crash; a lock file that tells a second editor the project is open; and the unsaved-changes guard (export:
+`x2video_app._qt.export_controller`). Works on the Document, the undo stack (clean = saved) and the render
+controller it is given; asks and reports through a `Host`. The files are Qt-free: `x2video.edits.autosave`,
+`x2video.edits.lock`; the undo side is `x2video_app._qt.recovery`."""
 from __future__ import annotations
 
 import logging
@@ -11,9 +11,8 @@ from pathlib import Path
 
 from PySide6.QtCore import QObject, Qt, QTimer, Signal
 from PySide6.QtGui import QUndoStack
-from PySide6.QtWidgets import QApplication, QCheckBox, QFileDialog, QMessageBox, QProgressDialog, QWidget
+from PySide6.QtWidgets import QApplication, QFileDialog, QMessageBox, QProgressDialog, QWidget
 from shiboken6 import isValid
-from superqt.utils import create_worker
 
 from x2video.demo import STATED_TIME
 from x2video.edits import PROJECT_SUFFIX, Project, is_project_file, load_project, save_project
@@ -30,13 +29,11 @@ from x2video.edits.autosave import (
 )
 from x2video.edits.lock import ProjectLock, ProjectLocked
 from x2video.io import load_shot
-from x2video.io.units import OutputUnits
-from x2video.sampling.events import RenderSettings
-from x2video_app import exporter, recovery
-from x2video_app.demo import ensure_demo
-from x2video_app.document import Document
-from x2video_app.host import Host
-from x2video_app.render_controller import RenderController
+from x2video_app._qt import recovery
+from x2video_app._qt.host import Host
+from x2video_app._qt.render_controller import RenderController
+from x2video_app.state.demo import ensure_demo
+from x2video_app.state.document import Document
 
 log = logging.getLogger(__name__)
 
@@ -83,11 +80,10 @@ class ProjectController(QObject):
             autosave_ms = default_autosave_ms()
         if autosave_ms > 0:
             self.timer.start(autosave_ms)
-        self.export_worker = None
         #: recovered autosave: unsaved under the project's name although the undo stack is clean
         self.force_dirty = False
         undo.cleanChanged.connect(self._clean_changed)
-        #: the Edits at each undo index, for autosave (`x2video_app.recovery`)
+        #: the Edits at each undo index, for autosave (`x2video_app._qt.recovery`)
         self.history = recovery.HistoryTracker(doc, undo)
         #: the lock of the open project (or unsaved shot); None when nothing is open
         self.lock: ProjectLock | None = None
@@ -354,57 +350,3 @@ class ProjectController(QObject):
         else:
             forget_session(side)  # a clean exit that chose to keep the autosave: offered when that project opens
         self._release_lock()
-
-    # -- export ----------------------------------------------------------------
-    def export_dialog(self, kind: str, exposure: float | str = RenderSettings.exposure) -> None:
-        """Ask where to export (and, for EXR, whether with the edited channels), then `export`."""
-        n, done = self.doc.num_frames, len(self.doc.render.frames)
-        if self.doc.shot is None or done < n:
-            self.host.show_error("Nothing to export yet", f"{done} of {n} frames are rendered. Render the whole shot first.")
-            return
-        if kind == "mp4":
-            path, _ = QFileDialog.getSaveFileName(self._dialog_parent, "Export MP4", "render.mp4", "MP4 video (*.mp4)")
-            with_channels = False
-        else:
-            path = QFileDialog.getExistingDirectory(self._dialog_parent, "Export EXR sequence into folder")
-            box = QMessageBox(QMessageBox.Icon.Question, "EXR export", "Also write the edited intrinsic channels?",
-                              QMessageBox.StandardButton.Ok, self._dialog_parent)
-            cb = QCheckBox("include edited albedo/normal/roughness/metallic/irradiance")
-            box.setCheckBox(cb)
-            box.exec()
-            with_channels = cb.isChecked()
-        if path:
-            self.export(kind, Path(path), with_channels, exposure)
-
-    def export(self, kind: str, path: Path, with_channels: bool = False, exposure: float | str = RenderSettings.exposure):
-        """Export in a worker with a progress dialog; returns the worker (tests wait on `finished`). `exposure`: the
-        MP4's, as the Render settings give it ("auto": the shot's own)."""
-        frames = dict(self.doc.render.frames)
-        shot, edits, fps = self.doc.shot, self.doc.edits, self.doc.shot.info.fps
-        dlg = QProgressDialog(f"Exporting {path.name}…", "Cancel", 0, len(frames), self._dialog_parent)
-        dlg.setWindowTitle("Export")
-        dlg.setMinimumDuration(300)
-        units = OutputUnits.for_shot(shot, exposure)
-        log.info("export %s: %s", path, units.describe())
-        if kind == "mp4":
-            worker = create_worker(exporter.export_mp4, frames, path, fps, units)
-        else:
-            worker = create_worker(exporter.export_exr, frames, path, shot, edits if with_channels else None, units)
-        worker.yielded.connect(lambda i: dlg.setValue(i))
-        dlg.canceled.connect(worker.quit)
-
-        def failed(e: BaseException) -> None:
-            self.host.show_error("Export failed", f"{path}:\n{type(e).__name__}: {e}")
-
-        def finished() -> None:
-            dlg.reset()
-            dlg.close()
-            self.export_worker = None
-            if not worker.abort_requested:
-                self.host.status(f"Exported {path}", 8000)
-
-        worker.errored.connect(failed)
-        worker.finished.connect(finished)
-        self.export_worker = worker
-        worker.start()
-        return worker
