@@ -230,3 +230,41 @@ def test_addon_exports_a_shot_x2video_reads(tmp_path, runner):
     # this Blender's denoiser is recorded; without one (Debian's 3.4) the export went on without it and says so
     if not meta["extra"]["denoiser_available"]:
         assert meta["extra"]["denoise"] is False and "OpenImageDenoise" in meta["extra"]["note"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("runner", RUNNERS)
+def test_addon_keyframe_shot_loads_with_rgb_on_keyframes_only(tmp_path, runner):
+    """keyframe_every=2 on 5 frames: full renders on 0, 2, 4, G-buffer passes (no Combined, no light passes) on 1 and 3;
+    the loader names the keyframes, refuses rgb between them and reads emission and depth on every frame."""
+    import numpy as np
+
+    from x2video.io import load_shot
+    from x2video.io.image import read_spec
+
+    out = export(tmp_path, runner, keyframe_every=2)
+    meta = json.loads((out / "shot.json").read_text())
+    assert meta["keyframes"] == [0, 2, 4] and meta["extra"]["gbuffer_samples"] == 4
+    cost = meta["extra"]["frame_seconds"]
+    assert cost["keyframe"] > 0 and cost["gbuffer"] > 0 and len(cost["per_frame"]) == 5
+    for t in range(5):
+        passes = {c.split(".")[-2] for c in read_spec(out / f"frame_{t:04d}.exr").channelnames}
+        assert ("Combined" in passes) == (t % 2 == 0), (t, sorted(passes))
+        assert ("DiffDir" in passes) == (t % 2 == 0) and {"basecolor", "Normal", "Depth", "Emit", "Env", "IndexOB"} <= passes
+    shot = load_shot(out)
+    assert shot.keyframes == (0, 2, 4) and [shot.has_rgb(t) for t in range(5)] == [True, False, True, False, True]
+    assert {"albedo", "normal", "roughness", "metallic", "ids", "depth", "emission", "rgb"} <= set(shot.channels)
+    assert "irradiance" not in shot.channels and shot.info.extra["keyframe_only"] == ["irradiance"]
+    with pytest.raises(KeyError, match="frame 1 has no rgb"):
+        shot.channel("rgb", 1)
+    lamp, slab = object_id(out, "lamp"), object_id(out, "slab")
+    for t in range(5):
+        fr = shot.frame(t)
+        assert ("rgb" in fr) == (t % 2 == 0)
+        ids = fr["ids"][..., 0]
+        assert np.allclose(np.median(fr["albedo"][ids == slab], axis=0), (0.2, 0.4, 0.6), atol=0.02), t
+        assert np.median(fr["emission"][ids == lamp], axis=0) == pytest.approx((2.0, 1.0, 0.5), abs=0.02), t
+        assert 2.0 < np.median(fr["depth"][ids == slab]) < 6.0, t  # metres from the camera 4-5 m away
+    proc = info(out)
+    assert proc.returncode == 0, proc.stdout + proc.stderr[-2000:]
+    assert "keyframes: 0, 2, 4 (3 of 5 frames carry rgb)" in proc.stdout
