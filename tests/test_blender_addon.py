@@ -244,7 +244,7 @@ def test_addon_keyframe_shot_loads_with_rgb_on_keyframes_only(tmp_path, runner):
 
     out = export(tmp_path, runner, keyframe_every=2)
     meta = json.loads((out / "shot.json").read_text())
-    assert meta["keyframes"] == [0, 2, 4] and meta["extra"]["gbuffer_samples"] == 4
+    assert meta["keyframes"] == [0, 2, 4] and meta["extra"]["gbuffer_samples"] == 1
     cost = meta["extra"]["frame_seconds"]
     assert cost["keyframe"] > 0 and cost["gbuffer"] > 0 and len(cost["per_frame"]) == 5
     for t in range(5):
@@ -268,3 +268,31 @@ def test_addon_keyframe_shot_loads_with_rgb_on_keyframes_only(tmp_path, runner):
     proc = info(out)
     assert proc.returncode == 0, proc.stdout + proc.stderr[-2000:]
     assert "keyframes: 0, 2, 4 (3 of 5 frames carry rgb)" in proc.stdout
+
+
+def _keyframes_module():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("x2video_export_keyframes", ADDON / "keyframes.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)  # bpy is imported only where a render runs
+    return mod
+
+
+def test_keyframe_choice_and_animation_runs():
+    kf = _keyframes_module()
+    assert kf.keyframe_list(17, every=8) == [0, 8, 16]
+    assert kf.keyframe_list(20, every=8) == [0, 8, 16, 19]  # the last frame too: no frame after the last keyframe
+    assert kf.keyframe_list(17, frames="0, 5 12") == [0, 5, 12] and kf.keyframe_list(17) is None
+    with pytest.raises(ValueError, match=r"keyframes \[17\] lie outside the shot's frames 0..16"):
+        kf.keyframe_list(17, frames="0, 17")
+    with pytest.raises(ValueError, match="expected frame numbers"):
+        kf.keyframe_list(17, frames="0, eight")
+    # the frames between keyframes every 8 (0, 8, 16): 7 strided runs beat 2 consecutive ones only when longer
+    assert kf.runs([1, 2, 3, 4, 5, 6, 7, 9, 10, 11, 12, 13, 14, 15]) == [(1, 7, 1), (9, 15, 1)]
+    between = [t for t in range(65) if t % 4]  # keyframes every 4 over 65 frames: 48 frames, 3 runs of stride 4
+    assert kf.runs(between) == [(1, 61, 4), (2, 62, 4), (3, 63, 4)]
+    assert kf.runs([0, 2, 4, 6]) == [(0, 6, 2)] and kf.runs([3]) == [(3, 3, 1)] and kf.runs([]) == []
+    assert kf.runs([1, 3, 4, 9]) == [(1, 1, 1), (3, 4, 1), (9, 9, 1)]
+    covered = [f for a, b, step in kf.runs(between) for f in range(a, b + 1, step)]
+    assert sorted(covered) == between

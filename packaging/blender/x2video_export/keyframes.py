@@ -12,14 +12,13 @@ import tempfile
 import time
 from contextlib import contextmanager
 
-import bpy
-
 #: the render-layer outputs a G-buffer frame writes (the AOVs are added by `compositor_output`)
 GBUFFER_PASSES = ("Emit", "Env", "Normal", "IndexOB", "Depth")
 #: the view-layer flags a G-buffer frame renders with (every other pass flag of ours is off)
 GBUFFER_FLAGS = ("use_pass_z", "use_pass_normal", "use_pass_object_index", "use_pass_emit", "use_pass_environment")
-#: path-tracing samples of a G-buffer frame: the AOVs and normals need some for anti-aliased edges
-GBUFFER_SAMPLES = 4
+#: path-tracing samples of a G-buffer frame: one, at each pixel's centre (a G-buffer's cost is its samples: 4 cost 4x,
+#: bench/results/keyframes/gbuffer_cost.json); more give anti-aliased edges
+GBUFFER_SAMPLES = 1
 
 
 def keyframe_list(num_frames, every=0, frames=""):
@@ -74,22 +73,25 @@ def runs(frames):
 
 @contextmanager
 def gbuffer_settings(scene, layer, samples=GBUFFER_SAMPLES):
-    """The scene set to render G-buffers: `samples` samples, no bounces, no denoiser, no adaptive sampling, only
-    the G-buffer passes (and the AOVs) on `layer`, persistent data on. Everything is put back on exit."""
+    """The scene set to render G-buffers: `samples` samples, no bounces, no denoiser, no adaptive sampling, no light
+    tree (its build and traversal cost a third of a G-buffer frame, and no light is needed), only the G-buffer passes
+    (and the AOVs) on `layer`, persistent data on; one sample is taken at the pixel's centre (a jittered single
+    sample would make edges flicker). Everything is put back on exit."""
     from .passes import PASS_FLAGS
 
     c = scene.cycles
-    saved = [(c, k, getattr(c, k)) for k in ("samples", "max_bounces", "use_denoising", "use_adaptive_sampling") if hasattr(c, k)]
-    saved += [(layer.cycles, "use_denoising", layer.cycles.use_denoising), (layer.cycles, "denoising_store_passes", layer.cycles.denoising_store_passes),
-              (scene.render, "use_persistent_data", scene.render.use_persistent_data)]
+    want = [(c, "samples", int(samples)), (c, "max_bounces", 0), (c, "use_denoising", False), (c, "use_adaptive_sampling", False),
+            (c, "use_light_tree", False), (layer.cycles, "use_denoising", False), (layer.cycles, "denoising_store_passes", False),
+            (scene.render, "use_persistent_data", True)]
+    if samples == 1:
+        want.append((c, "filter_width", 0.01))
     for flag in PASS_FLAGS:
-        owner = layer if hasattr(layer, flag) else layer.cycles
-        if hasattr(owner, flag):
-            saved.append((owner, flag, getattr(owner, flag)))
-            setattr(owner, flag, flag in GBUFFER_FLAGS)
-    c.samples, c.max_bounces, c.use_denoising, c.use_adaptive_sampling = int(samples), 0, False, False
-    layer.cycles.use_denoising, layer.cycles.denoising_store_passes = False, False
-    scene.render.use_persistent_data = True
+        want.append((layer if hasattr(layer, flag) else layer.cycles, flag, flag in GBUFFER_FLAGS))
+    saved = []
+    for owner, key, value in want:
+        if hasattr(owner, key):  # Blender 3.4 has no light tree
+            saved.append((owner, key, getattr(owner, key)))
+            setattr(owner, key, value)
     try:
         yield
     finally:
@@ -101,6 +103,8 @@ def render_frames(scene, file_out, directory, frames, first):
     """Render Blender frames `first + t` for shot indices `frames` through the File Output node `file_out` into
     DIRECTORY/frame_<t>.exr, as animation renders over `runs`. Returns {t: (wall seconds, CPU seconds)}: each
     frame's share of its run, measured between Blender's render_post events (a run's set-up counts in its first)."""
+    import bpy  # here, so that the frame choice above can be tested without Blender
+
     keep = (scene.frame_start, scene.frame_end, scene.frame_step, scene.render.filepath, scene.render.image_settings.file_format)
     stamps = []
 
