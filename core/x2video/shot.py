@@ -97,8 +97,9 @@ class Shot(ABC):
         return self._read(name, t)
 
     def frame(self, t: int, names: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
-        """All (or the named, present) channels of frame t."""
+        """All (or the named, present) channels of frame t; rgb only where frame t carries it (`has_rgb`)."""
         names = self.info.channels if names is None else tuple(n for n in names if n in self.info.channels)
+        names = tuple(n for n in names if n != "rgb" or self.has_rgb(t))
         return {n: self.channel(n, t) for n in names}
 
     def __iter__(self) -> Iterator[dict[str, np.ndarray]]:

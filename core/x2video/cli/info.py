@@ -40,6 +40,8 @@ def inspect(path: Path, frames: int = 8, progress: Any = None) -> dict[str, Any]
         ranges: dict[str, list[float]] = {}
         for i, t in enumerate(ts):
             for c in shot.channels:
+                if c == "rgb" and not shot.has_rgb(t):  # a keyframe shot's G-buffer frame
+                    continue
                 try:
                     a = shot.channel(c, t)
                 except (ValueError, OSError) as exc:
@@ -58,6 +60,7 @@ def inspect(path: Path, frames: int = 8, progress: Any = None) -> dict[str, Any]
         problems += [str(w.message) for w in caught]
     missing = [c for c in INTRINSIC if c not in shot.channels]
     info = shot.info
+    notes += [f"{c} is on the keyframes only: left out (the frames between hold G-buffer passes)" for c in info.extra.get("keyframe_only", [])]
     return {
         "path": str(path),
         "format": fmt,
@@ -69,6 +72,7 @@ def inspect(path: Path, frames: int = 8, progress: Any = None) -> dict[str, Any]
         "dropped": missing,
         "motion": bool(getattr(shot, "_motion", None)),
         "poses": info.poses is not None,
+        "keyframes": None if info.rgb_frames is None else list(info.rgb_frames),
         "irradiance_scale": info.irradiance_scale,
         "caption": info.caption,
         "objects": {str(k): v for k, v in info.object_captions.items()},
@@ -77,6 +81,12 @@ def inspect(path: Path, frames: int = 8, progress: Any = None) -> dict[str, Any]
         "problems": problems,
         "notes": notes,
     }
+
+
+def keyframes_line(keys: list[int], frames: int, most: int = 32) -> str:
+    """'keyframes: 0, 8, 16 (3 of 17 frames carry rgb)': the frames of a keyframe shot that carry path-traced rgb."""
+    listed = ", ".join(str(k) for k in keys[:most]) + (f", ... ({len(keys) - most} more)" if len(keys) > most else "")
+    return f"keyframes: {listed} ({len(keys)} of {frames} frames carry rgb)"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -96,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"{report['path']}  ({report['format']})")
     print(f"  frames   {report['frames']}  at {report['fps']:g} fps, {report['width']}x{report['height']}")
     print(f"  channels {', '.join(report['channels'])}" + (f"  (dropped: {', '.join(report['dropped'])})" if report["dropped"] else ""))
+    if report["keyframes"] is not None:
+        print(f"  {keyframes_line(report['keyframes'], report['frames'])}")
     scale = report["irradiance_scale"]
     print(f"  poses    {'yes' if report['poses'] else 'no'}   irradiance scale {scale:.4g}"
           + ("" if scale == 1.0 else " (the model sees irradiance x this; renders are written back in the file's units)"))

@@ -46,7 +46,10 @@ def configure_view_layer(scene: "bpy.types.Scene", view_layer: "bpy.types.ViewLa
     """Turn on our passes and AOVs on `view_layer` (default: the scene's first) and multi-layer half EXR output."""
     layer = view_layer or scene.view_layers[0]
     for flag in PASS_FLAGS:
-        setattr(layer, flag, True)
+        if hasattr(layer, flag):
+            setattr(layer, flag, True)
+        elif hasattr(layer.cycles, flag):  # older Blenders kept some Cycles passes on the Cycles settings
+            setattr(layer.cycles, flag, True)
     have = {a.name for a in layer.aovs}
     for name, kind, _ in AOVS:
         if name not in have:
@@ -64,16 +67,29 @@ def _principled_nodes(tree: "bpy.types.NodeTree") -> list:
     return [n for n in tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled"]
 
 
+def _aov_name(node) -> str:
+    """The AOV an AOV output node writes to: `aov_name` from Blender 4.2, the node's `name` property before."""
+    return node.aov_name if hasattr(node, "aov_name") else node.name
+
+
+def _aov_outputs(tree: "bpy.types.NodeTree") -> list:
+    """The AOV output nodes of `tree` that write one of our AOVs (ours from an earlier run, or the material's own)."""
+    names = {name for name, _, _ in AOVS}
+    return [n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputAOV" and (n.get(_TAG) or _aov_name(n) in names)]
+
+
 def wire_material(mat: "bpy.types.Material") -> int:
     """Add AOV outputs to `mat` copying its first Principled BSDF's base colour, roughness, metallic.
 
-    Whatever feeds an input (a texture, a constant) feeds its AOV too. Returns the number of AOV
-    nodes written (0 for materials without a Principled BSDF: their AOVs stay 0, as for emitters).
+    Whatever feeds an input (a texture, a constant) feeds its AOV too. AOV outputs the material already
+    has under those names are replaced: Cycles sums the outputs of one AOV, so a second would double the
+    value. Returns the number of AOV nodes written (0 for materials without a Principled BSDF: their AOVs
+    stay 0, as for emitters).
     """
     if not mat.use_nodes or mat.node_tree is None:
         return 0
     tree = mat.node_tree
-    for n in [n for n in tree.nodes if n.get(_TAG)]:
+    for n in _aov_outputs(tree):
         tree.nodes.remove(n)
     bsdfs = _principled_nodes(tree)
     if not bsdfs:

@@ -20,7 +20,7 @@ log = logging.getLogger(__name__)
 FORMAT_NAME = "x2video-shot"
 FORMAT_VERSION = 1
 _SHOT_KEYS = {
-    "format", "version", "num_frames", "width", "height", "fps", "caption", "objects", "irradiance_normalized", "extra",
+    "format", "version", "num_frames", "width", "height", "fps", "caption", "objects", "irradiance_normalized", "extra", "keyframes",
 }
 
 
@@ -90,6 +90,10 @@ def parse_shot_json(path: Path) -> dict[str, Any]:
         raise ValueError(f"{path}: field 'objects' has a key that is not an integer object id: {list(objects)}") from None
     if not isinstance(doc.get("extra", {}), dict):
         raise ValueError(f"{path}: field 'extra' must be a JSON object")
+    keys = doc.get("keyframes")
+    if keys is not None and not (isinstance(keys, list) and keys and all(isinstance(k, int) and not isinstance(k, bool) and k >= 0 for k in keys)
+                                 and keys == sorted(set(keys))):
+        raise ValueError(f"{path}: field 'keyframes' must list the frames that carry rgb, increasing from 0 (e.g. [0, 8, 16]), got {keys!r}")
     return doc
 
 

@@ -11,7 +11,14 @@ Blender's (``<ViewLayer>.<Pass>.<comp>``, short or long pass names):
 - irradiance: ``DiffDir`` + ``DiffInd`` (Blender's diffuse light passes are already divided by
   the diffuse colour: our convention), exposure-normalised once per shot;
 - roughness / metallic: shader AOVs with those names (value ``.X`` or colour ``.R``);
-- ids: ``IndexOB`` / ``Object Index``; depth: ``Depth`` / ``Z``; rgb: ``Combined`` / ``Image``.
+- ids: ``IndexOB`` / ``Object Index``; depth: ``Depth`` / ``Z``; rgb: ``Combined`` / ``Image``;
+- emission: ``Emit`` + ``Env`` (light the surfaces emit and the world seen directly), in the file's units as
+  rgb is (neither is scaled by the irradiance normalisation: rgb - emission is the reflected light).
+
+Keyframe shots (the add-on's keyframe export): only some frames carry Combined (the keyframes, listed in
+shot.json's ``keyframes``, else found from the frames' headers); the others hold G-buffer passes only.
+`ShotInfo.rgb_frames` names the keyframes, and a channel is the shot's only when every frame has it (a pass
+of the keyframes only, such as the light passes, is left out and named in ``extra["keyframe_only"]``).
 """
 from __future__ import annotations
 
@@ -45,6 +52,7 @@ BLENDER: dict[str, list[tuple[str, ...]]] = {
     "ids": [("IndexOB",), ("Object Index",)],
     "depth": [("Depth",), ("Z",)],
     "rgb": [("Combined",), ("Image",)],
+    "emission": [("Emit", "Env"), ("Emission", "Environment"), ("Emit",)],
 }
 _COMPS3 = (("R", "G", "B"), ("X", "Y", "Z"), ("r", "g", "b"), ("x", "y", "z"))
 _COMPS1 = ("Y", "X", "V", "R", "Z", "id", "r", "x")
@@ -137,17 +145,18 @@ class MultilayerShot(Shot):
                 raise ValueError(f"{bad[0]}: multi-layer shots are EXR files only")
         self._stamps = FileStamps(self._files)
         spec = read_spec(self._files[0])
-        names = tuple(spec.channelnames)
-        self._sources = map_channels(names, str(self._files[0]))
-        self._motion_src = self._sources.pop("motion", None)
-        if not self._sources:
-            raise ValueError(f"{self._files[0]}: no known passes among channels {', '.join(names[:12])}")
         meta: dict[str, Any] = {}
         if (folder / "shot.json").is_file():
             meta = parse_shot_json(folder / "shot.json")
         n = len(self._files)
         if "num_frames" in meta and meta["num_frames"] != n:
             raise ValueError(f"{folder / 'shot.json'}: says {meta['num_frames']} frames, {p} has {n}")
+        self._per_frame, rgb_frames, only_keys = self._map_frames(spec, folder, meta.get("keyframes"))
+        self._sources = self._per_frame[rgb_frames[0] if rgb_frames else 0]
+        self._motion_src = self._sources.get("motion")
+        channels = tuple(c for c in SPECS if c in self._sources and c not in only_keys)
+        if not channels:
+            raise ValueError(f"{self._files[0]}: no known passes among channels {', '.join(tuple(spec.channelnames)[:12])}")
         poses = find_poses(folder, n, (spec.height, spec.width))
         src_n = self._sources.get("normal")
         self._world_normals = bool(src_n and src_n.blender)
@@ -158,23 +167,27 @@ class MultilayerShot(Shot):
                 RuntimeWarning,
                 stacklevel=2,
             )
-        self._cache = LRU(max(1, cache_size // max(1, len(self._sources))))
+        self._cache = LRU(max(1, cache_size // max(1, len(channels))))
+        extra = {**dict(meta.get("extra", {})), "passes": {k: s.label for k, s in self._sources.items() if k != "motion"}}
+        if only_keys:
+            extra["keyframe_only"] = sorted(only_keys)
         self.info = ShotInfo(
             num_frames=n,
             height=spec.height,
             width=spec.width,
-            channels=tuple(c for c in SPECS if c in self._sources),
+            channels=channels,
             fps=float(meta.get("fps", 10.0)),
             caption=str(meta.get("caption", "")),
             object_captions=dict(meta.get("objects", {})),
             poses=poses,
             source=str(p),
-            extra={**dict(meta.get("extra", {})), "passes": {k: s.label for k, s in self._sources.items()}},
+            extra=extra,
+            rgb_frames=None if rgb_frames is None or len(rgb_frames) == n else tuple(rgb_frames),
         )
         already = bool(spec.getattribute("x2video:irradiance_normalized") or meta.get("irradiance_normalized", False))
         if normalize_irradiance is None:
             normalize_irradiance = not already
-        if normalize_irradiance and "irradiance" in self._sources:
+        if normalize_irradiance and "irradiance" in channels:
             ts = sorted({int(round(i)) for i in np.linspace(0, n - 1, min(n, 16))})
             total, count = 0.0, 0
             for t in ts:
@@ -183,11 +196,37 @@ class MultilayerShot(Shot):
             self.info.irradiance_scale = exposure_scale(total, count)
             self._cache.clear()
 
+    def _map_frames(self, spec: Any, folder: Path, listed: list[int] | None) -> tuple[list[dict[str, Source]], list[int] | None, set[str]]:
+        """Each frame's sources (read from its header: a keyframe shot's frames hold different passes), the frames that
+        carry rgb (shot.json's `listed` keyframes, else every frame with Combined; None without rgb) and the channels
+        some frames lack (left out of the shot; rgb is the keyframes' own)."""
+        maps: dict[tuple[str, ...], dict[str, Source]] = {}
+        per_frame = []
+        for t, f in enumerate(self._files):
+            names = tuple((spec if t == 0 else read_spec(f)).channelnames)
+            if names not in maps:
+                maps[names] = map_channels(names, str(f))
+            per_frame.append(maps[names])
+        with_rgb = [t for t, m in enumerate(per_frame) if "rgb" in m]
+        if listed is not None:
+            where = folder / "shot.json"
+            bad = [t for t in listed if not 0 <= t < len(self._files)]
+            if bad:
+                raise ValueError(f"{where}: keyframes {bad} lie outside the shot's {len(self._files)} frames")
+            lacking = [t for t in listed if "rgb" not in per_frame[t]]
+            if lacking:
+                raise ValueError(f"{self._files[lacking[0]]}: shot.json lists frame {lacking[0]} as a keyframe, but it carries no Combined pass")
+            with_rgb = list(listed)
+        present = [set(m) - {"rgb", "motion"} for m in maps.values()]
+        only_keys = set.union(*present) - set.intersection(*present)
+        return per_frame, with_rgb or None, only_keys
+
     def _frame(self, t: int, scale: float | None = None, only: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
         """Our channels of frame t (those in `only`, default all), reading only the EXR channels they come from
         (a Blender frame holds every light pass: `x2video.io.image.read_image`)."""
         path = self._files[t]
-        sources = {ch: src for ch, src in self._sources.items() if only is None or ch in only}
+        want = self.info.channels if only is None else only
+        sources = {ch: src for ch, src in self._per_frame[t].items() if ch in want and (ch != "rgb" or self.has_rgb(t))}
         img = self._stamps.read(path, f"frame {t}", channels=[n for src in sources.values() for names in src.passes for n in names],
                                  reader=read_image)
         if (img.height, img.width) != (self.info.height, self.info.width):
