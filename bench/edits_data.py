@@ -49,29 +49,48 @@ ROUGH, GLOSS = 0.6, 0.05
 MIN_FRACTION = 0.004
 
 CHILD = r"""
-import json, os, sys
+import json, os, resource, sys
 from functools import partial
 from pathlib import Path
-out, seed, frames, w, h, samples, threads = Path(sys.argv[1]), *map(int, sys.argv[2:8])
-gain = float(sys.argv[8]) if sys.argv[8] else None
-look = json.loads(sys.argv[9]) if sys.argv[9] else None
-from x2video.cycles.shot import CyclesConfig, write_room_clips
+out, seed, frames, w, h, samples, threads, beauty = Path(sys.argv[1]), *map(int, sys.argv[2:9])
+gain = float(sys.argv[9]) if sys.argv[9] else None
+look = json.loads(sys.argv[10]) if sys.argv[10] else None
+import bpy
+from x2video.cycles.shot import CyclesConfig, beauty_only, render_beauty, write_room_clips
 out.mkdir(parents=True, exist_ok=True)
 log = out / "cycles.json"
-secs = json.loads(log.read_text()) if log.is_file() else {}
+rec = json.loads(log.read_text()) if log.is_file() else {"frames": {}, "beauty": {}}
 
-def progress(t, s):
-    secs[str(t)] = s
+def save():
     tmp = log.with_suffix(".tmp")
-    tmp.write_text(json.dumps(secs, indent=1))
+    tmp.write_text(json.dumps(rec, indent=1))
     os.replace(tmp, log)
 
+def progress(t, s):
+    rec["frames"][str(t)] = s
+    save()
+
+def cpu():
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+fresh = not (out / "shot.json").is_file()
 apply = None
 if look is not None:
     from bench.edits_looks import apply_look
     apply = partial(apply_look, look)
 write_room_clips([out], seed, frames, w, h, cfg=CyclesConfig(samples=samples, denoise=True, threads=threads), progress=progress,
                  light_gain=gain, look=apply)
+if fresh and beauty:  # the picture alone, as a Blender user re-renders to see the change: same samples, OIDN, seed
+    scene = bpy.context.scene
+    scene.render.use_persistent_data = False  # drop the passes render's scene data (kept, it crashes once the passes go)
+    scene = beauty_only(scene)
+    scene.render.use_persistent_data = True  # as bench.clips' beauty renders: frames after the first reuse the scene
+    for t in range(min(beauty, frames)):
+        c0 = cpu()
+        _, secs = render_beauty(scene, t, samples, denoise=True, seed=0)
+        rec["beauty"][str(t)] = [secs, cpu() - c0]
+    save()
 print("DONE", out)
 """
 
@@ -82,23 +101,27 @@ def default_root(width: int, height: int) -> Path:
 
 
 def cycles_render(out: Path, seed: int, frames: int, width: int, height: int, samples: int, threads: int,
-                  gain: float | None = None, look: dict | None = None) -> Path:
-    """Render (or finish) one variant of room `seed` into the shot folder `out` in a Cycles child process."""
+                  gain: float | None = None, look: dict | None = None, beauty: int = 4) -> Path:
+    """Render (or finish) one variant of room `seed` into the shot folder `out` in a Cycles child process; then, when it
+    rendered the shot, the picture alone (no passes, AOVs or compositor) on its first `beauty` frames, timed."""
     repo = str(Path(__file__).resolve().parents[1])
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([repo, os.environ.get("PYTHONPATH", "")])}
     proc = subprocess.run([sys.executable, "-c", CHILD, str(out), str(seed), str(frames), str(width), str(height), str(samples), str(threads),
-                           "" if gain is None else repr(float(gain)), "" if look is None else json.dumps(look)],
+                           str(beauty), "" if gain is None else repr(float(gain)), "" if look is None else json.dumps(look)],
                           capture_output=True, text=True, env=env)
     if proc.returncode != 0 or "DONE" not in proc.stdout:
         raise RuntimeError(f"{out}: the Cycles child process failed (exit {proc.returncode}): {proc.stderr[-3000:]}")
     return out
 
 
-def frame_seconds(folder: Path) -> list[float]:
-    """Cycles' seconds of each frame of a rendered variant (cycles.json), in frame order."""
+def frame_seconds(folder: Path) -> dict[str, Any]:
+    """Cycles' seconds of a rendered variant (cycles.json): ``frames`` (the shot with every pass, in frame order) and
+    ``beauty`` (the picture alone on the first frames: wall seconds, CPU seconds; empty when the shot was resumed)."""
     log = folder / "cycles.json"
-    secs = json.loads(log.read_text()) if log.is_file() else {}
-    return [float(secs[k]) for k in sorted(secs, key=int)]
+    rec = json.loads(log.read_text()) if log.is_file() else {"frames": {}, "beauty": {}}
+    beauty = [rec["beauty"][k] for k in sorted(rec.get("beauty", {}), key=int)]
+    return {"frames": [float(rec["frames"][k]) for k in sorted(rec["frames"], key=int)],
+            "beauty": [float(b[0]) for b in beauty], "beauty_cpu": [float(b[1]) for b in beauty]}
 
 
 def categories(seed: int, ids: list[int]) -> dict[int, str]:
@@ -192,6 +215,17 @@ def x2video_edits(look: dict) -> dict:
     return edits.to_dict()
 
 
+def cycles_record(secs: dict[str, Any], samples: int) -> dict[str, Any]:
+    """What edits.json says of a Cycles render: seconds per frame of the shot with every pass (how the truth was made)
+    and of the picture alone (what a person waits for to see the change: the re-render a method stands beside). The
+    first frame of each, which builds the scene (BVH, shaders), is left out of the means as a method's warm-up is."""
+    mean = lambda v: float(np.mean(v[1:] if len(v) > 1 else v)) if v else None  # noqa: E731  (the first frame syncs the scene)
+    return {"seconds_per_frame": mean(secs["beauty"]) or mean(secs["frames"]), "passes_seconds_per_frame": mean(secs["frames"]),
+            "beauty_seconds_per_frame": mean(secs["beauty"]), "beauty_cpu_seconds_per_frame": mean(secs["beauty_cpu"]),
+            "frame_seconds": secs["frames"], "beauty_seconds": secs["beauty"], "samples": samples, "denoise": "OpenImageDenoise",
+            "seed": 0}
+
+
 def make_room(folder: Path, seed: int, frames: int, width: int, height: int, *, samples: int = 16, threads: int = 2,
               kinds: tuple[str, ...] = KINDS, log=print) -> dict:
     """Render (or finish) room `seed` before and after each kind's change into `folder`; returns room.json's content."""
@@ -213,7 +247,7 @@ def make_room(folder: Path, seed: int, frames: int, width: int, height: int, *, 
     present = sorted(classes)
     picks = pick_targets(ids, albedo, classes, categories(seed, present), {int(k): v for k, v in info.get("objects", {}).items()}, kinds)
     room = {"seed": seed, "frames": frames, "size": [width, height], "samples": samples, "light_gain": gain,
-            "before": {"seconds_per_frame": float(np.mean(frame_seconds(before) or [np.nan]))}, "kinds": {}}
+            "before": cycles_record(frame_seconds(before), samples), "kinds": {}}
     for kind, pick in picks.items():
         if pick is None:
             room["kinds"][kind] = {"skipped": "no visible object of a suitable class"}
@@ -223,10 +257,8 @@ def make_room(folder: Path, seed: int, frames: int, width: int, height: int, *, 
         if not (after / "shot.json").is_file():
             log(f"room {seed}: after_{kind} {pick.get('target', {}).get('caption', '')!r}")
             cycles_render(after, seed, frames, width, height, samples, threads, gain=gain, look=pick["look"])
-        secs = frame_seconds(after)
         doc = {"kind": kind, **pick, "edits": x2video_edits(pick["look"]),
-               "cycles": {"seconds_per_frame": float(np.mean(secs)) if secs else None, "frame_seconds": secs, "samples": samples,
-                          "denoise": "OpenImageDenoise", "light_gain": gain, "seed": 0}}
+               "cycles": {**cycles_record(frame_seconds(after), samples), "light_gain": gain}}
         write_json_atomic(after / "edits.json", doc)
         room["kinds"][kind] = {"folder": after.name, "target": pick.get("target")}
     write_json_atomic(folder / "room.json", room)
