@@ -23,9 +23,12 @@ over rooms; and seconds per edited frame beside Cycles' re-render seconds. Metho
 Where `RenderSettings` has no ``base`` field (a build before the Renderer took the base), the base rows are computed
 from the same library pieces the Renderer calls (`x2video.base.stage.edited_frame`) and say so (``via``).
 
+    python -m bench.edits_data                 # the rooms first (validation and test; resumable)
     python -m bench.edits [--root DIR] [--seeds 43000130,43000131 | --validation] [--kinds ...] [--methods ...]
 
-Writes bench/results/edits/edits.json and edits.md (test rooms; with --validation, edits_validation.*).
+Writes bench/results/edits/edits.json, edits.md (its tables) and edits.png (`--picture KIND:METHOD`: the first room's
+middle frame as rendered, after the edit by x2video, and by Cycles, with seconds and PSNR); test rooms, or with
+--validation edits_validation.*.
 """
 from __future__ import annotations
 
@@ -194,8 +197,10 @@ def library_frames(model: Any, shot: Any, edits: Any, method: str) -> tuple[list
 
 
 # ---------------------------------------------------------------------------------------------- one room
-def score_room(folder: Path, kinds: tuple[str, ...], methods: tuple[str, ...], model: Any, log=print) -> list[dict]:
-    """Rows {kind, seed, target, cycles_seconds_per_frame, methods: {m: {regions..., seconds_per_frame, via}}} of one room."""
+def score_room(folder: Path, kinds: tuple[str, ...], methods: tuple[str, ...], model: Any, log=print,
+               keep: dict | None = None) -> list[dict]:
+    """Rows {kind, seed, target, cycles_seconds_per_frame, methods: {m: {regions..., seconds_per_frame, via}}} of one room;
+    `keep`, when given, gets each method's display image of the middle frame under (kind, method) ("cycles": the truth)."""
     from x2video.base.difference import grow
     from x2video.channels import tonemap
     from x2video.edits.model import Edits
@@ -222,6 +227,9 @@ def score_room(folder: Path, kinds: tuple[str, ...], methods: tuple[str, ...], m
             obj = np.isin(before.channel("ids", t)[..., 0], ids) if ids else np.ones(before.size, bool)
             masks.append(regions(obj) if ids else {"inside": obj, "band": ~obj, "outside": ~obj, "whole": obj})
         truth = [tonemap(after.channel("rgb", t)) for t in range(after.num_frames)]
+        mid = before.num_frames // 2
+        if keep is not None:
+            keep[(kind, "cycles")] = truth[mid]
         row: dict[str, Any] = {"kind": kind, "seed": int(json.loads((folder / "before" / "shot.json").read_text())["extra"]["room_seed"]),
                                "target": target, "look": doc["look"], "cycles_seconds_per_frame": doc["cycles"]["seconds_per_frame"],
                                "cycles_passes_seconds_per_frame": doc["cycles"].get("passes_seconds_per_frame"), "methods": {}}
@@ -245,6 +253,8 @@ def score_room(folder: Path, kinds: tuple[str, ...], methods: tuple[str, ...], m
             else:
                 frames, spf = library_frames(model, before, edits, method)
                 via = "base.stage.edited_frame" if method != "base-ratio" else "base.difference.over_base (ratio)"
+            if keep is not None:
+                keep[(kind, method)] = tonemap(np.asarray(frames[mid], np.float32))
             sc = Scores()
             identical = True
             for t, f in enumerate(frames):
@@ -317,6 +327,9 @@ def markdown(doc: dict) -> str:
             cells = [("-" if r[reg] is None else f"{r[reg]:.2f}") for reg in REGIONS]
             lines.append(f"| {m} | {' | '.join(cells)} | {r['seconds_per_frame']:.3f} | {speed} |")
         lines.append("")
+    if doc.get("picture"):
+        pic = doc["picture"]
+        lines += [f"![room {pic['seed']}, {pic['kind']}: as rendered, by x2video ({pic['method']}), by Cycles]({pic['file']})", ""]
     lines += [f"- {n}" for n in doc["notes"]]
     return "\n".join(lines) + "\n"
 
@@ -331,6 +344,20 @@ NOTES = ["rebuild: roughness and metallic edits have no pass to rebuild from, so
          "PSNR of a region is that of the squared error pooled over a room's frames, then averaged over rooms"]
 
 
+def picture(keep: dict, row: dict, method: str, path: Path) -> dict:
+    """The README's picture: one frame as rendered, after the edit by `method`, and Cycles' re-render of the edit, each
+    with its seconds per frame and PSNR against Cycles (`bench.side_by_side.compose`)."""
+    from bench.side_by_side import Panel, compose, scored
+
+    kind, gt = row["kind"], keep[(row["kind"], "cycles")]
+    m = row["methods"][method]
+    what = (row["target"] or {}).get("caption") or "every light"
+    panels = [scored(Panel("before", "as rendered", keep[(kind, "nothing")], 0.0), gt),
+              scored(Panel(method, f"x2video ({method})", keep[(kind, method)], m["seconds_per_frame"]), gt),
+              Panel("cycles", "Cycles' re-render", gt, row["cycles_seconds_per_frame"], caption=f"{row['cycles_seconds_per_frame']:.2f} s/frame")]
+    return compose(panels, path, footer=f"room {row['seed']}, edit: {kind} of {what}; PSNR against Cycles' re-render, display images")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--root", default=None, help="bench.edits_data's folder (default: its cache folder for --size)")
@@ -342,6 +369,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--weights", default=None, help="checkpoint folder (default: the shipped weights)")
     ap.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     ap.add_argument("--out", type=Path, default=None, help="result JSON (default bench/results/edits/edits[_validation].json)")
+    ap.add_argument("--picture", default="albedo:base-auto", help="KIND:METHOD of the picture beside the JSON (the first room's "
+                    "middle frame as rendered, after the edit, and by Cycles); '' for none")
     args = ap.parse_args(argv)
     w, h = (int(v) for v in args.size.lower().split("x"))
     root = Path(args.root) if args.root else default_root(w, h)
@@ -365,7 +394,8 @@ def main(argv: list[str] | None = None) -> int:
 
     model = load_model(args.weights, device="cpu") if any(m in NEEDS_MODEL for m in methods) else None
     load = [round(v, 2) for v in os.getloadavg()]
-    rows = [r for s in seeds for r in score_room(root / f"room_{s}", kinds, methods, model)]
+    keep: dict = {}
+    rows = [r for i, s in enumerate(seeds) for r in score_room(root / f"room_{s}", kinds, methods, model, keep=keep if i == 0 else None)]
     room0 = json.loads((root / f"room_{seeds[0]}" / "room.json").read_text())
     split = "validation" if args.validation else ("test" if seeds == [int(s) for s in TEST_SEEDS.split(",")] else "chosen")
     doc = {"format": "x2video-edits", "command": command("edits", argv), "machine": machine_info("cpu"), "split": split,
@@ -378,6 +408,11 @@ def main(argv: list[str] | None = None) -> int:
            "load_average_before_after": [load, [round(v, 2) for v in os.getloadavg()]]}
     out = args.out or results_path("edits", "edits_validation" if args.validation else "edits")
     out.parent.mkdir(parents=True, exist_ok=True)
+    pk, _, pm = args.picture.partition(":")
+    first = next((r for r in rows if r["seed"] == seeds[0] and r["kind"] == pk and pm in r["methods"] and "skipped" not in r["methods"][pm]), None)
+    if first is not None and (pk, "nothing") in keep:
+        doc["picture"] = {"file": out.with_suffix(".png").name, "kind": pk, "method": pm, "seed": first["seed"],
+                          **picture(keep, first, pm, out.with_suffix(".png"))}
     doc = clean_json(doc, 4)
     write_json_atomic(out, doc)
     out.with_suffix(".md").write_text(markdown(doc))

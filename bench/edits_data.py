@@ -237,6 +237,10 @@ def make_room(folder: Path, seed: int, frames: int, width: int, height: int, *, 
         log(f"room {seed}: before ({frames} frames, {width}x{height}, {samples} spp + OIDN)")
         cycles_render(before, seed, frames, width, height, samples, threads)
     info = json.loads((before / "shot.json").read_text())
+    made = (info["num_frames"], info["width"], info["height"], info["extra"]["samples"])
+    if made != (frames, width, height, samples):
+        raise ValueError(f"{before}: rendered as {made[0]} frames at {made[1]}x{made[2]}, {made[3]} spp; asked for {frames} at "
+                         f"{width}x{height}, {samples} spp (another --out, or remove the room's folder)")
     gain = float(info["extra"]["light_gain"])
     shot = load_shot(before)
     ids = np.stack([shot.channel("ids", t)[..., 0] for t in range(shot.num_frames)])

@@ -97,7 +97,7 @@ def test_a_tiny_room_before_and_after_an_albedo_edit_is_scored(tmp_path):
         assert np.abs(after.channel("rgb", t)[far] - before.channel("rgb", t)[far]).mean() < 0.01
     out = tmp_path / "res" / "edits.json"
     assert edits_main(["--root", str(tmp_path), "--seeds", str(SEED), "--kinds", "albedo", "--methods", "nothing,rebuild,base-formula",
-                       "--out", str(out), "--threads", "1"]) == 0
+                       "--out", str(out), "--threads", "1", "--picture", "albedo:base-formula"]) == 0
     res = json.loads(out.read_text())
     m = res["kinds"]["albedo"]["methods"]
     assert m["rebuild"]["inside"] > m["nothing"]["inside"] + 5  # the compositor's rebuild makes the recolour
@@ -105,4 +105,5 @@ def test_a_tiny_room_before_and_after_an_albedo_edit_is_scored(tmp_path):
     assert m["base-formula"]["inside"] >= m["rebuild"]["inside"] - 1.0
     assert m["base-formula"]["outside_bit_identical"] is True and m["base-formula"]["outside"] == m["nothing"]["outside"]
     assert m["base-formula"]["whole"] > m["nothing"]["whole"]
-    assert "| base-formula |" in out.with_suffix(".md").read_text()
+    assert "| base-formula |" in out.with_suffix(".md").read_text() and res["picture"]["file"] == "edits.png"
+    assert out.with_suffix(".png").stat().st_size > 1000
