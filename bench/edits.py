@@ -352,7 +352,7 @@ def picture(keep: dict, row: dict, method: str, path: Path) -> dict:
     kind, gt = row["kind"], keep[(row["kind"], "cycles")]
     m = row["methods"][method]
     what = (row["target"] or {}).get("caption") or "every light"
-    panels = [scored(Panel("before", "as rendered", keep[(kind, "nothing")], 0.0), gt),
+    panels = [scored(Panel("before", "as rendered", keep[(kind, "nothing")], None), gt),
               scored(Panel(method, f"x2video ({method})", keep[(kind, method)], m["seconds_per_frame"]), gt),
               Panel("cycles", "Cycles' re-render", gt, row["cycles_seconds_per_frame"], caption=f"{row['cycles_seconds_per_frame']:.2f} s/frame")]
     return compose(panels, path, footer=f"room {row['seed']}, edit: {kind} of {what}; PSNR against Cycles' re-render, display images")
