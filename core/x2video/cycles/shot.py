@@ -199,10 +199,16 @@ def clip_paths(scene_desc, num_frames: int, clips: int, aspect: float, seed: int
 
 def write_room_clips(out_dirs: list[str | Path], seed: int, num_frames: int, width: int, height: int, *, cfg: CyclesConfig | None = None,
                      path_cfg: PathConfig | None = None, fps: float = 10.0, version: int = GENERATOR_VERSION,
-                     progress: Callable[[int, float], None] | None = None) -> list[Path]:
+                     progress: Callable[[int, float], None] | None = None, light_gain: float | None = None,
+                     look: Callable[[dict], dict] | None = None) -> list[Path]:
     """Generate room `seed` (generator `version`), build it in Blender once and render one clip of `num_frames` frames
     along its own camera path into each shot folder of `out_dirs` (resumable per frame; a clip's shot.json is written
-    last). Scene set-up (build, shader compile, BVH, exposure probe) is paid once per room, not per clip."""
+    last). Scene set-up (build, shader compile, BVH, exposure probe) is paid once per room, not per clip.
+
+    A variant of a room rendered before (the same room after a look-dev change, `bench.edits_data`): `light_gain`
+    is the gain the first render's probe chose (shot.json ``extra.light_gain``; no probe then, so both share the
+    exposure), and `look` changes the built scene before the AOVs are wired and the lights scaled (called with
+    `build_room`'s result; what it returns is written to shot.json as ``extra.look``)."""
     cfg = cfg or CyclesConfig()
     outs = [Path(d) for d in out_dirs]
     todo = [i for i, o in enumerate(outs) if not (o / "shot.json").is_file()]
@@ -212,12 +218,13 @@ def write_room_clips(out_dirs: list[str | Path], seed: int, num_frames: int, wid
     paths = clip_paths(scene_desc, num_frames, len(outs), width / height, seed, path_cfg)
     extras = extras_for(scene_desc, seed, version)
     built = build_room(scene_desc, extras)
+    looked = look(built) if look is not None else None
     scene = setup_render(width, height, cfg)
     add_camera([p for path in paths for p in path])  # clip c holds scene frames c*T .. c*T + T - 1
     wire_all_materials()
     scene.frame_start, scene.frame_end = 0, len(outs) * num_frames - 1
     probe = sorted({c * num_frames + t for c in todo[:3] for t in (0, num_frames // 2, num_frames - 1)})
-    gain = exposure_gain(scene, probe, cfg.target)
+    gain = exposure_gain(scene, probe, cfg.target) if light_gain is None else float(light_gain)
     scale_lights(gain)
     light = scene_desc.lighting
     for c in todo:
@@ -233,7 +240,8 @@ def write_room_clips(out_dirs: list[str | Path], seed: int, num_frames: int, wid
                       "style": scene_desc.style, "generator": GENERATOR if version >= 3 else "x2video.cycles v2",
                       "renderer": f"Cycles (Blender {bpy.app.version_string})", "samples": cfg.samples,
                       "denoise": cfg.denoise, "light_gain": gain, "path_traced": built["extras"],
-                      "material_class": {str(k): v for k, v in built["material_class"].items()}},
+                      "material_class": {str(k): v for k, v in built["material_class"].items()},
+                      **({"look": looked} if look is not None else {})},
         })
     return outs
 
