@@ -33,10 +33,19 @@ GRID = 8
 #: the floor e in each mean, as a fraction of the frame's mean formula luminance: a tile far darker than the frame
 #: (a shadowed corner, a lamp shade whose light the formula lacks) is judged by light that matters to the frame
 FLOOR = 0.05
-#: largest |log ratio| of tier 1 to the formula a tile may have; see the module docstring and bench/results/plausible_bound.json
-TILE_BOUND = 1.0
-#: largest |log ratio| of tier 1 to the formula over a whole frame
-FRAME_BOUND = 0.5
+#: largest |log ratio| of tier 1 to the formula a tile may have (3.3x either way). On validation data tier 1 never went
+#: beyond 0.82 (2.3x): Cycles validation room 43000129 (bench.clips' validation seed; 17 frames at 320x224, and resampled to
+#: 1024x1024 and 1920x1080: 0.82, 0.61, 0.58) and five procedural (rasterized) validation rooms (seed 43, rooms 8 .. 48,
+#: 4 frames at 320x224 each: at most 0.43). The bound is that maximum with half of it again on top (1.2 ~ 1.46 x 0.82).
+#: The truth is not the measure: it holds what no channel says (a window's view, a lamp's own glow, 25x the formula in
+#: a tile of the Cycles room) where tier 1 rightly keeps the formula (the unseen-light rule); a bound it set would pass
+#: anything. bench/results/plausible_bound.json holds the distributions.
+TILE_BOUND = 1.2
+#: largest |log ratio| of tier 1 to the formula over a whole frame (1.22x either way). On the same validation frames tier 1
+#: never went beyond 0.087 (1.09x; the procedural rooms: 0.059); the bound is over twice that. Where the net misreads the
+#: light's level it lifts whole frames: the kitchen 2.7x (log 1.0); our Cycles room with its irradiance x0.01 or x100,
+#: 0.70 .. 0.89; a synthetic room written as 8-bit PNGs at 1/100 of our scale, with a lamp (tests/test_foreign_inputs.py), 0.33.
+FRAME_BOUND = 0.2
 
 
 @dataclass
