@@ -36,7 +36,7 @@ FLOOR = 0.05
 #: largest |log ratio| of tier 1 to the formula a tile may have (3.3x either way). On validation data tier 1 never went
 #: beyond 0.82 (2.3x): Cycles validation room 43000129 (bench.clips' validation seed; 17 frames at 320x224, and resampled to
 #: 1024x1024 and 1920x1080: 0.82, 0.61, 0.58) and five procedural (rasterized) validation rooms (seed 43, rooms 8 .. 48,
-#: 4 frames at 320x224 each: at most 0.43). The bound is that maximum with half of it again on top (1.2 ~ 1.46 x 0.82).
+#: 4 frames each at the same three sizes: at most 0.48). The bound is that maximum with half of it again on top (1.2 ~ 1.46 x 0.82).
 #: The truth is not the measure: it holds what no channel says (a window's view, a lamp's own glow, 25x the formula in
 #: a tile of the Cycles room) where tier 1 rightly keeps the formula (the unseen-light rule); a bound it set would pass
 #: anything. bench/results/plausible_bound.json holds the distributions.
