@@ -15,7 +15,7 @@ lamp's glow), so it is far from the formula where tier 1 correctly keeps it (the
 `--procedural` adds the procedural (rasterized) renderer's validation rooms of data set seed 43 (4 frames at 320x224,
 rendered into a temporary folder): rooms whose index is 8 modulo 10 (`x2video.procedural.dataset.room_split`).
 
-Writes bench/results/plausible_bound.json.
+Writes bench/results/plausible_bound/plausible_bound.json.
 """
 from __future__ import annotations
 
@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     import torch
 
-    from bench.common import RESULTS, clean_json, command
+    from bench.common import clean_json, command, results_path
     from bench.stability_shots import ViewShot
     from x2video.io import load_shot
     from x2video.io.atomic import write_json_atomic
@@ -121,7 +121,8 @@ def main(argv: list[str] | None = None) -> int:
            "tile_bound": plausible.TILE_BOUND, "frame_bound": plausible.FRAME_BOUND,
            "validation": {k: _dist(v) for k, v in pooled.items()}, "by_size": by_size, "fooled": fooled,
            "seconds": round(time.perf_counter() - t0, 1)}
-    dest = RESULTS / "plausible_bound.json"
+    dest = results_path("plausible_bound")
+    dest.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(dest, clean_json(out, 4))
     print(f"wrote {portable_path(dest)}")
     return 0

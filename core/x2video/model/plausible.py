@@ -16,7 +16,7 @@ formula wherever the correction is larger than anything the validation data ever
 A frame with |c_frame| > FRAME_BOUND keeps the formula everywhere; else every tile with |c_tile| > TILE_BOUND
 keeps it, with a ramp of `feather` pixels into the tiles around (`plausible_weight`), so no seam shows.
 
-Why these bounds (`python -m bench.plausible_bound`, bench/results/plausible_bound.json; validation data only):
+Why these bounds (`python -m bench.plausible_bound`, bench/results/plausible_bound/plausible_bound.json; validation data only):
 see `TILE_BOUND` and `FRAME_BOUND`. Pure numpy; the tier that uses it (tier 1 under quality 'auto') calls `guard`.
 """
 from __future__ import annotations
@@ -39,7 +39,7 @@ FLOOR = 0.05
 #: 4 frames each at the same three sizes: at most 0.48). The bound is that maximum with half of it again on top (1.2 ~ 1.46 x 0.82).
 #: The truth is not the measure: it holds what no channel says (a window's view, a lamp's own glow, 25x the formula in
 #: a tile of the Cycles room) where tier 1 rightly keeps the formula (the unseen-light rule); a bound it set would pass
-#: anything. bench/results/plausible_bound.json holds the distributions.
+#: anything. bench/results/plausible_bound/plausible_bound.json holds the distributions.
 TILE_BOUND = 1.2
 #: largest |log ratio| of tier 1 to the formula over a whole frame (1.22x either way). On the same validation frames tier 1
 #: never went beyond 0.087 (1.09x; the procedural rooms: 0.059); the bound is over twice that. Where the net misreads the
