@@ -93,8 +93,9 @@ class Scorer:
     TC_FRAMES frames, so a 1,000-frame shot is never in memory. Its own time is kept apart (`seconds`)."""
 
     def __init__(self, gt_shot: Shot, scale: float, classes: Callable[[int], np.ndarray] | None = None, class_names: tuple[str, ...] = (),
-                 delta_e: bool = False):
+                 delta_e: bool = False, fit_exposure: bool = False):
         self.gt_shot, self.scale, self.classes, self.class_names, self.delta_e = gt_shot, scale, classes, class_names, delta_e
+        self.fit_exposure = fit_exposure  # one exposure per frame fitted to the truth (a truth in another tool's units)
         self.per_frame: dict[int, dict] = {}
         self.keep: dict[int, np.ndarray] = {}
         self.seconds = 0.0
@@ -111,7 +112,12 @@ class Scorer:
     def add(self, t: int, frame: np.ndarray) -> None:
         frame = np.asarray(frame, np.float32)
         bad = int((~np.isfinite(frame)).sum())
-        disp = tonemap(np.nan_to_num(frame, nan=0.0, posinf=1e6, neginf=0.0) / self.scale)
+        lin = np.nan_to_num(frame, nan=0.0, posinf=1e6, neginf=0.0) / self.scale
+        if self.fit_exposure:
+            from bench.stability_foreign import best_exposure
+
+            lin = lin * best_exposure(lin, np.nan_to_num(self.gt_shot.channel("rgb", t)), tonemap)
+        disp = tonemap(lin)
         gt = tonemap(np.nan_to_num(self.gt_shot.channel("rgb", t)))
         if disp.shape != gt.shape:
             raise ValueError(f"frame {t}: output {disp.shape[1]}x{disp.shape[0]}, the shot is {gt.shape[1]}x{gt.shape[0]}")
@@ -177,6 +183,8 @@ class Context:
     diffusion_max_frames: int = 65
     threads: int = 2
     untrained: bool = False
+    #: where the foreign family writes its files (a temporary folder made on first use)
+    scratch: Path | None = None
     _model: Any = None
     model_info: dict = field(default_factory=dict)
 
@@ -258,6 +266,13 @@ def build_case(cell: dict, ctx: Context) -> tuple[Shot, Any, Callable[[int], np.
         names = CLASS_SETS["masks"]
     elif fam in ("length", "size"):
         shot = ViewShot(src, frames, size)
+    elif fam == "foreign":
+        import tempfile
+
+        from bench.stability_foreign import CASES, foreign_shot
+
+        ctx.scratch = ctx.scratch or Path(tempfile.mkdtemp(prefix="x2video-foreign-"))
+        shot = foreign_shot(src, frames, CASES[p["case"]], ctx.scratch)
     elif fam == "noise":
         tr = cycles_noise(src) if p["noise"] == "cycles" else poisson_noise(int(p["spp"]))
         if tr is None:
@@ -327,7 +342,8 @@ def run_cell(cell: dict, ctx: Context) -> dict:
         shot, edits, classes, names = build_case(cell, ctx)
         rec["size"] = [shot.size[1], shot.size[0]]
         rec["frames"] = shot.num_frames
-        scorer = Scorer(shot, float(shot.info.irradiance_scale), classes, names, delta_e=cell["family"] == "length")
+        scorer = Scorer(shot, float(shot.info.irradiance_scale), classes, names, delta_e=cell["family"] == "length",
+                        fit_exposure=cell["family"] == "foreign")
         settings = RenderSettings(quality=method, preset="fast" if needs_model else None)
         if model is None:
             Renderer(None).render(shot, edits, settings, scorer.on_event)  # tier 0 needs no model

@@ -207,6 +207,9 @@ def product_note(f: dict) -> str:
                 "record does not trust it); the sampler is there only when "
                 "forced (quality 'diffusion') or for what must be generated. Its gap to the formula here is the tiny shipped "
                 "model at preset fast (LCM-2), largest at sizes whose latent is a few pixels")
+    if fam == "foreign" and method != RESIDUAL:
+        return ("auto keeps the formula wherever tier 1's correction of it is larger than any it made on validation data "
+                "(x2video.model.plausible); a forced 'residual' renders the net as it is, and the sampler only when forced")
     if fam == "noise":
         return ("channels are used as given: a noisy irradiance makes a noisy frame in every tier; denoise the passes first "
                 "(Cycles' denoiser, OIDN)")
@@ -478,7 +481,8 @@ def write_report(out: dict, md: Path, figs: Path) -> None:
                       ("size", "Frame size"), ("noise", "Noisy irradiance (Cycles' sampled passes; Poisson-like at N spp)"),
                       ("hostile", "Hostile values (NaN/Inf/1e6 in a patch of the irradiance or albedo; the rest everywhere; "
                                   "PSNR against the unmodified shot's ground truth)"),
-                      ("limits", "Limitation cases: PSNR per pixel class (window: normal 0; metal: metallic > 0.5; mirror: and roughness < 0.05)")):
+                      ("limits", "Limitation cases: PSNR per pixel class (window: normal 0; metal: metallic > 0.5; mirror: and roughness < 0.05)"),
+                      ("foreign", "Foreign inputs (our shots as other tools write them, read back; PSNR after one fitted exposure per frame)")):
         t = family_table(cells, fam, methods)
         if t:
             lines += ["", f"## {what}", "", *t]

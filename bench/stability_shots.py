@@ -73,20 +73,25 @@ class ViewShot(Shot):
         return self.start + (k if k < n else 2 * (n - 1) - k)
 
     def _read(self, name: str, t: int) -> np.ndarray:
-        import cv2
-
-        a = self.src.channel(name, self.src_index(t))
-        if a.shape[:2] != self.size:
-            h, w = self.size
-            if name == "ids":
-                r = cv2.resize(a[..., 0].astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST)
-            else:
-                interp = cv2.INTER_AREA if h < a.shape[0] else cv2.INTER_LINEAR
-                r = cv2.resize(np.ascontiguousarray(a, np.float32), (w, h), interpolation=interp)
-            a = (r if r.ndim == 3 else r[..., None]).astype(a.dtype)
+        a = resize_channel(name, self.src.channel(name, self.src_index(t)), self.size)
         if self.transform is not None:
             a = self.transform(name, a, t)
         return a
+
+
+def resize_channel(name: str, a: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Channel `name`'s (H, W, C) array resized to `size` (h, w): ids nearest, others area-averaged down, bilinear up."""
+    import cv2
+
+    if a.shape[:2] == tuple(size):
+        return a
+    h, w = size
+    if name == "ids":
+        r = cv2.resize(a[..., 0].astype(np.float32), (w, h), interpolation=cv2.INTER_NEAREST)
+    else:
+        interp = cv2.INTER_AREA if h < a.shape[0] else cv2.INTER_LINEAR
+        r = cv2.resize(np.ascontiguousarray(a, np.float32), (w, h), interpolation=interp)
+    return (r if r.ndim == 3 else r[..., None]).astype(a.dtype)
 
 
 # --------------------------------------------------------------------------------------------- case transforms

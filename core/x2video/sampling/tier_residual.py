@@ -47,12 +47,12 @@ class ResidualTier(PerFrameTier):
         assert job.model is not None
         with job.clock.stage("residual"):
             return residual_frames(job.model.residual_net, conds, job.model.device, self.batch, job.settings.guess_unseen,
-                                   job.settings.residual_pixels)
+                                   job.settings.residual_pixels, plausible=job.settings.quality == "auto")
 
 
 @torch.inference_mode()
 def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.device | str = "cpu", batch: int = 4,
-                    guess_unseen: bool = False, max_pixels: int = 0) -> list[np.ndarray]:
+                    guess_unseen: bool = False, max_pixels: int = 0, plausible: bool = False) -> list[np.ndarray]:
     """Tier 1: (H, W, 3) linear frames from the tier-1 net, up to `batch` frames per pass and never more than
     `residual.MAX_PIXELS` pixels in one: a frame larger than that runs in overlapping tiles (`residual.apply_tiled`,
     equal to the whole-frame pass to float precision), so the net's working memory does not grow with the frame.
@@ -62,7 +62,9 @@ def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.devic
     the full-resolution formula in log space, so the formula's detail stays full resolution.
     Unless `guess_unseen`, pixels whose channels say nothing of their light (`residual.unseen_light`: sky, clear
     glass, mirrors) keep the formula instead of the net's guess (decided at full resolution; at a working size the
-    correction is also 0 on such working pixels and next to them, so the guess does not spread when upsampled)."""
+    correction is also 0 on such working pixels and next to them, so the guess does not spread when upsampled).
+    With `plausible` (quality 'auto'), the formula wherever the net's correction of it is larger than any it made on
+    validation data (`x2video.model.plausible.guard`): auto's promise never to render below the formula."""
     from x2video.model.residual import formula
 
     sizes = [working.working_size(_size(c), net.cfg.factor, max_pixels) if max_pixels else None for c in conds]
@@ -76,7 +78,19 @@ def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.devic
         if not guess_unseen:  # upsampled, the guess would spread a working pixel onto the lit surfaces around
             r = _without_unseen(r, low)  # windows and mirrors (a bright rim): no correction there or next to it
         frames[i] = working.onto_formula(r, formula(conds[i].channels, _shape(conds[i])))
-    return frames if guess_unseen else [keep_formula_where_unseen(f, c.channels) for f, c in zip(frames, conds)]
+    frames = frames if guess_unseen else [keep_formula_where_unseen(f, c.channels) for f, c in zip(frames, conds)]
+    return [_plausible(f, c) for f, c in zip(frames, conds)] if plausible else frames
+
+
+def _plausible(frame: np.ndarray, c: FrameConditioning) -> np.ndarray:
+    """`frame` with the formula where tier 1's correction of it is implausible (`plausible.guard`), said in the log."""
+    from x2video.model.plausible import guard
+    from x2video.model.residual import formula
+
+    out, verdict = guard(frame, formula(c.channels, _shape(c)))
+    if verdict.engaged:
+        log.warning("tier 1's correction of the formula is larger than any it made on validation data: %s", verdict.describe())
+    return out
 
 
 def _without_unseen(r: np.ndarray, low: FrameConditioning) -> np.ndarray:
