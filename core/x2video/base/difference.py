@@ -17,8 +17,6 @@ from x2video.conditioning import FrameConditioning
 
 #: pixels around an edit where its spill (a red sofa tints the floor beside it) may change the frame
 SPILL_MARGIN = 6
-#: channels whose change tier 0's difference renders exactly (diffuse light: the compositor's rebuild from passes)
-DIFFUSE_CHANNELS = ("albedo", "irradiance")
 #: channels whose change only a network's difference renders (the glossy term)
 GLOSSY_CHANNELS = ("normal", "roughness", "metallic")
 
