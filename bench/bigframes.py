@@ -8,9 +8,9 @@ the model, the shot's frames as they are read, the network's working memory). Th
 frame by frame (room-like piecewise-constant channels with windows; speed does not depend on the
 content), as a shot folder is read frame by frame. Tiers: 'formula' (albedo x irradiance),
 'residual' (the tier-1 net; large frames at a working size of `RenderSettings.residual_pixels`,
-`x2video.sampling.tiers.residual_frames`), 'residual@full' (the tier-1 net at full size, in tiles beyond
+`x2video.tiers.residual.residual_frames`), 'residual@full' (the tier-1 net at full size, in tiles beyond
 896x896, `x2video.model.residual.apply_tiled`) and 'diffusion' (the fast preset; large frames at a working
-resolution, `x2video.sampling.working`).
+resolution, `x2video.conditioning.working`).
 
 Accuracy (`--data`, path-traced shots, e.g. `x2video dataset make --renderer cycles --size 1024x1024`):
 each tier beside the formula, scored as `bench/pathtraced.py` scores them (its `evaluate`), tier 1 also at
@@ -93,10 +93,11 @@ def run_case(size: tuple[int, int], tier: str, frames: int, threads: int) -> dic
 
     torch.set_num_threads(threads)
     from x2video.model.residual import needs_tiles, tile_grid
-    from x2video.sampling import tiers
-    from x2video.sampling.events import FramesReady, RenderSettings
-    from x2video.sampling.renderer import Renderer
-    from x2video.sampling.tier_residual import ResidualTier
+    from x2video.render.events import FramesReady
+    from x2video.render.renderer import Renderer
+    from x2video.render.settings import RenderSettings
+    from x2video.tiers import registry as tiers
+    from x2video.tiers.residual import ResidualTier
     from x2video.weights import load_model
 
     w, h = size
@@ -153,8 +154,8 @@ def accuracy(data: Path, split: str, tiers: list[str], threads: int) -> dict:
     import torch
 
     from bench.pathtraced import evaluate
-    from x2video.sampling.renderer import Renderer
-    from x2video.sampling.tiers import windowed
+    from x2video.render.renderer import Renderer
+    from x2video.tiers.registry import windowed
     from x2video.weights import load_model
 
     torch.set_num_threads(threads)
@@ -173,16 +174,16 @@ def accuracy(data: Path, split: str, tiers: list[str], threads: int) -> dict:
 
 def ceiling(shots: list[Path], factor: int) -> dict:
     """What the working-resolution path can reach with a perfect network: the ground truth area-averaged to the
-    working size stands in for the network's frame, brought back to full size by `x2video.sampling.working.to_full`
+    working size stands in for the network's frame, brought back to full size by `x2video.conditioning.working.to_full`
     (bilinear or guided) or upsampled alone (bilinear, no formula detail); mean display PSNR over the shots' frames
     per working-pixel budget."""
     import cv2
 
     from x2video.channels import tonemap
+    from x2video.conditioning import working
+    from x2video.conditioning.frame import plain_conditioning
     from x2video.io import load_shot
     from x2video.metrics.image import psnr
-    from x2video.sampling import working
-    from x2video.sampling.renderer import plain_conditioning
 
     rows: dict[str, dict[str, list[float]]] = {}
     for sp in shots:

@@ -12,7 +12,7 @@ from typing import Any, Callable
 
 from x2video.cli.args import size_arg
 from x2video.fields import add_fields, from_args
-from x2video.sampling.events import RenderSettings
+from x2video.render.settings import RenderSettings
 from x2video.weights import ModelOptions
 
 #: bench/results/: one folder per bench, repository-relative paths inside the JSONs

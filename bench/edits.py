@@ -124,13 +124,13 @@ def rebuild(before: Any, look: dict, t: int, inside: np.ndarray) -> np.ndarray:
 
 def has_base_field() -> bool:
     """Whether `RenderSettings` takes ``base`` (the Renderer renders edits over the shot's rgb)."""
-    from x2video.sampling.settings import RenderSettings
+    from x2video.render.settings import RenderSettings
 
     return any(f.name == "base" for f in dataclasses.fields(RenderSettings))
 
 
 def settings_for(method: str, frames: tuple[int, int] | None = None) -> Any:
-    from x2video.sampling.settings import RenderSettings
+    from x2video.render.settings import RenderSettings
 
     quality = {"off": "auto", "base-formula": "formula", "base-residual": "residual", "base-auto": "auto"}[method]
     base = {} if not has_base_field() else {"base": "off" if method == "off" else "auto"}
@@ -153,7 +153,7 @@ def differential(base: np.ndarray, original: Any, edited: Any, residual: Callabl
     where roughness, metallic or normal changed (when `residual` is given)."""
     from x2video.base import stage
     from x2video.base.difference import GLOSSY_CHANNELS, SPILL_MARGIN, changed, grow, over_base, relit_metal
-    from x2video.model.residual import formula
+    from x2video.formula import formula
 
     if "mode" in inspect.signature(stage.edited_frame).parameters:
         return stage.edited_frame(base, original, edited, glossy_tier=residual is not None, residual=residual, mode=mode)[0]
@@ -173,12 +173,12 @@ def differential(base: np.ndarray, original: Any, edited: Any, residual: Callabl
 def library_frames(model: Any, shot: Any, edits: Any, method: str) -> tuple[list[np.ndarray], float]:
     """(frames of a base method made from the library pieces, in the shot's units; seconds per frame)."""
     from x2video.base import stage
-    from x2video.edits.apply import apply_edits
-    from x2video.sampling.setup import plain_conditioning
+    from x2video.conditioning.edited import apply_edits
+    from x2video.conditioning.frame import plain_conditioning
 
     residual = None
     if method in ("base-residual", "base-auto", "base-ratio") and model is not None and model.residual_net is not None:
-        from x2video.sampling.tier_residual import residual_frames
+        from x2video.tiers.residual import residual_frames
 
         def residual(conds):  # noqa: E306
             return residual_frames(model.residual_net, conds, model.device)
@@ -205,7 +205,7 @@ def score_room(folder: Path, kinds: tuple[str, ...], methods: tuple[str, ...], m
     from x2video.channels import tonemap
     from x2video.edits.model import Edits
     from x2video.io.load import load_shot
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
 
     before = load_shot(folder / "before")
     renderer = Renderer(model) if model is not None else Renderer(None)

@@ -26,7 +26,7 @@ from pathlib import Path
 from bench.common import command, results_path
 from x2video.cli.args import size_arg
 from x2video.fields import add_fields, from_args
-from x2video.sampling.events import RenderSettings
+from x2video.render.settings import RenderSettings
 
 
 def _tasks(out: Path, name: str) -> dict:

@@ -45,7 +45,7 @@ def _ratios(rows: list[dict]) -> dict[str, float]:
 def measure(args: argparse.Namespace) -> dict:
     from x2video.eval.data import load_eval_shots
     from x2video.eval.runner import MISSING_LCM
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
 
     models, _, size, _ = load_models(args)
     if models.lcm is None:
@@ -65,7 +65,7 @@ def back_to_back(renderers: dict, shots: list, args: argparse.Namespace) -> dict
     "load_average_before_after", "repeats", "median", "min", "max" of the result file."""
     from x2video.eval.conditions import Condition, build_edits
     from x2video.eval.runner import render_shot, warm_up
-    from x2video.sampling.events import RenderSettings
+    from x2video.render.settings import RenderSettings
 
     refs = {s.name: build_edits(s.shot, s.name, Condition("full", reference=True), args.seed)[0] for s in shots}
     for sampler, r in renderers.items():

@@ -25,11 +25,12 @@ import numpy as np
 
 from bench.common import command, results_path
 from x2video.channels import INTRINSIC, tonemap
+from x2video.formula import formula
 from x2video.io import load_shot
 from x2video.io.atomic import write_json_atomic, write_text_atomic
 from x2video.io.image import read_image
 from x2video.io.paths import portable_path
-from x2video.model.residual import formula, unseen_light
+from x2video.model.residual import unseen_light
 
 CASES = ("formula", "+ glossy passes", "+ transmission passes", "+ emission and environment", "+ glossy and transmission",
          "+ every pass", "unseen pixels: the frame's mean truth", "unseen pixels: the truth", "unseen truth + glossy passes")

@@ -56,8 +56,8 @@ def measure(args: argparse.Namespace) -> dict:
     from x2video.eval.runner import render_shot
     from x2video.metrics.image import psnr
     from x2video.metrics.temporal import ground_truth_flows, warping_errors
-    from x2video.sampling.events import RenderSettings
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
+    from x2video.render.settings import RenderSettings
 
     if not args.image:
         args.image_weights = None

@@ -36,9 +36,9 @@ from x2video.io import load_shot
 from x2video.io.atomic import write_json_atomic
 from x2video.io.image import read_image
 from x2video.io.paths import portable_path
-from x2video.sampling import tiers
-from x2video.sampling.events import RenderSettings
-from x2video.sampling.renderer import Renderer
+from x2video.render.renderer import Renderer
+from x2video.render.settings import RenderSettings
+from x2video.tiers import registry as tiers
 
 CLASSES = ("diffuse", "glossy", "metal", "glass", "emitter", "window")
 

@@ -36,10 +36,10 @@ def _dist(v: list[float]) -> dict:
 def measure(shot, net, frames: list[int], max_pixels: int, gain: float = 1.0) -> dict:
     """Per-tile and per-frame |log ratio| lists of tier 1 and of the truth to the formula over `frames` of `shot`
     (irradiance x `gain`)."""
+    from x2video.conditioning.frame import plain_conditioning
+    from x2video.formula import formula
     from x2video.model import plausible
-    from x2video.model.residual import formula
-    from x2video.sampling.setup import plain_conditioning
-    from x2video.sampling.tier_residual import residual_frames
+    from x2video.tiers.residual import residual_frames
 
     out: dict[str, list[float]] = {"tier1_tiles": [], "tier1_frames": [], "truth_tiles": [], "truth_frames": []}
     s = float(shot.info.irradiance_scale)
@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     from x2video.io.atomic import write_json_atomic
     from x2video.io.paths import portable_path
     from x2video.model import plausible
-    from x2video.sampling.settings import RenderSettings
+    from x2video.render.settings import RenderSettings
     from x2video.weights import load_model
 
     torch.set_num_threads(args.threads)

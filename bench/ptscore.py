@@ -17,7 +17,8 @@ import numpy as np
 from x2video.channels import tonemap
 from x2video.metrics.image import psnr, ssim
 from x2video.metrics.temporal import temporal_consistency
-from x2video.sampling.events import FramesReady, RenderSettings
+from x2video.render.events import FramesReady
+from x2video.render.settings import RenderSettings
 
 
 def shot_dirs(root: Path) -> list[Path]:

@@ -93,13 +93,13 @@ def _tc(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> dict:
 
 def measure(args: argparse.Namespace) -> dict:
     from x2video.channels import tonemap
-    from x2video.edits import resolve_reference
+    from x2video.conditioning.edited import resolve_reference
     from x2video.eval.conditions import build_edits, parse_condition
     from x2video.eval.data import load_eval_shots
     from x2video.eval.runner import render_shot
     from x2video.metrics.image import psnr
     from x2video.metrics.temporal import ground_truth_flows, warping_errors
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
 
     condition = parse_condition(args.condition)
     models, _, size, _ = load_models(args)

@@ -5,7 +5,7 @@ Speed does not depend on the weights, so this runs the shipped weights when pres
 (and, for LCM-2, an untrained copy of the UNet standing in for the distilled one: the same network, so the same
 cost per step), on a synthetic shot with all five channels made frame by frame (`SyntheticShot`: nothing held in
 memory). Each configuration renders once with an empty conditioning cache (cold: a first render) and splits
-its wall time (`Renderer.timing`, `x2video.sampling.timing.StageTimes`) into read (channels from the shot),
+its wall time (`Renderer.timing`, `x2video.render.timing.StageTimes`) into read (channels from the shot),
 encode (conditioning latents), unet, decode (VAE), detail (the shading detail residual models add back), write
 (the frame sink) and other; `seconds_per_frame` is the cold time less encode and detail, what a re-render with
 the cache warm costs (the editor's case). Each engine (`RenderSettings.engine`) is warmed first
@@ -47,15 +47,14 @@ from bench.common import command, results_path
 from x2video.channels import SPECS
 from x2video.io.atomic import write_json_atomic
 from x2video.model.pipeline import X2VideoModel
-from x2video.sampling import tiers
-from x2video.sampling.events import FramesReady, RenderSettings, StepDone
+from x2video.render.events import FramesReady, StepDone
+from x2video.render.frames import FrameSink
+from x2video.render.renderer import Renderer, warm_engine
+from x2video.render.settings import RenderSettings, resolve, select_steps
+from x2video.render.timing import StageTimes
 from x2video.sampling.planner import plan
-from x2video.sampling.prepare import warm_engine
-from x2video.sampling.renderer import Renderer, select_steps
-from x2video.sampling.setup import resolve
-from x2video.sampling.sink import FrameSink
-from x2video.sampling.timing import StageTimes
 from x2video.shot import ArrayShot, Shot, ShotInfo
+from x2video.tiers import registry as tiers
 
 RESULTS = results_path("render")
 
@@ -149,7 +148,7 @@ def time_parts(model: X2VideoModel, shot: Shot, engines: list[str], window: int,
     UNet when the model has it) on an interpolation window and on the plan's first keyframe window
     (unet_keyN: what the editor's first network frame waits for, twice at LCM-2), the VAE decoding of the
     window's frames and of one frame; with the max abs difference of each engine's output from PyTorch's."""
-    from x2video.sampling.renderer import plain_conditioning
+    from x2video.conditioning.frame import plain_conditioning
 
     conds = [plain_conditioning(shot, t) for t in range(window)]
     lcm = model.has_lcm

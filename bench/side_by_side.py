@@ -153,7 +153,7 @@ def render_tiers(model: Any, shot: Any, frame: int, gts: list[np.ndarray]) -> li
     """The tiers' panels: each tier renders the whole shot twice through `x2video.Renderer` (a warm-up, then the timed
     render with a fresh Renderer), scored against the ground truth's display images `gts`."""
     import x2video
-    from x2video.sampling.setup import select_steps
+    from x2video.render.settings import select_steps
 
     scale = float(shot.info.irradiance_scale)
     panels = []

@@ -35,7 +35,7 @@ def measure(args: argparse.Namespace) -> dict:
     from x2video.eval.data import load_eval_shots
     from x2video.eval.runner import MISSING_LCM, render_shot, warm_up
     from x2video.eval.scoring import Scorer
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
 
     models, _, size, size_note = load_models(args)
     shots = load_eval_shots(args.data, args.split, args.rooms, args.frames, size)

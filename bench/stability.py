@@ -120,7 +120,7 @@ def grid(quick: bool, n_sources: int, has_cycles: bool, families: tuple[str, ...
 def findings(cells: list[dict]) -> list[dict]:
     """Failures: a crash, non-finite output, or a PSNR more than FAR_BELOW_DB under the formula's on the same case
     (auto on the foreign family: more than AUTO_BELOW_DB)."""
-    from x2video.sampling.tiers import FORMULA
+    from x2video.tiers.registry import FORMULA
 
     formula = {(c["family"], c["name"]): c for c in cells if c["method"] == FORMULA}
     out = []

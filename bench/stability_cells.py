@@ -101,7 +101,7 @@ class Scorer:
         self.seconds = 0.0
 
     def on_event(self, e: Any) -> None:
-        from x2video.sampling.events import FramesReady
+        from x2video.render.events import FramesReady
 
         if isinstance(e, FramesReady):
             t0 = time.perf_counter()
@@ -260,7 +260,7 @@ def build_case(cell: dict, ctx: Context) -> tuple[Shot, Any, Callable[[int], np.
         frozen = edits
 
         def classes(t: int) -> np.ndarray:
-            from x2video.edits import apply_edits
+            from x2video.conditioning.edited import apply_edits
 
             return (apply_edits(shot, frozen, t).amr_mask > 0.5).astype(np.int8)
         names = CLASS_SETS["masks"]
@@ -305,7 +305,7 @@ def _largest_ids(shot: Shot, n: int) -> list[int]:
 # --------------------------------------------------------------------------------------------- one cell
 def skip_reason(cell: dict, ctx: Context) -> str | None:
     """Why a cell is not run (the diffusion tier at sizes and lengths a 2-core CPU cannot afford), else None."""
-    from x2video.sampling import tiers
+    from x2video.tiers import registry as tiers
 
     if not tiers.windowed(cell["method"]):  # the sampler's windows are what a 2-core CPU cannot afford at these sizes
         return None
@@ -321,9 +321,9 @@ def skip_reason(cell: dict, ctx: Context) -> str | None:
 def run_cell(cell: dict, ctx: Context) -> dict:
     """Render one cell ({family, name, method, params}) and score it; never raises: an exception is recorded
     (crashed, error) with the numbers measured so far. seconds excludes scoring and the model's load."""
-    from x2video.sampling import tiers
-    from x2video.sampling.events import RenderSettings
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
+    from x2video.render.settings import RenderSettings
+    from x2video.tiers import registry as tiers
 
     rec: dict[str, Any] = {k: cell[k] for k in ("family", "name", "method")} | {"params": cell["params"], "crashed": False, "error": None}
     why = skip_reason(cell, ctx)

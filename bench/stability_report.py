@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from x2video.sampling.tiers import DIFFUSION, FORMULA, RESIDUAL  # the methods' rows and what the notes say of each tier
+from x2video.tiers.registry import DIFFUSION, FORMULA, RESIDUAL  # the methods' rows and what the notes say of each tier
 
 COLOURS = {FORMULA: (60, 60, 60), RESIDUAL: (0, 150, 0), "auto": (200, 120, 0), DIFFUSION: (30, 30, 220)}  # BGR
 METHODS = (FORMULA, RESIDUAL, "auto", DIFFUSION)
@@ -182,11 +182,11 @@ def product_note(f: dict) -> str:
                 "only quality 'residual' forced by hand")
     if fam == "channels" and method == FORMULA:
         return ("the formula needs albedo and irradiance; without either it is black. 'auto' runs the formula only where both "
-                "are present; a missing albedo or irradiance sends it to the diffusion sampler (x2video.sampling.tiers.choose_tier; the log says which)")
+                "are present; a missing albedo or irradiance sends it to the diffusion sampler (x2video.tiers.registry.choose_tier; the log says which)")
     if fam == "channels" and "alb" in name.split("+") and "irr" in name.split("+"):
         return ("the sampler, given albedo and irradiance but not every other channel, renders below the formula on all 7 such "
                 "subsets; so 'auto' renders the formula when only normal, roughness or metallic are missing "
-                "(x2video.sampling.tiers.FORMULA_IGNORES), and the sampler runs there only when forced")
+                "(x2video.tiers.registry.FORMULA_IGNORES), and the sampler runs there only when forced")
     if fam == "channels":
         return "'auto' runs the sampler for a dropped channel; what it generates is the model's guess, scored against one truth"
     if fam == "masks" and method == FORMULA:
@@ -464,7 +464,7 @@ def write_report(out: dict, md: Path, figs: Path) -> None:
         for (method, kind, note), cases in groups.items():
             lines.append(f"| {method} | {kind} | {', '.join(cases)} | {note} |")
     lines += ["", "## Fixed in core because of this bench", "",
-              "- tier 0 with every channel dropped crashed (StopIteration in `x2video.model.residual.formula`); it now renders black frames;",
+              "- tier 0 with every channel dropped crashed (StopIteration in `x2video.formula.formula`); it now renders black frames;",
               "- tier 1 with one NaN in the channels gave an all-NaN frame (the NaN reached the net's global context); "
               "NaN/Inf now count as 0 in `residual.features`, as the loaders make them;",
               "- the diffusion tier refused a frame with NaN/Inf (`ValueError: ... holds NaN/Inf`); it now zeroes them with a warning;",

@@ -78,11 +78,10 @@ def main(argv: list[str] | None = None) -> int:
         from x2video.io import load_shot
         from x2video.io.atomic import write_json_atomic
         from x2video.metrics.image import psnr
-        from x2video.sampling import tiers
-        from x2video.sampling.events import FramesReady, RenderSettings
-        from x2video.sampling.prepare import warm_engine
-        from x2video.sampling.renderer import Renderer
-        from x2video.sampling.setup import resolve
+        from x2video.render.events import FramesReady
+        from x2video.render.renderer import Renderer, warm_engine
+        from x2video.render.settings import RenderSettings, resolve
+        from x2video.tiers import registry as tiers
         from x2video.weights import load_model
 
         shot = load_shot(folder)

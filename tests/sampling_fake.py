@@ -12,7 +12,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from x2video.conditioning import FrameConditioning
+from x2video.conditioning.frame import FrameConditioning
 from x2video.model.api import WindowInputs
 from x2video.sampling.samplers import alphas_cumprod
 from x2video.shot import ArrayShot

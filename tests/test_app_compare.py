@@ -28,8 +28,9 @@ def test_wipe_and_difference_compose_two_images():
 
 
 def test_a_b_wipe_of_formula_and_tier_1_and_psnr_against_the_ground_truth(qtbot, win):
-    from x2video.edits import apply_edits
-    from x2video.sampling.tiers import formula_frame, residual_frames
+    from x2video.conditioning.edited import apply_edits
+    from x2video.formula import formula_frame
+    from x2video.tiers.residual import residual_frames
 
     cmp = win.compare
     win.edits.set_param("exposure", 0.5, True)

@@ -241,7 +241,7 @@ def test_render_start_marks_its_setting_on_the_pareto_chart(win, tmp_path):
 
     from sampling_fake import FakeModel
 
-    from x2video.sampling.events import RenderSettings
+    from x2video.render.settings import RenderSettings
     from x2video_app._qt.charts import load_pareto
 
     h, w = win.doc.shot.size

@@ -45,7 +45,7 @@ def shot_dir(tmp_path_factory):
 @pytest.fixture
 def win(qtbot, tmp_path, monkeypatch, shot_dir, torch_one_thread):
     """The editor on the 5-frame shot, the fake model built, the rendered view on screen; waits for its workers after."""
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     monkeypatch.setenv("X2VIDEO_WEIGHTS", str(tmp_path / "no-weights"))
@@ -69,14 +69,14 @@ def win(qtbot, tmp_path, monkeypatch, shot_dir, torch_one_thread):
 
 def expected(win, res) -> np.ndarray:
     """What tier 1 makes of the frame under the edits `res` was asked with (the library, not the editor)."""
-    from x2video.edits import apply_edits
-    from x2video.sampling.tiers import residual_frames
+    from x2video.conditioning.edited import apply_edits
+    from x2video.tiers.residual import residual_frames
 
     return residual_frames(win.model.residual_net, [apply_edits(win.doc.shot, res.request.edits, res.t)])[0]
 
 
 def test_a_slider_drag_previews_latest_wins_and_the_gui_never_blocks(qtbot, win, monkeypatch):
-    import x2video.sampling.live as live_lib
+    import x2video.render.live as live_lib
 
     fast = live_lib.render_frame
 

@@ -16,7 +16,7 @@ from app_helpers import make_shot_dir  # noqa: E402
 from PySide6.QtCore import Qt  # noqa: E402
 from PySide6.QtWidgets import QMessageBox  # noqa: E402
 
-from x2video.sampling.events import FramesReady, RenderStarted  # noqa: E402
+from x2video.render.events import FramesReady, RenderStarted  # noqa: E402
 from x2video_app._qt.main_window import MainWindow  # noqa: E402
 from x2video_app._qt.render_panel import NO_RESIDUAL  # noqa: E402
 from x2video_app.state.preview import PreviewReady, preview_order  # noqa: E402
@@ -54,7 +54,7 @@ def shot_dir(tmp_path_factory):
 
 def open_window(qtbot, tmp_path, monkeypatch, shot_dir, model) -> MainWindow:
     """The editor on the 5-frame shot with `model` built (as the start-up preload leaves it)."""
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     monkeypatch.setenv("X2VIDEO_WEIGHTS", str(tmp_path / "no-weights"))
@@ -80,8 +80,8 @@ def close_after():
 
 
 def test_formula_preview_shows_at_once_and_network_frames_replace_it(qtbot, tmp_path, monkeypatch, shot_dir, tiny_model, close_after):
-    from x2video.edits import apply_edits
-    from x2video.sampling.tiers import formula_frame
+    from x2video.conditioning.edited import apply_edits
+    from x2video.formula import formula_frame
     from x2video_app.state.display import channel_to_u8
 
     win = open_window(qtbot, tmp_path, monkeypatch, shot_dir, tiny_model)

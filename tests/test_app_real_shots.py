@@ -11,7 +11,7 @@ pytest.importorskip("pytestqt")
 from app_helpers import make_shot_dir  # noqa: E402
 from PySide6.QtWidgets import QMessageBox  # noqa: E402
 
-from x2video.sampling.events import FramesReady, RenderStarted  # noqa: E402
+from x2video.render.events import FramesReady, RenderStarted  # noqa: E402
 from x2video_app._qt.main_window import MainWindow  # noqa: E402
 
 
@@ -41,7 +41,7 @@ def _fake_render(win, frames: dict[int, np.ndarray]) -> None:
 
 
 def test_rendered_frame_as_reference_sits_at_that_frame(win):
-    from x2video.edits import resolve_reference
+    from x2video.conditioning.edited import resolve_reference
 
     rng = np.random.default_rng(1)
     frames = {t: rng.uniform(0, 1, (32, 48, 3)).astype(np.float32) for t in range(9)}

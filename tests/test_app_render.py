@@ -15,7 +15,7 @@ from app_helpers import make_shot_dir  # noqa: E402
 from PySide6.QtCore import Qt  # noqa: E402
 from PySide6.QtWidgets import QMessageBox  # noqa: E402
 
-from x2video.sampling.events import FramesReady, RenderCancelled, StepDone  # noqa: E402
+from x2video.render.events import FramesReady, RenderCancelled, StepDone  # noqa: E402
 from x2video_app._qt.main_window import MainWindow  # noqa: E402
 
 RENDER_TIMEOUT_MS = 240_000
@@ -38,7 +38,7 @@ def shot_dir(tmp_path_factory):
 
 @pytest.fixture
 def win(qtbot, shot_dir, tmp_path, monkeypatch, tiny_model):
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
 
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     monkeypatch.setenv("X2VIDEO_WEIGHTS", str(tmp_path / "no-weights"))

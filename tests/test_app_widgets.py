@@ -9,7 +9,8 @@ pytest.importorskip("pytestqt")
 
 from PySide6.QtCore import QPoint, QPointF, Qt  # noqa: E402
 
-from x2video.sampling.events import FramesReady, RenderFinished, RenderSettings, RenderStarted, StepDone, WindowStarted  # noqa: E402
+from x2video.render.events import FramesReady, RenderFinished, RenderStarted, StepDone, WindowStarted  # noqa: E402
+from x2video.render.settings import RenderSettings
 from x2video_app._qt.charts import Charts, find_bench_points, pareto_key  # noqa: E402
 from x2video_app._qt.timeline import Timeline  # noqa: E402
 from x2video_app._qt.viewer import Viewer  # noqa: E402
@@ -184,7 +185,7 @@ def test_render_panel_seam_pass_only_with_the_recursive_scheme(qtbot):
 
 
 def test_render_panel_noise_shared_reaches_the_settings(qtbot):
-    from x2video.sampling.events import RenderSettings
+    from x2video.render.settings import RenderSettings
     from x2video_app._qt.render_controller import RenderController
     from x2video_app._qt.render_panel import RenderPanel
 

@@ -9,12 +9,15 @@ import pytest
 import torch
 from sampling_fake import FakeModel
 
-from x2video.conditioning import FrameConditioning
+from x2video.conditioning import working
+from x2video.conditioning.frame import FrameConditioning
+from x2video.formula import formula_frame
 from x2video.model import residual as R
-from x2video.sampling import tiers, working
-from x2video.sampling.events import FramesReady, RenderSettings
-from x2video.sampling.renderer import Renderer
+from x2video.render.events import FramesReady
+from x2video.render.renderer import Renderer
+from x2video.render.settings import RenderSettings
 from x2video.shot import ArrayShot
+from x2video.tiers.residual import residual_frames
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
@@ -182,7 +185,7 @@ def test_a_large_shot_renders_through_tiles_in_bounded_passes(monkeypatch):
     small = [FrameConditioning(channels={k: v[:40, :48] for k, v in f.items()}, amr_mask=np.zeros((40, 48), np.float32),
                                local_masks=np.zeros((0, 40, 48), np.float32), frame_index=i) for i, f in enumerate(frames)]
     model.residual_net.pixels.clear()
-    out = tiers.residual_frames(model.residual_net, small, batch=16, guess_unseen=True)
+    out = residual_frames(model.residual_net, small, batch=16, guess_unseen=True)
     assert model.residual_net.pixels == [3 * 40 * 48] and len(out) == 3  # MAX_PIXELS // (40 * 48) = 4 frames a pass: one
 
 
@@ -208,7 +211,7 @@ def test_to_full_keeps_the_formulas_detail_and_the_networks_residual():
     assert small.channels["albedo"].shape == (30, 50, 3) and small.amr_mask.shape == (30, 50)
     n = np.linalg.norm(small.channels["normal"], axis=-1)
     assert np.all((np.abs(n - 1) < 1e-4) | (n == 0))
-    base = tiers.formula_frame(full)
+    base = formula_frame(full)
     # a network that adds nothing over the (area-averaged) formula gives the full-resolution formula back, detail and all
     same = working.to_full(working.resize_area(base, (30, 50)), full)
     np.testing.assert_allclose(same, base, rtol=1e-4, atol=1e-4)
@@ -283,7 +286,7 @@ def test_large_tier1_frames_run_at_the_working_resolution(caplog):
         assert got[t].shape == (h, w, 3) and base.std() > 0.1
         np.testing.assert_allclose(np.log1p(got[t]) - np.log1p(base), 0.3, atol=1e-4)  # every full-resolution edge kept
     # without irradiance there is no formula: the net's own (working-size) frame comes up
-    dark = tiers.residual_frames(ConstantNet(0.3), [_cond(dict(shot.frame(0), irradiance=None), h, w)], guess_unseen=True, max_pixels=24 * 40)[0]
+    dark = residual_frames(ConstantNet(0.3), [_cond(dict(shot.frame(0), irradiance=None), h, w)], guess_unseen=True, max_pixels=24 * 40)[0]
     assert dark.shape == (h, w, 3)
     np.testing.assert_allclose(dark, np.expm1(0.3), rtol=1e-5)
     model.residual_net.pixels.clear()
@@ -302,8 +305,8 @@ def test_tier1_at_working_size_is_close_to_full_size_on_smooth_light():
     net = deep_net(levels=3)
     h, w = 96, 160
     ch = room_channels(h, w, 4)
-    full = tiers.residual_frames(net, [_cond(ch, h, w)], guess_unseen=True)[0]
-    small = tiers.residual_frames(net, [_cond(ch, h, w)], guess_unseen=True, max_pixels=48 * 80)[0]
+    full = residual_frames(net, [_cond(ch, h, w)], guess_unseen=True)[0]
+    small = residual_frames(net, [_cond(ch, h, w)], guess_unseen=True, max_pixels=48 * 80)[0]
     base = np.log1p(R.formula(ch))
     flat = base + (np.log1p(full) - base).mean((0, 1))  # the right correction's frame mean everywhere
     err = np.abs(np.log1p(small) - np.log1p(full)).mean()
@@ -333,9 +336,9 @@ def test_no_bright_rim_around_windows_at_working_size():
     assert 0.05 < (~geo).mean() < 0.2
     base = np.log1p(R.formula(ch))
     for pixels in (0, 48 * 80):
-        got = tiers.residual_frames(WindowNet(), [_cond(ch, h, w)], max_pixels=pixels)[0]
+        got = residual_frames(WindowNet(), [_cond(ch, h, w)], max_pixels=pixels)[0]
         assert float(np.abs(np.log1p(got) - base)[geo].max()) < 1e-5, pixels
-    guess = tiers.residual_frames(WindowNet(), [_cond(ch, h, w)], max_pixels=48 * 80, guess_unseen=True)[0]
+    guess = residual_frames(WindowNet(), [_cond(ch, h, w)], max_pixels=48 * 80, guess_unseen=True)[0]
     assert float((np.log1p(guess) - base)[~geo].mean()) > 1.0  # asked for, the guess is there
 
 
@@ -357,4 +360,4 @@ def test_working_size_brings_up_the_nets_correction_not_its_clipped_frame():
     ch = {"albedo": al, "irradiance": np.full((h, w, 3), 0.1, np.float32), "normal": np.dstack([np.zeros((h, w, 2)), np.ones((h, w))]).astype(np.float32),
           "roughness": rng.uniform(0, 1, (h, w, 1)).astype(np.float32), "metallic": np.zeros((h, w, 1), np.float32)}
     for pixels in (0, 24 * 40):
-        assert float(tiers.residual_frames(DarkNet(), [_cond(ch, h, w)], max_pixels=pixels)[0].max()) == 0.0, pixels
+        assert float(residual_frames(DarkNet(), [_cond(ch, h, w)], max_pixels=pixels)[0].max()) == 0.0, pixels

@@ -1,12 +1,12 @@
-"""Flags generated from settings dataclasses (`x2video.cli.fields`): one declaration per setting."""
+"""Flags generated from settings dataclasses (`x2video.fields`): one declaration per setting."""
 from __future__ import annotations
 
 import argparse
 
 import pytest
 
-from x2video.cli.fields import add_field, add_fields, field_docs, from_args
-from x2video.sampling.events import RenderSettings
+from x2video.fields import add_field, add_fields, field_docs, from_args
+from x2video.render.settings import RenderSettings
 from x2video.train.config import AugmentConfig
 
 

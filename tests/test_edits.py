@@ -5,21 +5,8 @@ import numpy as np
 import pytest
 
 from x2video.channels import linear_to_srgb
-from x2video.edits import (
-    AlbedoHSV,
-    AlbedoSet,
-    AlbedoTint,
-    Edits,
-    Exposure,
-    LightTint,
-    Mask,
-    MaskOut,
-    Reference,
-    ScalarOp,
-    apply_edits,
-    op_from_dict,
-    resolve_reference,
-)
+from x2video.conditioning.edited import apply_edits, resolve_reference
+from x2video.edits import AlbedoHSV, AlbedoSet, AlbedoTint, Edits, Exposure, LightTint, Mask, MaskOut, Reference, ScalarOp, op_from_dict
 from x2video.io.image import write_ldr
 from x2video.shot import ArrayShot
 

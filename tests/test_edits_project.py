@@ -4,18 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from x2video.edits import (
-    AlbedoSet,
-    Edits,
-    Exposure,
-    Mask,
-    MaskOut,
-    Project,
-    Reference,
-    ScalarOp,
-    load_project,
-    save_project,
-)
+from x2video.edits import AlbedoSet, Edits, Exposure, Mask, MaskOut, Project, Reference, ScalarOp, load_project, save_project
 
 
 def _project(tmp_path):

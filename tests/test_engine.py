@@ -22,9 +22,10 @@ from x2video.model.channel_encoder import ChannelEncoder
 from x2video.model.hybrid_attention import mhf_gather
 from x2video.model.pipeline import X2VideoModel
 from x2video.model.unet import hybrid_processors
-from x2video.sampling.events import FramesReady, RenderSettings
-from x2video.sampling.renderer import Renderer
-from x2video.sampling.timing import STAGES, StageTimes
+from x2video.render.events import FramesReady
+from x2video.render.renderer import Renderer
+from x2video.render.settings import RenderSettings
+from x2video.render.timing import STAGES, StageTimes
 from x2video.shot import ArrayShot
 
 RUNTIMES = [r for r in ("onnx", "openvino") if eng.available(r)]
@@ -220,7 +221,7 @@ def test_prepare_fills_the_cache_and_a_render_reuses_it() -> None:
 
 
 def test_a_render_cancels_a_prepare_in_progress() -> None:
-    from x2video.sampling.events import CancelToken
+    from x2video.render.events import CancelToken
 
     model = FakeModel()
     r = Renderer(model)

@@ -52,7 +52,7 @@ def test_training_size_from_run_state_and_training_json(tmp_path):
 
 
 def test_conditions_mask_text_drop_reference():
-    from x2video.edits import apply_edits
+    from x2video.conditioning.edited import apply_edits
 
     shot = tiny_room(3, frames=4, size=(32, 24))
     edits, desc = build_edits(shot, "r3", Condition("mask_amr", text=True, masks=2), seed=5)

@@ -20,11 +20,11 @@ import numpy as np
 import pytest
 
 from x2video.cli import main
-from x2video.cli.fields import to_flags
 from x2video.farm import find_jobs, run_farm, state
 from x2video.farm.openjd import SPECIFICATION, write_templates
+from x2video.fields import to_flags
 from x2video.io import write_shot_folder
-from x2video.sampling.events import RenderSettings
+from x2video.render.settings import RenderSettings
 from x2video.shot import ArrayShot
 from x2video.weights import ModelOptions
 
@@ -92,7 +92,7 @@ def test_job_errors_name_the_file_and_line(tmp_path):
 def test_to_flags_round_trips_through_the_parser():
     import argparse
 
-    from x2video.cli.fields import add_fields, from_args
+    from x2video.fields import add_fields, from_args
 
     s = RenderSettings(seed=3, seams=False, frames=(2, 7), exposure=1.5, preset="fast", noise_shared=0.5, quality="formula")
     flags = to_flags(RenderSettings, s)
@@ -495,7 +495,7 @@ def test_render_windows_one_by_one_equals_render_and_refuses_missing_references(
     """`Renderer.render_windows`, each window in a fresh Renderer given the latents earlier calls returned, gives
     `render`'s frames (in process, a fake model: 33 frames, 3 levels and the seam pass); misuse is refused."""
     import x2video
-    from x2video.sampling.events import FramesReady
+    from x2video.render.events import FramesReady
 
     sys.path.insert(0, str(Path(__file__).parent))
     from sampling_fake import FakeModel

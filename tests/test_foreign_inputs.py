@@ -15,8 +15,8 @@ import pytest
 from bench.stability_cells import Scorer
 from bench.stability_foreign import Foreign, foreign_shot, lamp
 from bench.stability_shots import SyntheticShot
-from x2video.sampling.events import RenderSettings
-from x2video.sampling.renderer import Renderer
+from x2video.render.renderer import Renderer
+from x2video.render.settings import RenderSettings
 
 #: auto's promise
 BOUND_DB = 0.2
@@ -66,14 +66,14 @@ def test_auto_stays_within_the_formula_on_a_foreign_shot_with_a_bright_emitter(s
 def test_the_guard_engages_where_tier_1_misreads_the_irradiance_scale(shot, model, caplog):
     """The same frames through tier 1 with and without the guard: the net's frame is implausible against the formula
     (the guard keeps the formula, and says so), so the guard is what holds the bound above."""
+    from x2video.conditioning.frame import plain_conditioning
+    from x2video.formula import formula
     from x2video.model import plausible
-    from x2video.model.residual import formula
-    from x2video.sampling.setup import plain_conditioning
-    from x2video.sampling.tier_residual import residual_frames
+    from x2video.tiers.residual import residual_frames
 
     conds = [plain_conditioning(shot, t) for t in range(shot.num_frames)]
     raw = residual_frames(model.residual_net, conds)
-    with caplog.at_level(logging.WARNING, logger="x2video.sampling.tier_residual"):
+    with caplog.at_level(logging.WARNING, logger="x2video.tiers.residual"):
         kept = residual_frames(model.residual_net, conds, plausible=True)
     assert "larger than any it made on validation data" in caplog.text
     for c, r, k in zip(conds, raw, kept):
@@ -85,8 +85,8 @@ def test_the_guard_engages_where_tier_1_misreads_the_irradiance_scale(shot, mode
 
 def test_a_plausible_frame_passes_the_guard_untouched(model):
     """Our own channels, as tier 1 was trained on: the guard changes nothing."""
-    from x2video.sampling.setup import plain_conditioning
-    from x2video.sampling.tier_residual import residual_frames
+    from x2video.conditioning.frame import plain_conditioning
+    from x2video.tiers.residual import residual_frames
 
     conds = [plain_conditioning(SyntheticShot(2, (96, 128)), t) for t in range(2)]
     for a, b in zip(residual_frames(model.residual_net, conds), residual_frames(model.residual_net, conds, plausible=True)):

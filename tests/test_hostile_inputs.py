@@ -6,7 +6,7 @@ from test_tiers import full_shot, render, with_net
 
 from x2video.edits import Edits
 from x2video.model import residual as R
-from x2video.sampling.events import RenderSettings
+from x2video.render.settings import RenderSettings
 from x2video.shot import ArrayShot
 
 

@@ -1,4 +1,4 @@
-"""x2video.sampling.live (issue 43): the tiers a live preview runs follow `tiers.decide`, and `render_frame` renders one
+"""x2video.render.live (issue 43): the tiers a live preview runs follow `tiers.decide`, and `render_frame` renders one
 frame through `Renderer.render` (a per-frame tier: that frame; the sampler: its window around the frame)."""
 from __future__ import annotations
 
@@ -8,13 +8,15 @@ import torch
 from sampling_fake import FakeModel, make_shot
 from test_tiers import full_shot
 
-from x2video.edits import Edits, apply_edits
+from x2video.conditioning.edited import apply_edits
+from x2video.edits import Edits
+from x2video.formula import formula_frame
 from x2video.model import residual as R
-from x2video.sampling.events import CancelToken
-from x2video.sampling.live import frame_window, preview_choice, render_frame
-from x2video.sampling.renderer import Renderer
-from x2video.sampling.settings import RenderSettings
-from x2video.sampling.tiers import formula_frame, residual_frames
+from x2video.render.events import CancelToken
+from x2video.render.live import frame_window, preview_choice, render_frame
+from x2video.render.renderer import Renderer
+from x2video.render.settings import RenderSettings
+from x2video.tiers.residual import residual_frames
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 

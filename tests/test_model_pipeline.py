@@ -8,7 +8,7 @@ import pytest
 import torch
 from diffusers import DDIMScheduler
 
-from x2video.conditioning import FrameConditioning
+from x2video.conditioning.frame import FrameConditioning
 from x2video.model.api import RenderModel, WindowInputs
 from x2video.model.config import ModelConfig, preset
 from x2video.model.inputs import run_unet
@@ -218,9 +218,11 @@ def test_residual_model_with_zero_residual_renders_the_classical_shading(monkeyp
     decoded frame, so a UNet that predicts a zero residual reproduces the classical shading exactly;
     without the detail it is the VAE's reconstruction of the shading; a dropped channel (no prior)
     leaves the plain decode."""
+    from x2video.conditioning.frame import plain_conditioning
     from x2video.model.shading import classical_shading
-    from x2video.sampling.events import FramesReady, RenderSettings
-    from x2video.sampling.renderer import Renderer, plain_conditioning
+    from x2video.render.events import FramesReady
+    from x2video.render.renderer import Renderer
+    from x2video.render.settings import RenderSettings
     from x2video.shot import ArrayShot
 
     model = X2VideoModel.untrained("tiny", seed=1, residual_prior=True)
@@ -251,9 +253,11 @@ def test_residual_model_with_zero_residual_renders_the_classical_shading(monkeyp
 def test_zero_x0_head_renders_the_classical_shading():
     """The real UNet path: an x0-predicting residual model whose output layer is zero (how training
     starts it) renders the classical shading exactly, with DDIM and with LCM."""
+    from x2video.conditioning.frame import plain_conditioning
     from x2video.model.shading import classical_shading
-    from x2video.sampling.events import FramesReady, RenderSettings
-    from x2video.sampling.renderer import Renderer, plain_conditioning
+    from x2video.render.events import FramesReady
+    from x2video.render.renderer import Renderer
+    from x2video.render.settings import RenderSettings
     from x2video.shot import ArrayShot
     from x2video.train.diffusion_stages import zero_output_layer
 

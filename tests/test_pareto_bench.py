@@ -32,7 +32,7 @@ def fake_data(root, frames: int = 3):
 
 
 def test_parse_method_and_round_trip_with_the_editor_key():
-    from x2video.sampling.events import RenderSettings
+    from x2video.render.settings import RenderSettings
     from x2video_app._qt.charts import pareto_key
 
     assert parse_method("lcm-2-seq") == Method("lcm-2-seq", "diffusion", "lcm", 2, "sequential")

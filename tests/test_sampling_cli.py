@@ -32,7 +32,7 @@ def test_render_untrained_to_mp4_and_exr(shot_dir, tmp_path, capsys) -> None:
     exr = tmp_path / "exr"
     args = ["render", "--project", str(proj), "--out", str(exr), "--untrained", "--preset", "fast", "--frames", "2:5", "--scheme", "sequential",
             "--no-replace-refs"]
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
 
     seen, render = [], Renderer.render
     with pytest.MonkeyPatch.context() as mp:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from x2video.sampling.events import Cancelled, CancelToken
+from x2video.render.events import Cancelled, CancelToken
 from x2video.sampling.samplers import Known, alphas_cumprod, ddim_scheduler, lcm_scheduler, sample_ddim, sample_lcm
 
 

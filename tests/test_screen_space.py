@@ -10,8 +10,9 @@ import torch
 
 from x2video.model import residual as R
 from x2video.model import screen_space as SS
-from x2video.sampling.events import FramesReady, RenderSettings
-from x2video.sampling.renderer import Renderer
+from x2video.render.events import FramesReady
+from x2video.render.renderer import Renderer
+from x2video.render.settings import RenderSettings
 from x2video.shot import ArrayShot, CameraPose
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")

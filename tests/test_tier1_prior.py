@@ -33,8 +33,9 @@ def _model(net: ResidualNet) -> X2VideoModel:
 
 
 def _render(model, shot, quality: str, **kw) -> np.ndarray:
-    from x2video.sampling.events import FramesReady, RenderSettings
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.events import FramesReady
+    from x2video.render.renderer import Renderer
+    from x2video.render.settings import RenderSettings
 
     out: dict[int, np.ndarray] = {}
     Renderer(model).render(shot, None, RenderSettings(quality=quality, window=3, **kw),
@@ -48,8 +49,8 @@ def test_zero_residual_renders_tier_one():
     shot = tiny_room(7, frames=3, size=(32, 24))
     model = _model(_tier1_net())
     tier1 = _render(model, shot, "residual")
-    from x2video.model.residual import formula
-    from x2video.sampling.renderer import plain_conditioning
+    from x2video.conditioning.frame import plain_conditioning
+    from x2video.formula import formula
 
     base = np.stack([formula(plain_conditioning(shot, t).channels) for t in range(3)])
     assert np.abs(tier1 - base).mean() > 1e-2, "the test's tier-1 net must differ from the formula"
@@ -58,11 +59,10 @@ def test_zero_residual_renders_tier_one():
 
 
 def test_prior_image_is_tier_one_and_needs_it():
-    from x2video.conditioning import FrameConditioning
-    from x2video.sampling.cache import ConditioningCache
-    from x2video.sampling.renderer import plain_conditioning
-    from x2video.sampling.setup import Encoder
-    from x2video.sampling.tier_residual import residual_frames
+    from x2video.conditioning.cache import ConditioningCache
+    from x2video.conditioning.frame import FrameConditioning, plain_conditioning
+    from x2video.tiers.encoder import Encoder
+    from x2video.tiers.residual import residual_frames
 
     shot = tiny_room(8, frames=2, size=(32, 24))
     net = _tier1_net(1)
@@ -108,10 +108,10 @@ def tier1_runs(tmp_path_factory):
 
 
 def test_cache_holds_tier_one_frames(tier1_runs):
-    from x2video.conditioning import FrameConditioning
+    from x2video.conditioning.frame import FrameConditioning
     from x2video.model.residual import weights_sha
     from x2video.model.vae import encode_mode, images_to_tensor, to_vae_range
-    from x2video.sampling.tier_residual import residual_frames
+    from x2video.tiers.residual import residual_frames
     from x2video.train.cache import TIER1_KEYS, load_split
 
     info, net = tier1_runs["info"], tier1_runs["net"]

@@ -13,10 +13,11 @@ from x2video.edits.masks import Mask
 from x2video.edits.model import Reference
 from x2video.edits.ops import MaskOut
 from x2video.model import residual as R
-from x2video.sampling import tiers
-from x2video.sampling.events import FramesReady, RenderSettings, RenderStarted, StepDone
-from x2video.sampling.renderer import Renderer
+from x2video.render.events import FramesReady, RenderStarted, StepDone
+from x2video.render.renderer import Renderer
+from x2video.render.settings import RenderSettings
 from x2video.shot import ArrayShot
+from x2video.tiers import registry as tiers
 
 
 def full_shot(num_frames: int = 5, h: int = 16, w: int = 24) -> ArrayShot:
@@ -335,9 +336,9 @@ def test_residual_features_clamp_roughness_and_metallic():
 
 
 def test_a_toy_tier_is_one_new_class():
-    """Adding a tier takes one class (`x2video.sampling.tier`): the registry, `decide`, `plan_render` and `Renderer`
+    """Adding a tier takes one class (`x2video.tiers.base`): the registry, `decide`, `plan_render` and `Renderer`
     (with no model, as it needs none) take it as they are."""
-    from x2video.sampling.tier import TIERS, PerFrameTier
+    from x2video.tiers.base import TIERS, PerFrameTier
 
     class HalfGreyTier(PerFrameTier):
         name = "toy-grey"
@@ -364,7 +365,7 @@ def test_a_toy_tier_is_one_new_class():
 
 def test_tiers_say_what_callers_used_to_compare_names_for():
     """The editor and the benches ask a tier what it is (`generative`, `with_preset`), never compare its name."""
-    from x2video.sampling.setup import select_steps
+    from x2video.render.settings import select_steps
 
     assert [n for n in tiers.QUALITIES if tiers.generative(n)] == ["diffusion"]
     assert not tiers.generative("") and not tiers.generative(None) and not tiers.generative("no-such-tier")
@@ -377,7 +378,7 @@ def test_tiers_say_what_callers_used_to_compare_names_for():
 def test_windowed_and_working_size_are_the_tiers_own():
     """`tiers.windowed` (the sampler's windows, steps and engine) and `Tier.working_size` (where a tier's network runs on a
     large frame) answer what the benches compared tier names for."""
-    from x2video.sampling import working
+    from x2video.conditioning import working
 
     assert [n for n in tiers.QUALITIES if tiers.windowed(n)] == ["diffusion"]
     assert not tiers.windowed("") and not tiers.windowed(None) and not tiers.windowed("no-such-tier")
@@ -413,7 +414,7 @@ def test_plan_render_is_what_the_render_runs():
 def test_a_tier_exact_in_part_renders_any_part_of_a_range_to_the_same_bytes():
     """`Tier.exact_in_part` (what lets `x2video render` resume a failed render with only the missing frames) holds
     for the formula; the tiers that batch frames or run windows do not claim it."""
-    from x2video.sampling.tier import TIERS
+    from x2video.tiers.base import TIERS
 
     assert TIERS["formula"].exact_in_part and not TIERS["residual"].exact_in_part and not TIERS["diffusion"].exact_in_part
     shot = full_shot(6)
@@ -425,7 +426,7 @@ def test_a_tier_exact_in_part_renders_any_part_of_a_range_to_the_same_bytes():
 def test_the_composite_seam_lies_inside_the_generated_region():
     """auto's regional composite: tier 2's weight is 0 outside the region, 1 deeper than SEAM_PX inside, a linear ramp
     between (so the surfaces around a masked object keep tier 1's frame untouched)."""
-    from x2video.sampling.regions import SEAM_PX, composite_weight
+    from x2video.tiers.regions import SEAM_PX, composite_weight
 
     m = np.zeros((40, 40), bool)
     m[10:30, 5:35] = True

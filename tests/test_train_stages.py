@@ -110,7 +110,7 @@ def test_image_video_lcm_stages_load_as_models(runs):
 
 
 def _frame_conditioning(shot, t, keep, amr=None):
-    from x2video.conditioning import FrameConditioning
+    from x2video.conditioning.frame import FrameConditioning
 
     H, W = shot.size
     ch = {}

@@ -8,7 +8,7 @@ from typing import Any
 from bench.pareto.inputs import input_costs, with_inputs
 from bench.pareto.methods import FAMILY_NAMES
 from bench.pareto.report import shots_text
-from x2video.sampling import tiers
+from x2video.tiers import registry as tiers
 
 FAMILY_STYLE = {"formula": ("s", "black"), "residual": ("D", "tab:green"), "ddim-recursive": ("o", "tab:blue"),
                 "ddim-sequential": ("o", "tab:cyan"), "lcm-recursive": ("^", "tab:orange"), "lcm-sequential": ("^", "gold"),

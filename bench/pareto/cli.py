@@ -13,8 +13,8 @@ from bench.pareto.chart import draw
 from bench.pareto.measure import NEAR_BEST_DB, ParetoOptions, measure
 from bench.pareto.merge import merge, section_of
 from bench.pareto.report import markdown
-from x2video.cli.fields import add_fields, from_args
-from x2video.sampling import tiers
+from x2video.fields import add_fields, from_args
+from x2video.tiers import registry as tiers
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 

@@ -24,7 +24,7 @@ NEAR_BEST_DB = 0.5
 
 @dataclass
 class ParetoOptions:
-    """What `python -m bench.pareto` measures (flags via `x2video.cli.fields`)."""
+    """What `python -m bench.pareto` measures (flags via `x2video.fields`)."""
 
     data: str = ""
     """Data set folder(s), comma-separated, each DATA/<split>/<shot>/ of path-traced shots with rgb ground truth;
@@ -73,7 +73,7 @@ def measure(opts: ParetoOptions, argv: list[str] | None, on_partial: Any = None)
     import torch
 
     from x2video.io import load_shot
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
 
     if not opts.data:
         raise SystemExit("--data: give the path-traced data set folder(s)")

@@ -5,7 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from bench.pareto.measure import summarise
-from x2video.sampling import tiers
+from x2video.tiers import registry as tiers
+from x2video.tiers.base import TIERS
 
 #: the keys of a section of the chart: the main section is the result's top level, the others under "sections"
 SECTION_KEYS = ("data", "split", "rooms", "frames", "ground_truth", "rows", "unavailable", "summary")
@@ -119,7 +120,7 @@ def merge_problems(old: dict, new: dict, section: str, where: str = "the result 
 
 
 def _row_order(r: dict) -> tuple:
-    kinds = [*tiers.TIERS, "cycles"]  # the tiers in cost order, then Cycles
+    kinds = [*TIERS, "cycles"]  # the tiers in cost order, then Cycles
     return (r["size"][0] * r["size"][1], kinds.index(r["kind"]) if r["kind"] in kinds else 9, r.get("scheme") == "sequential", r.get("sampler") or "",
             r.get("steps") or 0, r.get("samples") or 0)
 

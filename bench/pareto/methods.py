@@ -8,8 +8,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from bench.ptscore import render_timed
-from x2video.sampling import tiers
-from x2video.sampling.tier import Tier
+from x2video.tiers import registry as tiers
+from x2video.tiers.base import TIERS, Tier
 
 METHODS = ("formula", "residual", "ddim-1", "ddim-2", "ddim-4", "ddim-8", "ddim-20", "lcm-1", "lcm-2", "lcm-4",
            "ddim-4-seq", "ddim-20-seq", "lcm-2-seq", "cycles-4", "cycles-16", "cycles-64")
@@ -62,7 +62,7 @@ class Method:
 def parse_method(text: str) -> Method:
     """'formula', 'residual', 'ddim-20', 'lcm-2-seq', 'cycles-64' -> Method; a clear error otherwise."""
     t = text.strip().lower()
-    if t in tiers.TIERS and not tiers.windowed(t):  # a per-frame tier is named by itself
+    if t in TIERS and not tiers.windowed(t):  # a per-frame tier is named by itself
         return Method(t, t)
     m = re.fullmatch(r"(ddim|lcm)-(\d+)(-seq)?", t)
     if m:
@@ -74,7 +74,7 @@ def parse_method(text: str) -> Method:
 
 
 def diffusion_settings(m: Method, frames: int):
-    from x2video.sampling.events import RenderSettings
+    from x2video.render.settings import RenderSettings
 
     if m.windowed:
         return RenderSettings(quality=m.kind, sampler=m.sampler, steps=m.steps, scheme=m.scheme, frames=(0, frames))
@@ -83,7 +83,7 @@ def diffusion_settings(m: Method, frames: int):
 
 def same_plan(model: Any, shot: Any, m: Method, frames: int) -> bool:
     """Whether sequential sampling of `m` runs exactly the windows recursive sampling does (short shots)."""
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
 
     r = Renderer(model)
     s = diffusion_settings(m, frames)
@@ -95,7 +95,7 @@ def warm_up(model: Any, shots: list, nframes: list[int], methods: list[Method]) 
     """Untimed renders of the frames the rows render, one per network and scheme the methods use (1 step): first-call
     costs stay out of the rows, among them the diffusion engine's graphs, which are exported and compiled per window
     size and window kind (`x2video.model.engine`: a 2-frame warm-up left a 3-, 4- or 5-frame window's to the first row)."""
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
 
     kinds = {(m.kind, m.sampler, m.scheme if m.windowed else "") for m in methods if m.needs_model}
     firsts: dict[int, Any] = {}

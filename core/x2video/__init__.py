@@ -8,7 +8,7 @@
     with x2video.FrameSink("out.mp4", fps=shot.info.fps) as sink:   # or a folder of EXR frames
         x2video.Renderer(model).render(shot, edits, x2video.RenderSettings(preset="fast"), on_event=sink)
 
-`on_event` receives the typed events of `x2video.sampling.events` (FramesReady carries finished
+`on_event` receives the typed events of `x2video.render.events` (FramesReady carries finished
 frames, keyframes first); a `CancelToken` passed as `cancel` stops the render between steps.
 
 The names below load on first use, so `import x2video` stays cheap (no torch until a model is needed).
@@ -25,21 +25,21 @@ _EXPORTS = {
     "load_shot": "x2video.io.load",
     "load_model": "x2video.weights",
     "shipped_weights": "x2video.weights",
-    "Renderer": "x2video.sampling.renderer",
-    "RenderSettings": "x2video.sampling.settings",
-    "CancelToken": "x2video.sampling.events",
+    "Renderer": "x2video.render.renderer",
+    "RenderSettings": "x2video.render.settings",
+    "CancelToken": "x2video.render.events",
     "Edits": "x2video.edits.model",
-    "FrameSink": "x2video.sampling.sink",
+    "FrameSink": "x2video.render.frames",
 }
 __all__ = sorted(_EXPORTS)
 
 if TYPE_CHECKING:
     from x2video.edits.model import Edits as Edits
     from x2video.io.load import load_shot as load_shot
-    from x2video.sampling.events import CancelToken as CancelToken
-    from x2video.sampling.renderer import Renderer as Renderer
-    from x2video.sampling.settings import RenderSettings as RenderSettings
-    from x2video.sampling.sink import FrameSink as FrameSink
+    from x2video.render.events import CancelToken as CancelToken
+    from x2video.render.frames import FrameSink as FrameSink
+    from x2video.render.renderer import Renderer as Renderer
+    from x2video.render.settings import RenderSettings as RenderSettings
     from x2video.weights import load_model as load_model
     from x2video.weights import shipped_weights as shipped_weights
 

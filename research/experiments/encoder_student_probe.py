@@ -48,7 +48,7 @@ def images(data: Path, split: str, rooms: int, frames: int, size: tuple[int, int
     from x2video.eval.data import load_eval_shots
     from x2video.model.shading import classical_shading
     from x2video.model.vae import to_vae_range
-    from x2video.sampling.renderer import plain_conditioning
+    from x2video.conditioning.frame import plain_conditioning
 
     out = []
     for s in load_eval_shots(data, split, rooms, frames, size):

@@ -13,7 +13,7 @@ import os, sys
 from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: the bench package
 import torch
-import x2video.sampling.renderer as R
+import x2video.render.renderer as R
 
 KS = float(os.environ.get("KEY_STRENGTH", "0.5"))
 orig = R.mean_anchor

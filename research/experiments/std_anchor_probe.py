@@ -16,7 +16,7 @@ import os, sys
 from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root: the bench package
 import torch
-import x2video.sampling.renderer as R
+import x2video.render.renderer as R
 
 STD = float(os.environ.get("STD_STRENGTH", "1"))
 

@@ -7,9 +7,9 @@ import numpy as np, torch, cv2
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root (bench/)
 from bench.ptscore import display, render_timed, score, shot_dirs, truth
 from x2video.io import load_shot
-from x2video.sampling.events import RenderSettings
-from x2video.sampling.renderer import Renderer
-from x2video.sampling import tiers
+from x2video.render.settings import RenderSettings
+from x2video.render.renderer import Renderer
+from x2video.tiers import registry as tiers
 from x2video.model import residual as R
 from x2video.weights import load_model
 

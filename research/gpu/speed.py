@@ -25,7 +25,7 @@ sys.path.insert(0, str(ROOT))  # the repository root: the bench package (the GPU
 from bench.common import result_header  # noqa: E402
 from bench.lcm_speedup import back_to_back  # noqa: E402
 
-from x2video.sampling.events import RenderSettings  # noqa: E402  (light: no torch)
+from x2video.render.settings import RenderSettings  # noqa: E402  (light: no torch)
 
 
 class PayloadPrompts:
@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     from x2video.eval.runner import EvalModels
     from x2video.io.atomic import write_json_atomic
     from x2video.model.pipeline import X2VideoModel
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
 
     text = PayloadPrompts(torch.load(a.payload / "prompts.pt"))
     model = X2VideoModel.from_pretrained(a.weights, device=a.device, text_encoder=text)

@@ -82,7 +82,17 @@ def rewrite_dotted(text: str, modules: dict[str, str], names: dict[tuple[str, st
     pairs.sort(key=lambda p: -len(p[0]))
     pattern = re.compile(r"(?<![\w.])(" + "|".join(re.escape(o) for o, _ in pairs) + r")(?![\w])")
     table = dict(pairs)
-    return pattern.sub(lambda m: table[m.group(1)], text)
+    new_modules = set(modules.values())
+
+    def sub(m: re.Match) -> str:
+        after = re.match(r"\.(\w+)", text[m.end():])
+        if after and f"{m.group(1)}.{after.group(1)}" in new_modules:  # already the new path (`pkg` became `pkg.sub`)
+            return m.group(1)
+        if text.startswith(" import ", m.end()) and any(v.startswith(m.group(1) + ".") for v in new_modules):
+            return m.group(1)  # `from pkg import module`: the package of new modules, rewritten by `rewrite_from`
+        return table[m.group(1)]
+
+    return pattern.sub(sub, text)
 
 
 def rewrite_file(path: Path, modules: dict[str, str], names: dict[tuple[str, str], str]) -> bool:

@@ -29,11 +29,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from faults_helpers import edits_digest  # noqa: E402
 
-from x2video.edits import Edits, Project, apply_edits, load_project, save_project  # noqa: E402
+from x2video.conditioning.edited import apply_edits
+from x2video.edits import Edits, Project, load_project, save_project  # noqa: E402
 from x2video.edits.autosave import Autosave, AutosaveError, autosave_path, read_autosave, set_aside, snapshot, write_autosave  # noqa: E402
 from x2video.edits.lock import ProjectLock  # noqa: E402
 from x2video.io import load_shot  # noqa: E402
-from x2video.sampling.sink import FrameSink, resume_key  # noqa: E402
+from x2video.render.frames import FrameSink, resume_key  # noqa: E402
 
 KEEP = 12
 

@@ -48,7 +48,7 @@ from faults_helpers import edits_digest  # noqa: E402
 from sampling_fake import FakeModel  # noqa: E402
 
 import x2video_app._qt.project_controller as pc  # noqa: E402
-from x2video.sampling.renderer import Renderer  # noqa: E402
+from x2video.render.renderer import Renderer  # noqa: E402
 from x2video_app._qt.launch import launch  # noqa: E402
 
 ACTIONS = ["stroke", "stroke", "stroke", "mask", "prompt", "param", "undo", "undo", "redo", "save", "render"]

@@ -11,7 +11,7 @@ import pytest
 from faults_helpers import FORMULA, assert_no_partial_files, tiny_shot_dir
 
 from x2video.cli import main
-from x2video.sampling.settings import RenderSettings
+from x2video.render.settings import RenderSettings
 
 QUALITIES = ["auto", "formula", "residual", "diffusion"]
 
@@ -91,8 +91,8 @@ def test_library_api_refuses_the_same_values():
         ok.validate()
     from sampling_fake import make_shot
 
-    from x2video.sampling.events import RenderFailed
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.events import RenderFailed
+    from x2video.render.renderer import Renderer
 
     events: list = []
     with pytest.raises(ValueError, match="steps must be at least 1"):

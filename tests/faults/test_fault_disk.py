@@ -73,7 +73,7 @@ def test_mp4_encode_on_a_full_disk_leaves_no_partial_file(big_shot, small_disk, 
 def test_farm_chunk_on_a_full_disk_keeps_whole_frames_and_resumes(big_shot, small_disk, tmp_path, capsys):
     from x2video.farm import chunks, state, task
     from x2video.farm.jobs import Job
-    from x2video.sampling.settings import RenderSettings
+    from x2video.render.settings import RenderSettings
     from x2video.weights import ModelOptions
 
     settings, options = RenderSettings(quality="formula"), ModelOptions()
@@ -96,9 +96,10 @@ def test_farm_chunk_on_a_full_disk_keeps_whole_frames_and_resumes(big_shot, smal
 
 
 def _frames(shot_dir):
-    from x2video.edits import Edits, apply_edits
+    from x2video.conditioning.edited import apply_edits
+    from x2video.edits import Edits
+    from x2video.formula import formula_frame
     from x2video.io import load_shot
-    from x2video.sampling.tier_formula import formula_frame
 
     shot = load_shot(shot_dir)
     return shot, {t: formula_frame(apply_edits(shot, Edits(), t)) for t in range(shot.num_frames)}

@@ -14,7 +14,7 @@ from faults_helpers import FORMULA, assert_no_partial_files
 from x2video.cli import main
 from x2video.io import load_shot
 from x2video.io.image import ImageReadError, ShotChangedError, write_exr
-from x2video.sampling.sink import FrameSink
+from x2video.render.frames import FrameSink
 
 
 def _vanish(p):

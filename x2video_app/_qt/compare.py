@@ -101,7 +101,7 @@ class Compare(QObject):
         if name in MADE:
             return self._made_frame(MADE[name], name)
         if name == "diffusion":
-            from x2video.sampling.tiers import generative  # the tier that makes the generated version
+            from x2video.tiers.registry import generative  # the tier that makes the generated version
 
             live = doc.live
             if live is not None and live.t == t and generative(live.frame.tier):
@@ -140,8 +140,8 @@ class Compare(QObject):
         if model is None:  # the tier modules import torch: not before the model build did
             return None, f"{name}: once the model is loaded"
         if self._inflight is None:  # one at a time (the worker is latest-wins): the next when this one is made
-            from x2video.sampling.live import LiveChoice
-            from x2video.sampling.tier import TierChoice
+            from x2video.render.live import LiveChoice
+            from x2video.tiers.base import TierChoice
 
             self._next_id += 1
             self._inflight = key

@@ -10,7 +10,7 @@ from PySide6.QtWidgets import QCheckBox, QFileDialog, QMessageBox, QProgressDial
 from superqt.utils import create_worker
 
 from x2video.io.units import OutputUnits
-from x2video.sampling.events import RenderSettings
+from x2video.render.settings import RenderSettings
 from x2video_app._qt.host import Host
 from x2video_app.state import exporter
 from x2video_app.state.document import Document

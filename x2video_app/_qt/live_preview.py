@@ -2,11 +2,11 @@
 
 Every edit (slider drag, colour pick, brush stroke, mask-out toggle, exposure, tint, prompt, undo) asks
 `LivePreviewer` (x2video_app._qt.live_previewer) for the frame on screen with the fastest tier auto trusts
-(`x2video.sampling.live.preview_choice`: tier 1 where the render would use it, else the formula). The previewer is
+(`x2video.render.live.preview_choice`: tier 1 where the render would use it, else the formula). The previewer is
 latest-wins: it holds at most one request waiting, which the next one replaces (the stale one is dropped, never
 queued), and one superqt generator worker drains it, so a preview in progress always finishes and shows while a
 newer one waits. When the edits rest for `DEBOUNCE_MS`, the frame gets its full quality: the preview's own frame
-where the render's tier is per-frame, else the sampler's window around it (`x2video.sampling.live.render_frame`). A
+where the render's tier is per-frame, else the sampler's window around it (`x2video.render.live.render_frame`). A
 whole-shot render starts only on Render, or on settling when "Auto re-render" is ticked. The frame shows in the
 rendered and side-by-side views, over the last render's frame, with a badge on the viewer saying it is a preview and
 which tier made it.
@@ -21,7 +21,7 @@ from typing import Any
 from PySide6.QtCore import QObject, QTimer, Signal
 from PySide6.QtWidgets import QCheckBox, QLabel
 
-from x2video.sampling.settings import RenderSettings
+from x2video.render.settings import RenderSettings
 from x2video_app._qt.live_previewer import LivePreviewer
 from x2video_app.state.live_request import LiveRequest, LiveResult, snapshot_edits
 
@@ -129,7 +129,7 @@ class LivePreview(QObject):
     def _choice(self, settings: RenderSettings, model: Any) -> Any:
         if model is None:  # the worker decides (the tier modules import torch, which the window has not loaded)
             return None
-        from x2video.sampling.live import preview_choice
+        from x2video.render.live import preview_choice
 
         return preview_choice(settings.quality, self.doc.shot, self.doc.edits, model)
 

@@ -13,7 +13,7 @@ from typing import Any
 from PySide6.QtCore import QObject, Signal
 from superqt.utils import WorkerBase, create_worker
 
-from x2video.sampling.events import CancelToken
+from x2video.render.events import CancelToken
 from x2video_app.state.live_request import LiveRequest, LiveResult
 
 log = logging.getLogger(__name__)
@@ -31,7 +31,7 @@ class _QuietHere(logging.Filter):
 
 
 _QUIET = _QuietHere()
-for _name in ("x2video.sampling.renderer", "x2video.sampling.tier_residual", "x2video.sampling.tier_diffusion"):
+for _name in ("x2video.render.renderer", "x2video.tiers.residual", "x2video.tiers.diffusion"):
     logging.getLogger(_name).addFilter(_QUIET)
 
 
@@ -117,7 +117,7 @@ class LivePreviewer(QObject):
             yield self._run(req, newest, token)
 
     def _run(self, req: LiveRequest, newest: int, token: CancelToken | None) -> LiveResult:
-        from x2video.sampling.live import preview_choice, render_frame  # torch: loaded by the model build already
+        from x2video.render.live import preview_choice, render_frame  # torch: loaded by the model build already
 
         choice = req.choice if req.choice is not None else preview_choice(req.settings.quality, req.shot, req.edits, req.model)
         full = req.final and choice.full is not None and not choice.same
@@ -133,7 +133,7 @@ class LivePreviewer(QObject):
             _QUIET.local.on = False
 
     def _renderer_for(self, model: Any) -> Any:
-        from x2video.sampling.renderer import Renderer
+        from x2video.render.renderer import Renderer
 
         if self._renderer is None or self._renderer.model is not model:
             self._renderer = Renderer(model, cache=self.cache) if self.cache is not None else Renderer(model)

@@ -16,9 +16,9 @@ from typing import Any, Callable
 
 from PySide6.QtCore import QObject, Signal
 
-from x2video.sampling.events import CancelToken, FramesReady, RenderEvent, RenderStarted
-from x2video.sampling.settings import RenderSettings
-from x2video.sampling.tier import RenderPlan
+from x2video.render.events import CancelToken, FramesReady, RenderEvent, RenderStarted
+from x2video.render.settings import RenderSettings
+from x2video.tiers.base import RenderPlan
 from x2video_app._qt.render_worker import RenderWorker
 from x2video_app._qt.worker_slot import WorkerSlot
 from x2video_app.state.document import Document
@@ -60,8 +60,8 @@ def engine_threads() -> int:
 def needs_model(quality: str) -> bool:
     """Whether a render at `quality` needs the model, without importing torch: tier 0's module is torch-free and
     registers itself; a quality not registered yet ('auto', or a tier whose module torch must load) is taken to."""
-    from x2video.sampling import tier_formula  # noqa: F401 - registers tier 0
-    from x2video.sampling.tier import TIERS
+    from x2video.tiers import formula as tier_formula  # noqa: F401 - registers tier 0
+    from x2video.tiers.base import TIERS
 
     cls = TIERS.get(quality)
     return cls is None or cls.needs_model
@@ -97,7 +97,7 @@ class RenderController(QObject):
         super().__init__(parent)
         self.doc = doc
         self.choice: ModelChoice | None = None
-        self.renderer: Any = None  # x2video.sampling.renderer.Renderer, built on first render
+        self.renderer: Any = None  # x2video.render.renderer.Renderer, built on first render
         self.worker: RenderWorker | None = None
         #: replaceable for tests: builds a Renderer from a ModelChoice (runs in the worker thread)
         self.renderer_factory: Callable[[ModelChoice], Any] = self._default_factory
@@ -142,7 +142,7 @@ class RenderController(QObject):
 
     @staticmethod
     def _default_factory(choice: ModelChoice) -> Any:
-        from x2video.sampling.renderer import Renderer
+        from x2video.render.renderer import Renderer
 
         model = load_model(choice)
         model.engine_threads = engine_threads()
@@ -243,7 +243,7 @@ class RenderController(QObject):
         shot, edits = self.doc.shot, copy.deepcopy(self.doc.edits)  # the person keeps editing during the render
         planned = None
         if model is not None:  # else still loading: importing the tier modules here would wait for torch on the GUI thread
-            from x2video.sampling import tiers  # torch: imported by the built model already
+            from x2video.tiers import registry as tiers  # torch: imported by the built model already
 
             try:  # the progress bars follow the library's plan (windows per level, steps per window), not a guess of it
                 planned = tiers.plan_render(shot, edits, settings, model)
@@ -350,7 +350,7 @@ class RenderController(QObject):
         w, self.worker = self.worker, None
         if w is not None and self.doc.render.status == "running":
             # cancelled before the Renderer started: nothing emitted RenderCancelled
-            from x2video.sampling.events import RenderCancelled
+            from x2video.render.events import RenderCancelled
 
             self._on_event(RenderCancelled(frames_done=sorted(self.doc.render.frames)))
         self.sigRunning.emit(False)

@@ -25,7 +25,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
-from x2video.sampling.settings import RenderSettings
+from x2video.render.settings import RenderSettings
 from x2video_app.state.render_state import RenderState
 
 #: the Quality choices (RenderSettings.quality): (value, label, tooltip)

@@ -13,14 +13,14 @@ from typing import Any, Callable
 from PySide6.QtCore import QObject, Signal
 from superqt.utils import WorkerBase
 
-from x2video.sampling.events import CancelToken
-from x2video.sampling.settings import RenderSettings
+from x2video.render.events import CancelToken
+from x2video.render.settings import RenderSettings
 
 log = logging.getLogger(__name__)
 
 
 class RenderEvents(QObject):
-    event = Signal(object)  # one typed render event (x2video.sampling.events), on the GUI thread
+    event = Signal(object)  # one typed render event (x2video.render.events), on the GUI thread
 
 
 class RenderWorker(WorkerBase):

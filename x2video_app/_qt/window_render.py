@@ -12,7 +12,7 @@ from PySide6.QtCore import QObject, QTimer
 from PySide6.QtGui import QAction, QKeySequence
 from PySide6.QtWidgets import QMenuBar, QMessageBox
 
-from x2video.sampling.events import FramesReady, RenderStarted, WindowStarted
+from x2video.render.events import FramesReady, RenderStarted, WindowStarted
 from x2video_app._qt.charts import pareto_key
 from x2video_app.state.model_source import ModelChoice, has_weights, resolve_device, weights_dir, weights_hint
 from x2video_app.state.preview import PreviewReady
@@ -161,7 +161,7 @@ class WindowRender(QObject):
         if settings is None or w.doc.shot is None:
             return None
         if model is not None:
-            from x2video.sampling import tiers  # the preset as the tier resolves it
+            from x2video.tiers import registry as tiers  # the preset as the tier resolves it
 
             settings = tiers.get(tier).with_preset(settings, model)
         h, wd = w.doc.shot.size

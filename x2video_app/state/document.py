@@ -14,8 +14,9 @@ import cv2
 import numpy as np
 
 from x2video.channels import INTRINSIC
-from x2video.conditioning import FrameConditioning
-from x2video.edits import Edits, apply_edits, resolve_reference
+from x2video.conditioning.edited import apply_edits, resolve_reference
+from x2video.conditioning.frame import FrameConditioning
+from x2video.edits import Edits
 from x2video.shot import Shot
 from x2video_app.state.display import MASK_COLOURS, VIEW_MODES, channel_to_u8, checker, overlay_masks, side_by_side
 from x2video_app.state.render_state import RenderState

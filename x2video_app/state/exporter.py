@@ -57,7 +57,7 @@ def export_mp4(frames: dict[int, np.ndarray], path: Path, fps: float, units: Out
 def export_exr(frames: dict[int, np.ndarray], out_dir: Path, shot: Shot, edits: Any = None, units: OutputUnits | None = None) -> Iterator[int]:
     """A shot folder: `rgb/` = the render (linear, half), plus the edited intrinsic channels when `edits` is given,
     all in the input's units (irradiance too: shot.json then says it is not normalised, as the input was not)."""
-    from x2video.edits import apply_edits
+    from x2video.conditioning.edited import apply_edits
 
     units = units if units is not None else OutputUnits.for_shot(shot)
 

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from x2video.edits import Edits, Mask
-from x2video.sampling.settings import RenderSettings
+from x2video.render.settings import RenderSettings
 
 
 def snapshot_edits(edits: Edits) -> Edits:
@@ -24,7 +24,7 @@ def snapshot_edits(edits: Edits) -> Edits:
 @dataclass(frozen=True)
 class LiveRequest:
     """Frame `t` of `shot` under `edits` (the Document's `version` of them), as a preview or at full quality (`final`).
-    `choice`: the tiers (`x2video.sampling.live.LiveChoice`), decided on the GUI thread once the model is built;
+    `choice`: the tiers (`x2video.render.live.LiveChoice`), decided on the GUI thread once the model is built;
     None before (the worker decides, with no model: the formula)."""
 
     id: int
@@ -41,7 +41,7 @@ class LiveRequest:
 
 @dataclass
 class LiveResult:
-    """What the worker made of `request`: `frame` (`x2video.sampling.live.LiveFrame`; None when cancelled or failed,
+    """What the worker made of `request`: `frame` (`x2video.render.live.LiveFrame`; None when cancelled or failed,
     `error` says which), the tiers it ran under, and `newest`: the newest request's id when this one was taken (equal
     to its own id: no newer request was waiting behind it)."""
 

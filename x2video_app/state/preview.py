@@ -21,8 +21,8 @@ class PreviewReady:
 
 def preview_order(num_frames: int, first: int | None = None, skip: Sequence[int] = ()) -> list[int]:
     """Frames in the order the preview makes them: `first` (the frame on screen), then coarse to fine, as
-    the timeline fills best (`x2video.sampling.tiers.coarse_to_fine`), without `skip`."""
-    from x2video.sampling.tiers import coarse_to_fine
+    the timeline fills best (`x2video.tiers.base.coarse_to_fine`), without `skip`."""
+    from x2video.tiers.base import coarse_to_fine
 
     done = set(skip)
     order = [] if first is None or first in done else [first]
@@ -32,7 +32,7 @@ def preview_order(num_frames: int, first: int | None = None, skip: Sequence[int]
 
 def preview_frame(conditioning) -> np.ndarray:
     """One frame of the preview from its (edited) `FrameConditioning`: exactly the formula tier's frame."""
-    from x2video.sampling.tiers import formula_frame
+    from x2video.formula import formula_frame
 
     return np.asarray(formula_frame(conditioning), np.float32)
 
@@ -40,7 +40,7 @@ def preview_frame(conditioning) -> np.ndarray:
 def preview_frames(shot: Any, edits: Any, frames: Sequence[int], batch: int = 4) -> Iterator[PreviewReady]:
     """Yield the formula's frames of `frames` (in that order) under `edits`, the first alone, then `batch`
     at a time; a generator, so a worker can stop it between yields."""
-    from x2video.edits import apply_edits
+    from x2video.conditioning.edited import apply_edits
 
     frames = list(frames)
     i = 0

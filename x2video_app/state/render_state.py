@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from x2video.sampling.events import (
+from x2video.render.events import (
     FramesReady,
     RenderCancelled,
     RenderEvent,

@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from PySide6.QtWidgets import QApplication
 
-    from x2video.sampling.events import FramesReady
+    from x2video.render.events import FramesReady
     from x2video_app._qt.main_window import MainWindow
     from x2video_app._qt.style import apply_style
 

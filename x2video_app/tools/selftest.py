@@ -20,7 +20,8 @@ def run(argv: list[str]) -> int:
     import numpy as np
     from PySide6.QtCore import QTimer
 
-    from x2video.sampling.events import FramesReady, RenderSettings
+    from x2video.render.events import FramesReady
+    from x2video.render.settings import RenderSettings
     from x2video_app._qt.launch import launch
 
     app, win = launch(argv)

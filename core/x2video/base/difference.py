@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 
 from x2video.channels import INTRINSIC
-from x2video.conditioning import FrameConditioning
+from x2video.conditioning.frame import FrameConditioning
 
 #: pixels around an edit where its spill (a red sofa tints the floor beside it) may change the frame
 SPILL_MARGIN = 6

@@ -22,12 +22,12 @@ import numpy as np
 
 from x2video.base.difference import GLOSSY_CHANNELS, SPILL_MARGIN, changed, grow, over_base, relit_metal
 from x2video.base.fill import FillConfig, fill_frame
-from x2video.sampling.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted
+from x2video.render.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted
 
 if TYPE_CHECKING:
-    from x2video.conditioning import FrameConditioning
-    from x2video.sampling.tier import Emit, RenderJob, Tier
+    from x2video.conditioning.frame import FrameConditioning
     from x2video.shot import Shot
+    from x2video.tiers.base import Emit, RenderJob, Tier
 
 #: what `RenderStarted.tier` and `FramesReady.mode` say for frames that are the base with no tier's change
 BASE = "base"
@@ -63,7 +63,7 @@ class BaseFrames:
 def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameConditioning, *, glossy_tier: bool,
                  residual: Callable[[list[FrameConditioning]], list[np.ndarray]] | None, margin: int = SPILL_MARGIN) -> tuple[np.ndarray, str]:
     """One frame: `base` (model exposure, float64) with the edit's differences, and which tiers made them."""
-    from x2video.model.residual import formula
+    from x2video.formula import formula
 
     everything = changed(original, edited)
     if not everything.any():
@@ -85,8 +85,8 @@ def render_over_base(job: RenderJob, tier: Tier, emit: Emit, cancel: CancelToken
     """Render `job` over the shot's base: every frame the base where no edit reaches it, else base + the tiers'
     differences (per-frame tiers) or the tier's frame inside the edit's reach (a generative tier); emits the events
     every tier emits (RenderStarted, FramesReady), coarse to fine, a few frames per event."""
-    from x2video.sampling.setup import frame_conditioning
-    from x2video.sampling.tier import coarse_to_fine
+    from x2video.conditioning.edited import frame_conditioning
+    from x2video.tiers.base import coarse_to_fine
 
     shot = job.shot
     bases = BaseFrames(shot)
@@ -119,7 +119,7 @@ def render_over_base(job: RenderJob, tier: Tier, emit: Emit, cancel: CancelToken
 
 
 def _residual_fn(job: RenderJob) -> Callable[[list[FrameConditioning]], list[np.ndarray]]:
-    from x2video.sampling.tier_residual import residual_frames
+    from x2video.tiers.residual import residual_frames
 
     def run(conds: list[FrameConditioning]) -> list[np.ndarray]:
         assert job.model is not None

@@ -1,6 +1,6 @@
 """argparse types shared by the `x2video` subcommands and the benches (kept import-light: the heavy
 modules load when an argument is parsed, not when a parser is built). Flags of settings dataclasses
-are generated from their fields: `x2video.cli.fields`."""
+are generated from their fields: `x2video.fields`."""
 from __future__ import annotations
 
 import argparse

@@ -17,7 +17,7 @@ class EditedShot(Shot):
     source's: writers undo it (units in = units out)."""
 
     def __init__(self, shot: Shot, edits):
-        from x2video.edits import apply_edits
+        from x2video.conditioning.edited import apply_edits
 
         self._shot, self._edits, self._apply = shot, edits, apply_edits
         edits.validate()

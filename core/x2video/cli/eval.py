@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from x2video.cli.args import size_arg
-from x2video.cli.fields import add_fields, from_args
+from x2video.fields import add_fields, from_args
 from x2video.model.config import DEFAULT_CHANNEL_ENCODER
 from x2video.weights import ModelOptions
 

@@ -6,8 +6,8 @@ import logging
 import sys
 from pathlib import Path
 
-from x2video.cli.fields import add_fields, from_args
-from x2video.sampling.settings import RenderSettings
+from x2video.fields import add_fields, from_args
+from x2video.render.settings import RenderSettings
 from x2video.weights import ModelOptions
 
 log = logging.getLogger(__name__)
@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {len(paths)} Open Job Description template(s) to {args.openjd} "
               f" (run one here: openjd run {paths[0]} -p file://{paths[0].with_name(paths[0].name.replace('.template.', '.params.'))})")
         return 0
-    from x2video.sampling.tiers import needs_model
+    from x2video.tiers.registry import needs_model
 
     if needs_model(settings.quality) and not options.untrained and options.weights is None:
         from x2video.weights import HOW_TO_GET_WEIGHTS, shipped_weights, where_weights_are_looked_for

@@ -8,10 +8,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-from x2video.cli.fields import add_fields, from_args
+from x2video.fields import add_fields, from_args
 from x2video.io.units import OutputUnits
 from x2video.procedural.demo import demo_cache
-from x2video.sampling.events import FramesReady, RenderEvent, RenderSettings, RenderStarted, StepDone
+from x2video.render.events import FramesReady, RenderEvent, RenderStarted, StepDone
+from x2video.render.settings import RenderSettings
 from x2video.weights import ModelOptions
 
 log = logging.getLogger(__name__)
@@ -91,11 +92,11 @@ def _demo(cache: Path) -> Path:
 
 
 def _resume_key(args: argparse.Namespace, shot: Any, settings: RenderSettings, options: ModelOptions, fps: float) -> str:
-    """What decides the frames of this render (`x2video.sampling.sink.resume_key`): a re-run with the same key takes
+    """What decides the frames of this render (`x2video.render.frames.resume_key`): a re-run with the same key takes
     over the frames a failed run staged; the shot's and the project's files are part of it, so a shot re-rendered
     meanwhile starts over."""
     from x2video import __version__
-    from x2video.sampling.sink import files_identity, resume_key
+    from x2video.render.frames import files_identity, resume_key
 
     paths = [shot.info.source, args.project]
     inputs = [files_identity(p) for p in paths if p and Path(p).exists()]
@@ -106,10 +107,11 @@ def _resume_key(args: argparse.Namespace, shot: Any, settings: RenderSettings, o
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from x2video.sampling import tiers
+    from x2video.render.frames import FrameSink
+    from x2video.render.renderer import Renderer
     from x2video.sampling.planner import plan
-    from x2video.sampling.renderer import Renderer
-    from x2video.sampling.sink import FrameSink
+    from x2video.tiers import registry as tiers
+    from x2video.tiers.base import TIERS
     from x2video.weights import load_model, shipped_weights
 
     settings = from_args(RenderSettings, args)
@@ -158,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
 
         try:  # a re-run after a failure (a full disk) resumes: a tier exact in part (the formula) renders only the frames
             # not kept, other tiers render again and write only those (a tier-1 batch of other frames may differ in the last bit)
-            runs = sink.missing_runs() if sink.kept and tiers.TIERS[planned.tier].exact_in_part else [(start, stop)]
+            runs = sink.missing_runs() if sink.kept and TIERS[planned.tier].exact_in_part else [(start, stop)]
             if sink.kept:
                 log.info("%s: %d of %d frames kept from the last attempt", args.out, len(sink.kept), stop - start)
             for a, b in runs:

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from x2video.channels import INTRINSIC
-from x2video.conditioning import FrameConditioning
+from x2video.conditioning.frame import FrameConditioning
 
 
 @dataclass(frozen=True)

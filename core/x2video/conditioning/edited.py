@@ -1,13 +1,15 @@
-"""`apply_edits`: the pure function from (Shot, Edits, frame) to the model's `FrameConditioning`."""
+"""`apply_edits`: the pure function from (Shot, Edits, frame) to the model's `FrameConditioning`; and the user's reference image
+at the shot's size (`resolve_reference`)."""
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from x2video.channels import INTRINSIC
-from x2video.conditioning import FrameConditioning, camera_view
+from x2video.conditioning.frame import Conditioning, FrameConditioning, camera_view, plain_conditioning
 from x2video.edits.model import Edits
 from x2video.edits.ops import MaskOut
 from x2video.shot import Shot
@@ -44,6 +46,13 @@ def apply_edits(shot: Shot, edits: Edits, t: int) -> FrameConditioning:
     names = edits.local_prompt_masks()
     local = np.stack([mask(n) for n in names]) if names else np.zeros((0, h, w), np.float32)  # (P, H, W)
     return FrameConditioning(channels=channels, amr_mask=amr, local_masks=local.astype(np.float32), frame_index=t, **camera_view(shot, t))
+
+
+def frame_conditioning(shot: Shot, edits: Edits | None) -> Conditioning:
+    """frame -> its conditioning under `edits` (`apply_edits`), or the plain channels when None."""
+    if edits is None:
+        return functools.partial(plain_conditioning, shot)
+    return functools.partial(apply_edits, shot, edits)
 
 
 def resolve_reference(shot: Shot, edits: Edits, base_dir: str | Path | None = None) -> tuple[int, np.ndarray] | None:

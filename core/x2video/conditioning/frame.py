@@ -1,4 +1,4 @@
-"""`FrameConditioning`: what the model eats for one frame, after `Edits` were applied to a `Shot`."""
+"""`FrameConditioning`: what the model eats for one frame, after `Edits` were applied to a `Shot` (`x2video.conditioning.edited`)."""
 from __future__ import annotations
 
 import functools
@@ -35,7 +35,7 @@ class FrameConditioning:
     depth_source: Callable[[], np.ndarray] | None = field(default=None, repr=False, compare=False)
     fov_y_deg: float | None = None
     #: tier 1's frame of these channels (H, W, 3), linear: what a model whose `ModelConfig.prior` is "tier1" samples its
-    #: residual over. Derived from the channels and the model's tier-1 net; `x2video.sampling.setup.Encoder` fills it
+    #: residual over. Derived from the channels and the model's tier-1 net; `x2video.tiers.encoder.Encoder` fills it
     #: before encoding (None until then, and for every other model)
     prior: np.ndarray | None = field(default=None, repr=False, compare=False)
 
@@ -51,12 +51,8 @@ class FrameConditioning:
         return self.amr_mask.shape[:2]
 
 
-@dataclass
-class Prompts:
-    """Global prompt (everywhere) and local prompts (each only inside its mask)."""
-
-    global_prompt: str = ""
-    local: list[str] = field(default_factory=list)
+#: frame index -> that frame's (edited) conditioning
+Conditioning = Callable[[int], FrameConditioning]
 
 
 def camera_view(shot: Shot, t: int) -> dict:
@@ -66,3 +62,16 @@ def camera_view(shot: Shot, t: int) -> dict:
     pose = poses[t] if poses is not None and t < len(poses) else None
     return {"depth_source": functools.partial(shot.channel, "depth", t) if shot.has("depth") else None,
             "fov_y_deg": None if pose is None else pose.fov_y_deg}
+
+
+def plain_conditioning(shot: Shot, t: int) -> FrameConditioning:
+    """A frame's conditioning with no edits: the shot's channels, absent ones dropped, no masks."""
+    h, w = shot.size
+    channels: dict[str, np.ndarray | None] = {n: shot.channel(n, t) if shot.has(n) else None for n in INTRINSIC}
+    return FrameConditioning(
+        channels=channels,
+        amr_mask=np.zeros((h, w), np.float32),
+        local_masks=np.zeros((0, h, w), np.float32),
+        frame_index=t,
+        **camera_view(shot, t),
+    )

@@ -1,4 +1,4 @@
-"""Large frames through the diffusion tier: the network at a working resolution, the formula's detail at full size.
+"""Frames at the network's size: reflect-padded to its factor, or, when large, at a working resolution (the formula's detail at full size).
 
 The diffusion model is trained on small frames (the shipped one at 160x112) and its attention grows with
 the square of the latent's pixels, so a 1920x1080 frame cannot run through it as a whole. Frames with
@@ -32,8 +32,8 @@ import math
 
 import numpy as np
 
-from x2video.conditioning import FrameConditioning
-from x2video.sampling.tier_formula import formula_frame
+from x2video.conditioning.frame import FrameConditioning
+from x2video.formula import formula_frame
 
 
 def working_size(size: tuple[int, int], factor: int, max_pixels: int) -> tuple[int, int] | None:
@@ -47,6 +47,36 @@ def working_size(size: tuple[int, int], factor: int, max_pixels: int) -> tuple[i
     wh = max(factor, int(h * s) // factor * factor)
     ww = max(factor, int(w * s) // factor * factor)
     return wh, ww
+
+
+def pad_amounts(size: tuple[int, int], factor: int) -> tuple[int, int]:
+    """(rows, columns) to add at the bottom and right so that (H, W) become multiples of `factor`."""
+    h, w = size
+    return (-h) % factor, (-w) % factor
+
+
+def pad_image(a: np.ndarray, ph: int, pw: int) -> np.ndarray:
+    """Reflect-pad the first two axes (H, W, ...) of `a` by `ph` rows at the bottom and `pw` columns at
+    the right (edge where an axis has one pixel); never a resize."""
+    if not ph and not pw:
+        return a
+    widths = [(0, ph), (0, pw)] + [(0, 0)] * (a.ndim - 2)
+    mode = "reflect" if min(a.shape[:2]) > 1 else "edge"
+    return np.pad(a, widths, mode=mode)
+
+
+def pad_conditioning(cond: FrameConditioning, ph: int, pw: int) -> FrameConditioning:
+    """`cond` reflect-padded at the bottom/right (channels, A|M|R mask and local masks alike)."""
+    if not ph and not pw:
+        return cond
+    masks = np.asarray(cond.local_masks)
+    return dataclasses.replace(
+        cond,
+        channels={k: None if v is None else pad_image(np.asarray(v), ph, pw) for k, v in cond.channels.items()},
+        amr_mask=pad_image(np.asarray(cond.amr_mask), ph, pw),
+        local_masks=np.stack([pad_image(m, ph, pw) for m in masks]) if masks.shape[0] else np.zeros((0, masks.shape[1] + ph, masks.shape[2] + pw), np.float32),
+        prior=None,  # remade from the padded channels when needed
+    )
 
 
 def resize_area(a: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -140,7 +170,7 @@ def to_full(frame: np.ndarray, cond_full: FrameConditioning, upsample: str = "bi
 def onto_formula(r: np.ndarray, base: np.ndarray, guide: np.ndarray | None = None) -> np.ndarray:
     """(H, W, 3) linear: a working-size log-space residual `r` (h, w, 3) upsampled (bilinear; then the guided filter
     by `guide` when one is given) and added to log1p of the full-resolution formula `base` (H, W, 3). The
-    diffusion tier's `to_full` and tier 1's working size (`x2video.sampling.tier_residual.residual_frames`) both end here."""
+    diffusion tier's `to_full` and tier 1's working size (`x2video.tiers.residual.residual_frames`) both end here."""
     import cv2
 
     H, W = base.shape[:2]

@@ -19,7 +19,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from x2video.channels import INTRINSIC
-from x2video.conditioning import Prompts
 from x2video.edits.masks import Mask
 from x2video.edits.ops import MaskOut, Op, op_from_dict
 from x2video.edits.tuning import NEUTRAL_TUNING, TUNING_OPS, ops_for, tuning_of, with_value
@@ -28,6 +27,14 @@ if TYPE_CHECKING:
     from x2video.shot import Shot
 
 _EDIT_FIELDS = {"masks", "ops", "dropped", "global_prompt", "local_prompts", "reference"}
+
+
+@dataclass
+class Prompts:
+    """Global prompt (everywhere) and local prompts (each only inside its mask)."""
+
+    global_prompt: str = ""
+    local: list[str] = field(default_factory=list)
 
 
 @dataclass

@@ -11,9 +11,10 @@ import time
 
 import numpy as np
 
-from x2video.edits import Edits, apply_edits
+from x2video.conditioning.edited import apply_edits
+from x2video.conditioning.frame import plain_conditioning
+from x2video.edits import Edits
 from x2video.model.shading import classical_shading
-from x2video.sampling.renderer import plain_conditioning
 from x2video.shot import Shot
 
 DESCRIPTION = (

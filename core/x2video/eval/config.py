@@ -4,8 +4,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Literal
 
+from x2video.render.settings import RenderSettings
 from x2video.sampling.planner import check_max_levels
-from x2video.sampling.settings import RenderSettings
 
 TABLES = ("a", "b", "c", "d")
 

@@ -26,9 +26,9 @@ from x2video.eval.tables import PAPER, PAPER_NOTE, TITLES, RowSpec, table_rows
 from x2video.metrics.suite import DEFINITIONS
 from x2video.metrics.unavailable import unavailable_metrics
 from x2video.model.api import RenderModel
-from x2video.sampling.events import Cancelled, CancelToken, FramesReady, RenderCancelled
-from x2video.sampling.renderer import Renderer
-from x2video.sampling.settings import RenderSettings
+from x2video.render.events import Cancelled, CancelToken, FramesReady, RenderCancelled
+from x2video.render.renderer import Renderer
+from x2video.render.settings import RenderSettings
 
 if TYPE_CHECKING:
     from x2video.edits.model import Edits

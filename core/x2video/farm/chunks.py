@@ -31,7 +31,7 @@ import numpy as np
 from x2video.farm import state
 from x2video.io.atomic import DIR_MODE, atomic_path, write_json_atomic
 from x2video.io.units import OutputUnits
-from x2video.sampling.events import FramesReady
+from x2video.render.events import FramesReady
 
 #: frames per task for the per-frame tiers (`x2video farm --chunk-frames`)
 CHUNK_FRAMES = 64
@@ -170,7 +170,7 @@ class StagedFrames:
         import io
 
         from x2video.io.atomic import DiskFullError, is_disk_full, looks_full
-        from x2video.sampling.sink import _write_exr
+        from x2video.render.frames import _write_exr
 
         try:
             with atomic_path(self.folder / frame_name(index, self.fmt)) as tmp:

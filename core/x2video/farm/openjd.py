@@ -16,7 +16,7 @@ from x2video.fields import to_flags
 from x2video.io.atomic import write_json_atomic
 
 if TYPE_CHECKING:
-    from x2video.sampling.settings import RenderSettings
+    from x2video.render.settings import RenderSettings
     from x2video.weights import ModelOptions
 
 SPECIFICATION = "jobtemplate-2023-09"
@@ -26,7 +26,7 @@ def job_template(job: Job, output: Path, settings: RenderSettings, options: Mode
     """The job template (a dict, JSON-ready) that renders `job` to `output` with `settings` and `options`
     (`x2video.RenderSettings`, `x2video.weights.ModelOptions`): parameters for the shot or project and the output
     (`job_parameters` gives their values) and the `x2video` command on the worker, and one step 'Render'."""
-    from x2video.sampling.settings import RenderSettings
+    from x2video.render.settings import RenderSettings
     from x2video.weights import ModelOptions
 
     source = "Project" if job.kind == "project" else "Shot"

@@ -30,7 +30,7 @@ from x2video.farm.chunks import CHUNK_FRAMES
 from x2video.farm.jobs import Job
 
 if TYPE_CHECKING:
-    from x2video.sampling.settings import RenderSettings
+    from x2video.render.settings import RenderSettings
     from x2video.weights import ModelOptions
 
 log = logging.getLogger(__name__)

@@ -23,7 +23,7 @@ from x2video.farm.jobs import Job
 from x2video.io.atomic import write_json_atomic
 
 if TYPE_CHECKING:
-    from x2video.sampling.settings import RenderSettings
+    from x2video.render.settings import RenderSettings
     from x2video.weights import ModelOptions
 
 MARKER_FORMAT = "x2video-farm-done"

@@ -21,8 +21,8 @@ from x2video.farm.jobs import Job
 if TYPE_CHECKING:
     from x2video.edits.model import Edits
     from x2video.model.api import RenderModel
-    from x2video.sampling.renderer import Renderer
-    from x2video.sampling.settings import RenderSettings
+    from x2video.render.renderer import Renderer
+    from x2video.render.settings import RenderSettings
     from x2video.shot import Shot
     from x2video.weights import ModelOptions
 
@@ -44,8 +44,8 @@ def _model(options: ModelOptions) -> RenderModel:
 
 def _renderer(settings: RenderSettings, options: ModelOptions, retain: bool = True) -> Renderer:
     """A Renderer for `settings`: with this worker's model, or none when the tier needs none (the formula: no weights)."""
-    from x2video.sampling import tiers
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
+    from x2video.tiers import registry as tiers
 
     return Renderer(_model(options) if tiers.needs_model(settings.quality) else None, retain=retain)
 

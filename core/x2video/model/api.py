@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any, Protocol, Sequence
 import numpy as np
 import torch
 
-from x2video.conditioning import FrameConditioning
+from x2video.conditioning.frame import FrameConditioning
 
 if TYPE_CHECKING:
     from x2video.model.residual import ResidualNet

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from diffusers import AutoencoderKL, UNet2DConditionModel
 
-from x2video.conditioning import FrameConditioning
+from x2video.conditioning.frame import FrameConditioning
 from x2video.model.api import WindowInputs
 from x2video.model.channel_encoder import ChannelEncoder
 from x2video.model.checkpoint import PARTS, load_into, read_config, save_checkpoint
@@ -95,7 +95,7 @@ class X2VideoModel:
         self.num_train_timesteps = config.num_train_timesteps
         self._content_key: str | None = None
         #: the tier-1 network (`x2video.model.residual`), or None; `from_pretrained` loads the folder's
-        #: residual.safetensors. The Renderer runs it for frames with nothing to generate (`x2video.sampling.tiers`).
+        #: residual.safetensors. The Renderer runs it for frames with nothing to generate (`x2video.tiers.registry`).
         self.residual_net = None
         #: whether auto may render with `residual_net` (residual.json's 'auto': it beat the formula on the outside check)
         self.residual_auto = True

@@ -29,6 +29,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from x2video.formula import finite, formula, frame_shape
+
 #: input feature planes, in order (see `features`)
 FEATURES = ("albedo3", "normal3", "roughness", "metallic", "log_irradiance3", "log_formula3", "present5", "geometry")
 #: where log1p(formula) sits among the input planes (`features`); `apply`'s base
@@ -116,30 +118,6 @@ class ResidualNet(nn.Module):
         return self.out(x)
 
 
-def _finite(v: np.ndarray) -> np.ndarray:
-    """float32 `v` with NaN and +-Inf set to 0 (what the loaders do with them, `x2video.io.convention.zero_nonfinite`)."""
-    v = np.asarray(v, np.float32)
-    return v if np.isfinite(v).all() else np.where(np.isfinite(v), v, np.float32(0))
-
-
-def _frame_shape(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None) -> tuple[int, int]:
-    present = [np.asarray(v).shape[:2] for v in ch.values() if v is not None]
-    if present:
-        return present[0]
-    if shape is None:
-        raise ValueError("every channel is dropped: give the frame's (H, W) as `shape`")
-    return tuple(shape)[:2]  # type: ignore[return-value]
-
-
-def formula(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None = None) -> np.ndarray:
-    """(H, W, 3) albedo x irradiance (zeros when either is missing; `shape` = (H, W) when every channel is):
-    tier 0 and the net's base. Non-finite values count as 0, albedo is clipped to [0, 1], irradiance to >= 0."""
-    al, ir = ch.get("albedo"), ch.get("irradiance")
-    if al is None or ir is None:
-        return np.zeros((*_frame_shape(ch, shape), 3), np.float32)
-    return (np.clip(_finite(al), 0, 1) * np.maximum(_finite(ir), 0)).astype(np.float32)
-
-
 #: a metal smoother than this is a mirror: what it shows is a sharp image of elsewhere, not in its channels
 MIRROR_ROUGHNESS = 0.1
 
@@ -153,16 +131,16 @@ def unseen_light(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | N
     nr, ir = ch.get("normal"), ch.get("irradiance")
     if nr is None or ir is None:
         return None
-    n = _finite(nr)[..., :3]
+    n = finite(nr)[..., :3]
     geometry = np.einsum("...c,...c->...", n, n) > 0.25  # |n| > 0.5
-    light = np.maximum(_finite(ir), 0)
+    light = np.maximum(finite(ir), 0)
     if light.ndim == 3:  # the brightest component (an elementwise max: numpy's reduce over a short last axis is slow)
         light = functools.reduce(np.maximum, [light[..., c] for c in range(light.shape[-1])])
     level = float(light[geometry].mean()) if geometry.any() else 0.0
     me = ch.get("metallic")
-    metal = (np.asarray(_finite(me)).reshape(light.shape) >= 0.5) if me is not None else np.zeros(light.shape, bool)
+    metal = (np.asarray(finite(me)).reshape(light.shape) >= 0.5) if me is not None else np.zeros(light.shape, bool)
     ro = ch.get("roughness")
-    mirror = metal & (np.asarray(_finite(ro)).reshape(light.shape) < MIRROR_ROUGHNESS) if ro is not None else np.zeros(light.shape, bool)
+    mirror = metal & (np.asarray(finite(ro)).reshape(light.shape) < MIRROR_ROUGHNESS) if ro is not None else np.zeros(light.shape, bool)
     return ~geometry | (geometry & (light <= 1e-3 * level) & ~metal) | (geometry & mirror)
 
 
@@ -174,13 +152,13 @@ def features(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None 
     would otherwise reach the net's global context and blank the whole frame); roughness and metallic are
     clamped to [0, 1]. With `hints`, the screen-space hint planes follow (`x2video.model.screen_space`), made
     with the frame's `depth` (H, W[, 1], or None: those planes are 0) and vertical field of view."""
-    h, w = _frame_shape(ch, shape)
+    h, w = frame_shape(ch, shape)
 
     def get(name: str, n: int) -> tuple[np.ndarray, float]:
         v = ch.get(name)
         if v is None:
             return np.zeros((h, w, n), np.float32), 0.0
-        v = _finite(v)
+        v = finite(v)
         return (v if v.ndim == 3 else v[..., None])[..., :n], 1.0
 
     al, pa = get("albedo", 3)
@@ -198,7 +176,7 @@ def features(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None 
     if hints:
         from x2video.model.screen_space import hint_planes
 
-        dz = None if depth is None or not pn else _finite(depth)
+        dz = None if depth is None or not pn else finite(depth)
         x[BASE_PLANES:] = hint_planes(np.clip(al, 0, 1), nr, ro, me, shading, unseen_light(ch, (h, w)), dz, fov_y_deg)
     return x, np.ascontiguousarray(shading.transpose(2, 0, 1))
 
@@ -305,7 +283,7 @@ def apply_tiled(net, ch: Mapping[str, np.ndarray | None], shape: tuple[int, int]
     the result equals the whole-frame pass to float precision (`tests/test_bigframes.py` states the tolerance)."""
     tile, halo = TILE if tile is None else tile, HALO if halo is None else halo
     feather = min(FEATHER, 2 * halo) if feather is None else feather
-    h, w = _frame_shape(ch, shape)
+    h, w = frame_shape(ch, shape)
     f = net.cfg.factor  # an OnnxResidual carries the same cfg
     if feather > 2 * halo:
         raise ValueError(f"apply_tiled: feather {feather} is wider than twice the halo {halo}")

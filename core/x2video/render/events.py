@@ -1,6 +1,4 @@
-"""The cancel token and the typed events a `Renderer` emits (CLI, editor and bench share them).
-
-`RenderSettings` lives in `x2video.sampling.settings`; importing it from here keeps working."""
+"""The cancel token and the typed events a `Renderer` emits (CLI, editor and bench share them)."""
 from __future__ import annotations
 
 import threading
@@ -9,9 +7,7 @@ from typing import Callable, Union
 
 import numpy as np
 
-from x2video.sampling.settings import RenderSettings
-
-__all__ = ["RenderSettings", "CancelToken", "Cancelled", "RenderStarted", "WindowStarted", "StepDone", "FramesReady", "RenderFinished",
+__all__ = ["CancelToken", "Cancelled", "RenderStarted", "WindowStarted", "StepDone", "FramesReady", "RenderFinished",
            "RenderCancelled", "RenderFailed", "RenderEvent", "EventCallback"]
 
 
@@ -38,9 +34,9 @@ class RenderStarted:
     num_frames: int
     num_windows: int
     levels: list[int]  # levels in the order they will run (top level = keyframes first)
-    tier: str = "diffusion"  # what renders: a tier's name (`x2video.sampling.tier.TIERS`)
+    tier: str = "diffusion"  # what renders: a tier's name (`x2video.tiers.base.TIERS`)
     reason: str = ""  # why that tier (quality 'auto'), for the log and the status bar
-    per_frame: bool = False  # the tier renders every frame on its own (`x2video.sampling.tier.PerFrameTier`): progress in frames
+    per_frame: bool = False  # the tier renders every frame on its own (`x2video.tiers.base.PerFrameTier`): progress in frames
 
 
 @dataclass

@@ -31,7 +31,7 @@ import numpy as np
 
 from x2video.io.atomic import DIR_MODE, DiskFullError, atomic_path, is_disk_full, looks_full, write_json_atomic
 from x2video.io.units import OutputUnits
-from x2video.sampling.events import FramesReady, RenderCancelled, RenderEvent, RenderFailed, RenderFinished
+from x2video.render.events import FramesReady, RenderCancelled, RenderEvent, RenderFailed, RenderFinished
 
 log = logging.getLogger(__name__)
 

@@ -17,15 +17,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from x2video.sampling import tiers
-from x2video.sampling.events import CancelToken, FramesReady, RenderFailed, RenderStarted
-from x2video.sampling.settings import RenderSettings
-from x2video.sampling.tier import TierChoice
+from x2video.render.events import CancelToken, FramesReady, RenderFailed, RenderStarted
+from x2video.render.settings import RenderSettings
+from x2video.tiers import registry as tiers
+from x2video.tiers.base import TierChoice
 
 if TYPE_CHECKING:
     from x2video.edits.model import Edits
     from x2video.model.api import RenderModel
-    from x2video.sampling.renderer import Renderer
+    from x2video.render.renderer import Renderer
     from x2video.shot import Shot
 
 

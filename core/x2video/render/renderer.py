@@ -1,8 +1,8 @@
 """`Renderer`: renders a shot with the tier it needs and streams finished frames as typed events.
 
-One entry point for every tier (`x2video.sampling.tier`): `render` decides the tier (`tiers.decide`: the one
+One entry point for every tier (`x2video.tiers.base`): `render` decides the tier (`tiers.decide`: the one
 forced by `RenderSettings.quality`, or auto's choice), builds the frames' conditioning
-(`x2video.sampling.setup`) and lets the tier emit its frames; tier 0 needs no model (`Renderer(None)`). The
+(`x2video.conditioning.frame`) and lets the tier emit its frames; tier 0 needs no model (`Renderer(None)`). The
 diffusion tier encodes each frame's conditioning once through a content-keyed cache that outlives the render (a
 prompt-only re-render re-encodes nothing; `retain=False` for one-off renders drops each frame's entries after
 its last window). No global state: one Renderer per thread, or one shared Renderer driven from one thread at a
@@ -17,9 +17,11 @@ from typing import TYPE_CHECKING, Callable, Sequence
 
 import torch
 
-from x2video.sampling import setup, tiers
-from x2video.sampling.cache import CacheStats, ConditioningCache
-from x2video.sampling.events import (
+from x2video.conditioning.cache import CacheStats, ConditioningCache, conditioning_key
+from x2video.conditioning.edited import frame_conditioning, resolve_reference
+from x2video.conditioning.network import NetworkConditioning
+from x2video.model.api import WindowInputs
+from x2video.render.events import (
     Cancelled,
     CancelToken,
     EventCallback,
@@ -29,15 +31,15 @@ from x2video.sampling.events import (
     RenderFailed,
     RenderFinished,
 )
-from x2video.sampling.noise import frame_noise, mean_anchor, window_seed
+from x2video.render.settings import RenderSettings, frame_range, resolve
+from x2video.render.timing import NoTimes, StageTimes
 from x2video.sampling.planner import Window
 from x2video.sampling.samplers import alphas_cumprod
-from x2video.sampling.settings import RenderSettings
-from x2video.sampling.setup import pad_amounts, pad_conditioning, pad_image, plain_conditioning, select_steps
-from x2video.sampling.tier import RenderJob, RenderPlan, TierChoice
-from x2video.sampling.tier_diffusion import DiffusionTier, diffusion_windows
-from x2video.sampling.timing import NoTimes, StageTimes
 from x2video.shot import Shot
+from x2video.tiers import registry
+from x2video.tiers.base import RenderJob, RenderPlan, TierChoice
+from x2video.tiers.diffusion import DiffusionTier, diffusion_windows, reference_frame
+from x2video.tiers.encoder import Encoder
 
 if TYPE_CHECKING:
     from x2video.edits.model import Edits
@@ -46,11 +48,6 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 _NO_TIMES = NoTimes()
-
-# what other modules import from here (the names moved to `setup`, `noise` and `tier_diffusion`)
-__all__ = ["Renderer", "frame_noise", "mean_anchor", "pad_amounts", "pad_conditioning", "pad_image", "plain_conditioning", "select_steps",
-           "window_seed"]
-
 
 class Renderer:
     """Renders shots with `model` (None: only tiers that need no model, e.g. the formula); see the module docstring."""
@@ -93,33 +90,68 @@ class Renderer:
     def prepare(self, shot: Shot, settings: RenderSettings, edits: Edits | None = None, cancel: CancelToken | None = None, *,
                 base_dir: str | Path | None = None) -> int:
         """Encode ahead what a diffusion render of `shot` would encode first, into this Renderer's cache, and
-        build the engine's graphs (`x2video.sampling.prepare`); returns the frames encoded. For a worker
+        build the engine's graphs (`warm_engine`); returns the frames encoded. Tiers 0 and 1 encode nothing, so there is
+        nothing to prepare for them. For a worker
         thread: a `render` started meanwhile cancels it and reuses what it finished."""
-        from x2video.sampling.prepare import prepare
-
         token = cancel if cancel is not None else CancelToken()
         self._preparing = token
         try:
-            return prepare(self, shot, settings, edits, token)
+            return self._prepare(shot, settings, edits, token)
         finally:
             if self._preparing is token:
                 self._preparing = None
+
+    def _prepare(self, shot: Shot, settings: RenderSettings, edits: Edits | None, cancel: CancelToken) -> int:
+        """See the module docstring; returns how many frames were encoded now (0 when the cache had them all,
+        the tier needs no encoding, or `cancel` was set before any). The conditioning is the diffusion tier's own
+        (`NetworkConditioning`: padded, or at the working size for large frames)."""
+        model = self.model
+        choice = self.choose_tier(shot, edits, settings)
+        if model is None or choice.tier != DiffusionTier.name:
+            return 0
+        t0 = time.perf_counter()
+        net = NetworkConditioning.for_model(shot.size, frame_conditioning(shot, edits), model.downsample, settings.working_pixels)
+        settings = resolve(settings, model)
+        self.engine = model.set_engine(settings.engine)
+        windows = diffusion_windows(frame_range(shot, settings), settings, reference_frame(edits))
+        text = model.encode_prompts([""]) if model.text_encoder is not None else None  # loads the text encoder
+        encoder = Encoder(model, self.cache, self.clock)
+        model_key = model.content_key()
+        encoded = ready = 0
+        with torch.inference_mode():
+            for index, window in enumerate(windows):
+                if cancel is not None and cancel.cancelled:
+                    break
+                ready += 1
+                conds = [net.frame(f) for f in window.frames]
+                keys = [conditioning_key(c, model_key) for c in conds]
+                before = self.cache.stats().entries
+                cond = encoder.encode(conds, keys)  # (n, C_cond, h, w)
+                if settings.detail:
+                    gen = list(window.generate_positions)
+                    encoder.detail([conds[p] for p in gen], [keys[p] for p in gen], cond[gen])
+                encoded += max(0, self.cache.stats().entries - before)
+                if index == 0 and text is not None:  # the first keyframe window is encoded: now every graph the render runs
+                    warm_engine(self, windows, settings, (cond.shape[-2], cond.shape[-1]), text, cancel)
+        log.info("prepared %d of %d windows (%d frames encoded now, engine %s) in %.2f s", ready, len(windows),
+                 encoded, self.engine, time.perf_counter() - t0)
+        return encoded
 
     def cache_stats(self) -> CacheStats:
         return self.cache.stats()
 
     def plan(self, shot: Shot, settings: RenderSettings, ref_frame: int | None = None) -> list[Window]:
         """The windows a diffusion render of `shot` with `settings` runs (shot frame indices), anchored at `ref_frame`."""
-        return diffusion_windows(setup.frame_range(shot, settings), settings, ref_frame)
+        return diffusion_windows(frame_range(shot, settings), settings, ref_frame)
 
     def plan_render(self, shot: Shot, edits: Edits | None, settings: RenderSettings) -> RenderPlan:
         """What a render of `shot` with `edits` and `settings` runs with this model (`tiers.plan_render`, pure)."""
-        return tiers.plan_render(shot, edits, settings, self.model)
+        return registry.plan_render(shot, edits, settings, self.model)
 
     def choose_tier(self, shot: Shot, edits: Edits | None, settings: RenderSettings) -> TierChoice:
         """The tier a render of `shot` with `edits` (or None) and `settings` runs with this model, and why
-        (`x2video.sampling.tiers.decide`); read from the edits' structure, so it costs nothing."""
-        return tiers.decide(settings.quality, shot, edits, self.model)
+        (`x2video.tiers.registry.decide`); read from the edits' structure, so it costs nothing."""
+        return registry.decide(settings.quality, shot, edits, self.model)
 
     def render_plan(self, shot: Shot, edits: Edits | None, settings: RenderSettings, *, base_dir: str | Path | None = None) -> list[Window]:
         """The windows a windowed (diffusion) render of `shot` with `edits` and `settings` runs (anchored at the user's
@@ -134,11 +166,9 @@ class Renderer:
              base_dir: str | Path | None) -> RenderJob:
         reference = None
         if edits is not None and reads_reference:
-            from x2video.edits import resolve_reference
-
             reference = resolve_reference(shot, edits, base_dir)
         return RenderJob(shot=shot, edits=edits, settings=settings, choice=choice, model=self.model,
-                         conditioning=self.clock.wrap("read", setup.frame_conditioning(shot, edits)), frames=setup.frame_range(shot, settings),
+                         conditioning=self.clock.wrap("read", frame_conditioning(shot, edits)), frames=frame_range(shot, settings),
                          cache=self.cache, retain=self.retain, clock=self.clock, base_dir=base_dir, reference=reference)
 
     def _report(self, job: RenderJob) -> None:
@@ -181,7 +211,7 @@ class Renderer:
                 choice = self.choose_tier(shot, edits, settings)
                 self.last_tier = choice
                 log.info("quality %s: tier %s (%s)", settings.quality, choice.tier, choice.reason)
-                tier = tiers.get(choice.tier)
+                tier = registry.get(choice.tier)
                 job = self._job(shot, edits, settings, choice, tier.reads_reference, base_dir)
                 try:
                     tier.render(job, emit, cancel, done)
@@ -224,7 +254,7 @@ class Renderer:
         window, the conditioning per frame), so the frames equal a single `render`'s."""
         emit: Callable[[RenderEvent], None] = on_event if on_event is not None else (lambda e: None)
         choice = self.choose_tier(shot, edits, settings)
-        tier = tiers.get(choice.tier)
+        tier = registry.get(choice.tier)
         if not isinstance(tier, DiffusionTier):
             raise ValueError(f"this render runs tier {choice.tier!r} ({choice.reason}), which has no windows")
         job = self._job(shot, edits, settings, choice, True, base_dir)
@@ -232,3 +262,39 @@ class Renderer:
             return tier.render_windows(job, indices, refs, emit, cancel)
         finally:
             self._report(job)
+
+
+def warm_engine(renderer: Renderer, windows: Sequence[Window], settings: RenderSettings, latent_size: tuple[int, int],
+                text: torch.Tensor | None = None, cancel: CancelToken | None = None) -> int:
+    """Build (export or read from the disk cache, compile) and run once on zeros the engine's graph of every UNet
+    variant `windows` use, in plan order and as many as the engine keeps at once (`engine.UNET_GRAPHS`: a long
+    shot's later levels come back from the blob cache when reached), and the decoder's, so no render call pays
+    for them; nothing for PyTorch. Returns the variants built. `settings` must be validated
+    (`x2video.render.settings.resolve`: the sampler resolved)."""
+    model = renderer.model
+    if model is None or renderer.engine == "torch":
+        return 0
+    from x2video.model.engine import UNET_GRAPHS, unet_variant
+
+    lcm = settings.sampler == "lcm"
+    h, w = latent_size
+    if text is None:
+        text = model.encode_prompts([""])  # (1, L, D)
+    seen: set[tuple] = set()
+    with torch.inference_mode():
+        model.decode(torch.zeros(1, model.latent_channels, h, w, device=model.device, dtype=model.dtype))
+        for window in windows:
+            n = len(window.frames)
+            variant = unet_variant(window.mode, window.level, window.ref_positions, n, model.config.hybrid.interp_levels)
+            if variant in seen:
+                continue
+            if len(seen) == UNET_GRAPHS or (cancel is not None and cancel.cancelled):
+                break
+            seen.add(variant)
+            z = torch.zeros(n, model.latent_channels, h, w, device=model.device, dtype=model.dtype)  # (n, 4, h, w)
+            inputs = WindowInputs(cond=torch.zeros(n, model.cond_channels, h, w, device=model.device, dtype=model.dtype), ref=z,
+                                  ref_positions=window.ref_positions, mode=window.mode, level=window.level, text_global=text,
+                                  text_local=text.new_zeros((0, *text.shape[1:])),
+                                  local_masks=torch.zeros(n, 0, h * model.downsample, w * model.downsample))
+            model.predict_v(z, torch.tensor(999), inputs, lcm=lcm)
+    return len(seen)

@@ -2,9 +2,14 @@
 panel, the farm's job templates and the `Renderer` all read these fields."""
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
+
+if TYPE_CHECKING:
+    from x2video.model.api import RenderModel
+    from x2video.shot import Shot
 
 
 @functools.cache
@@ -65,7 +70,7 @@ class RenderSettings:
     step but the first and last is taken this many times, going back one step's worth of noise in between
     (`x2video.sampling.samplers.sample_ddim`); 1: off; r costs those windows about r times the network passes."""
     quality: Literal["auto", "formula", "residual", "diffusion"] = "auto"
-    """Which tier renders (`x2video.sampling.tiers`): 'formula' = albedo x irradiance, no network, no weights;
+    """Which tier renders (`x2video.tiers.registry`): 'formula' = albedo x irradiance, no network, no weights;
     'residual' = one pass of the tier-1 network over it (needs residual.safetensors beside the weights);
     'diffusion' = the video diffusion sampler. 'auto': the tier-1 network where nothing must be generated, the
     diffusion sampler where something must (a dropped channel, a masked A|M|R region, a local prompt, a
@@ -82,7 +87,7 @@ class RenderSettings:
     (OpenVINO, then ONNX Runtime), PyTorch on a GPU or in half precision."""
     preset: Literal["fast", "quality"] | None = None
     """Overrides sampler and steps when set: 'fast' = LCM-2 if distilled weights are loaded, else DDIM-4;
-    'quality' = DDIM-20 (`x2video.sampling.renderer.select_steps`)."""
+    'quality' = DDIM-20 (`x2video.render.settings.select_steps`)."""
     guess_unseen: bool = False
     """Tier 1: let the net guess the light where the channels hold none (sky and backdrops through windows, what
     shows through clear glass); its guess follows its training rooms, mostly daylight. Off: the formula there
@@ -91,12 +96,12 @@ class RenderSettings:
     """Diffusion tier, large frames: a frame with more pixels than this runs the diffusion network at a working
     resolution of at most this many pixels (aspect kept), near the size it was trained at, and the network's
     residual over the formula (log space) comes back to full size on top of the full-resolution formula, whose
-    detail so stays full resolution (`x2video.sampling.working`). 0: always at full resolution (memory and time
+    detail so stays full resolution (`x2video.conditioning.working`). 0: always at full resolution (memory and time
     grow with the frame)."""
     residual_pixels: int = 512 * 512
     """Tier 1, large frames: a frame with more pixels than this runs the tier-1 net at a working resolution of at
     most this many pixels (aspect kept) and its log-space correction of the formula comes back to full size,
-    bilinearly, on top of the full-resolution formula (`x2video.sampling.tiers.residual_frames`). On 1024x1024
+    bilinearly, on top of the full-resolution formula (`x2video.tiers.residual.residual_frames`). On 1024x1024
     Cycles frames it scored about what the full-size pass scores (21.06 dB against 21.07, the formula 19.09), 3.0x faster there and
     4.4x at 1920x1080 (docs/SHOT_FORMAT.md). 0: the net at full resolution, in overlapping tiles beyond 896x896."""
 
@@ -116,7 +121,7 @@ class RenderSettings:
 
         hints = _hints(type(self))
         for name, tp in hints.items():
-            if name == "quality":  # any registered tier (`x2video.sampling.tier.TIERS`, which the Literal only lists the built-in
+            if name == "quality":  # any registered tier (`x2video.tiers.base.TIERS`, which the Literal only lists the built-in
                 continue  # ones of): `tiers.decide` refuses an unknown one before it chooses
             value = getattr(self, name)
             options = [a for a in typing.get_args(tp) if a is not type(None)]
@@ -167,3 +172,55 @@ class RenderSettings:
         elif isinstance(self.exposure, bool) or not isinstance(self.exposure, numbers.Real) or not math.isfinite(self.exposure):
             raise ValueError(f"exposure: expected 'auto' or a finite number of stops, got {self.exposure!r}")
         return self
+
+
+def frame_range(shot: Shot, settings: RenderSettings) -> tuple[int, int]:
+    """[start, stop) of the shot a render with `settings` covers (`RenderSettings.frames`, default all)."""
+    start, stop = settings.frames if settings.frames is not None else (0, shot.num_frames)
+    if not 0 <= start < stop <= shot.num_frames:
+        raise ValueError(f"frame range [{start}, {stop}) outside the shot's {shot.num_frames} frames")
+    return start, stop
+
+
+def select_steps(settings: RenderSettings, model: RenderModel | None) -> RenderSettings:
+    """Resolve `settings.preset` into a sampler and step count for this model.
+
+    'fast': LCM-2 when the model has distilled (LCM) weights, else DDIM-4; 'quality': DDIM-20;
+    None: the settings as given. `model` None (not built yet): as a model without LCM weights.
+    """
+    if settings.preset is None:
+        return settings
+    if settings.preset == "fast":
+        sampler, steps = ("lcm", 2) if model is not None and model.has_lcm else ("ddim", 4)
+    elif settings.preset == "quality":
+        sampler, steps = "ddim", 20
+    else:
+        raise ValueError(f"unknown render preset {settings.preset!r} (use 'fast' or 'quality')")
+    return dataclasses.replace(settings, sampler=sampler, steps=steps)
+
+
+def check_pixel_bounds(settings: RenderSettings) -> None:
+    for name in ("working_pixels", "residual_pixels"):
+        if getattr(settings, name) < 0:
+            raise ValueError(f"{name} must be 0 (full resolution) or more, got {getattr(settings, name)}")
+
+
+def resolve(settings: RenderSettings, model: RenderModel | None) -> RenderSettings:
+    """`settings` with the preset resolved for `model` (`select_steps`), every bound checked (ValueError names it)."""
+    settings = select_steps(settings, model)
+    if settings.sampler not in ("ddim", "lcm"):
+        raise ValueError(f"unknown sampler {settings.sampler!r} (use 'ddim' or 'lcm')")
+    if settings.sampler == "lcm" and model is not None and not model.has_lcm:
+        raise ValueError("sampler 'lcm' needs distilled LCM weights, and the loaded model has none")
+    if settings.steps < 1:
+        raise ValueError(f"steps must be at least 1, got {settings.steps}")
+    if settings.noise not in ("window", "frame"):
+        raise ValueError(f"unknown noise seeding {settings.noise!r} (use 'window' or 'frame')")
+    if not 0.0 <= settings.noise_shared <= 1.0:
+        raise ValueError(f"noise_shared must lie in [0, 1], got {settings.noise_shared}")
+    if not 0.0 <= settings.ref_dc <= 1.0:
+        raise ValueError(f"ref_dc must lie in [0, 1] (0 = off), got {settings.ref_dc}")
+    if settings.resample < 1:
+        raise ValueError(f"resample must be at least 1 (1 = off), got {settings.resample}")
+    check_pixel_bounds(settings)
+    return settings

@@ -6,7 +6,7 @@ import time
 from contextlib import contextmanager
 from typing import Callable, Iterator
 
-#: the stages of a render `StageTimes` splits wall time into (`x2video.sampling.renderer.Renderer.timing`)
+#: the stages of a render `StageTimes` splits wall time into (`x2video.render.renderer.Renderer.timing`)
 STAGES = ("read", "encode", "unet", "decode", "detail", "residual", "write")
 
 

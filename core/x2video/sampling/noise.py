@@ -8,7 +8,7 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from x2video.conditioning import FrameConditioning
+from x2video.conditioning.frame import FrameConditioning
 from x2video.model.shading import shading_available
 from x2video.sampling.planner import Window
 from x2video.sampling.samplers import mix_noise

@@ -22,7 +22,7 @@ from typing import Any, Callable
 import torch
 from diffusers import DDIMScheduler, LCMScheduler
 
-from x2video.sampling.events import Cancelled, CancelToken
+from x2video.render.events import Cancelled, CancelToken
 
 ModelFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
 StepCallback = Callable[[dict[str, Any]], None]

@@ -4,7 +4,7 @@ A tier is one class: its `name` (what `RenderSettings.quality` forces), whether 
 (`needs_model`), the channels it reads (`channels`), the plan of a render it runs (`plan`: windows and steps,
 pure) and `render`, which turns a `RenderJob` into the same typed events every tier emits (RenderStarted, then
 FramesReady as frames finish; the `Renderer` adds RenderFinished, RenderCancelled or RenderFailed). Defining a
-subclass with a `name` registers it (`TIERS`); `x2video.sampling.tiers` decides which one a render runs.
+subclass with a `name` registers it (`TIERS`); `x2video.tiers.registry` decides which one a render runs.
 
 Per-frame tiers (`PerFrameTier`: every frame on its own, no windows) only say how a batch of frames is made
 (`frames`); the loop that orders, batches, cancels and emits is theirs in common.
@@ -19,16 +19,16 @@ from typing import TYPE_CHECKING, Callable, ClassVar, Sequence
 import numpy as np
 
 from x2video.channels import INTRINSIC
-from x2video.conditioning import FrameConditioning
-from x2video.sampling.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted
+from x2video.conditioning.frame import FrameConditioning
+from x2video.render.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted
+from x2video.render.settings import RenderSettings
+from x2video.render.timing import NoTimes, StageTimes
 from x2video.sampling.planner import Window
-from x2video.sampling.settings import RenderSettings
-from x2video.sampling.timing import NoTimes, StageTimes
 
 if TYPE_CHECKING:
+    from x2video.conditioning.cache import ConditioningCache
     from x2video.edits.model import Edits
     from x2video.model.api import RenderModel
-    from x2video.sampling.cache import ConditioningCache
     from x2video.shot import Shot
 
 #: name -> tier class, in the order they were defined (the built-in ones in cost order: formula, residual, diffusion)
@@ -50,7 +50,7 @@ class TierChoice:
 
 @dataclass(frozen=True)
 class RenderPlan:
-    """What a render will run, decided before it starts (`x2video.sampling.tiers.plan_render`, a pure function):
+    """What a render will run, decided before it starts (`x2video.tiers.registry.plan_render`, a pure function):
     the editor sizes its progress bars from it and the farm splits a shot by it."""
 
     tier: str

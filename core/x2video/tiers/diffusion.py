@@ -2,7 +2,7 @@
 
 For what must be generated: a dropped channel, a region whose albedo/material is masked out (A|M|R), a local
 prompt, a reference. Per render: prompts encoded once, each frame's conditioning encoded once through the
-content-keyed cache (`x2video.sampling.setup.Encoder`), initial noise seeded per window or frame
+content-keyed cache (`x2video.tiers.encoder.Encoder`), initial noise seeded per window or frame
 (`x2video.sampling.noise`), and only the latents later windows read as references kept; decoded frames leave
 through `FramesReady` events. A regional render keeps the sampler's pixels inside the generated regions only,
 over the base tier's frame (`TierChoice.base`), the seam feathered just inside the region.
@@ -16,17 +16,20 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 import numpy as np
 import torch
 
-from x2video.conditioning import FrameConditioning, Prompts
+from x2video.conditioning.cache import conditioning_key
+from x2video.conditioning.frame import FrameConditioning
+from x2video.conditioning.network import NetworkConditioning
+from x2video.conditioning.working import working_size
+from x2video.edits.model import Prompts
 from x2video.model.api import RenderModel, WindowInputs
-from x2video.sampling import setup, working
-from x2video.sampling.cache import conditioning_key
-from x2video.sampling.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted, StepDone, WindowStarted
+from x2video.render.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted, StepDone, WindowStarted
+from x2video.render.settings import RenderSettings, resolve, select_steps
 from x2video.sampling.noise import frame_noise, inferred_region, mean_anchor, window_seed
 from x2video.sampling.planner import Window, last_use, plan, shift
-from x2video.sampling.regions import composite_weight, generated_region
 from x2video.sampling.samplers import Known, sample_ddim, sample_lcm
-from x2video.sampling.settings import RenderSettings
-from x2video.sampling.tier import TIERS, Emit, PerFrameTier, RenderJob, RenderPlan, Tier, TierChoice
+from x2video.tiers.base import TIERS, Emit, PerFrameTier, RenderJob, RenderPlan, Tier
+from x2video.tiers.encoder import Encoder
+from x2video.tiers.regions import composite_weight, generated_region
 
 if TYPE_CHECKING:
     from x2video.edits.model import Edits
@@ -57,16 +60,16 @@ class DiffusionTier(Tier):
     generative = True
 
     def with_preset(self, settings: RenderSettings, model: RenderModel | None) -> RenderSettings:
-        """The preset resolved into a sampler and steps for `model` (`setup.select_steps`)."""
-        return setup.select_steps(settings, model)
+        """The preset resolved into a sampler and steps for `model` (`select_steps`)."""
+        return select_steps(settings, model)
 
     def working_size(self, size: tuple[int, int], settings: RenderSettings, model: RenderModel | None) -> tuple[int, int] | None:
-        """The working resolution of large frames (`setup.network_frames`: `RenderSettings.working_pixels`)."""
+        """The working resolution of large frames (`NetworkConditioning`: `RenderSettings.working_pixels`)."""
         assert model is not None
-        return working.working_size(size, model.downsample, settings.working_pixels)
+        return working_size(size, model.downsample, settings.working_pixels)
 
     def plan(self, shot, edits, settings, model, choice, frames) -> RenderPlan:
-        resolved = setup.resolve(settings, model)
+        resolved = resolve(settings, model)
         return RenderPlan(choice.tier, choice.reason, frames, per_frame=False,
                           windows=tuple(diffusion_windows(frames, resolved, reference_frame(edits))), sampler=resolved.sampler,
                           steps=resolved.steps)
@@ -101,7 +104,7 @@ class DiffusionTier(Tier):
         if list(indices) != sorted(set(indices)):
             raise ValueError(f"window indices must ascend without repeats (plan order), got {list(indices)}")
         ref_frame = None if job.reference is None else job.reference[0]
-        windows = diffusion_windows(job.frames, setup.resolve(job.settings, job.model), ref_frame)
+        windows = diffusion_windows(job.frames, resolve(job.settings, job.model), ref_frame)
         made_here: set[int] = set()
         for i in indices:  # checked before the engine is built
             if not 0 <= i < len(windows):
@@ -159,18 +162,17 @@ class DiffusionRun:
         self.job = job
         model: RenderModel = job.model
         self.model = model
-        self.size = job.shot.size
-        self.full_conditioning = job.conditioning
-        net = setup.network_frames(self.size, job.conditioning, model.downsample, job.settings.working_pixels, job.reference)
-        self.conditioning, self.work, reference = net.conditioning, net.work, net.reference
-        self.settings = setup.resolve(job.settings, model)
-        job.stats["engine"] = setup.use_engine(model, self.settings.engine)
+        #: the network's view of the frames, settled once: its size, and the way back to the shot's
+        self.net = NetworkConditioning.for_model(job.shot.size, job.conditioning, model.downsample, job.settings.working_pixels, job.reference)
+        self.settings = resolve(job.settings, model)
+        job.stats["engine"] = model.set_engine(self.settings.engine)
         if job.choice.regions:
             base = TIERS[job.choice.base]()
             assert isinstance(base, PerFrameTier)
             emit = composite(job, emit, base)
         self.emit = emit
-        self.encoder = setup.Encoder(model, job.cache, job.clock)
+        self.encoder = Encoder(model, job.cache, job.clock)
+        reference = self.net.reference
         self.windows = diffusion_windows(job.frames, self.settings, None if reference is None else reference[0])
         prompts = Prompts() if job.edits is None else job.edits.prompts()
         with torch.inference_mode():
@@ -205,7 +207,7 @@ class DiffusionRun:
         """Run the sampler over one window; returns its clean output (n, 4, h, w) and keeps the frames' conditioning,
         their cache keys and their (n, C_cond, h, w) conditioning latents."""
         model, settings, clock = self.model, self.settings, self.job.clock
-        conds = [self.conditioning(f) for f in window.frames]
+        conds = [self.net.frame(f) for f in window.frames]
         model_key = model.content_key()
         keys = [conditioning_key(c, model_key) for c in conds]
         cond = self.encoder.encode(conds, keys)  # (n, C_cond, h, w)
@@ -279,7 +281,6 @@ class DiffusionRun:
         """Decode the window just run (RGB latents `x0`) and emit its frames; `done`: frames delivered before (the seam
         pass makes frames a second time: `FramesReady.replaces`)."""
         model, window, clock = self.model, self.windows[index], self.job.clock
-        height, width = self.size
         gen_pos = list(window.generate_positions)
         # the first window's first frame is decoded and delivered on its own: an editor shows it while the
         # rest of the window decodes (the decoder's batch is free; the frames are the same either way)
@@ -294,15 +295,10 @@ class DiffusionRun:
                 if detail is not None:
                     images = np.maximum(images + detail, 0)
             made = [window.frames[p] for p in chunk]
-            if self.work is not None:
-                frames = {f: working.to_full(images[i], self.full_conditioning(f)) for i, f in enumerate(made)}
-            else:
-                frames = {f: np.ascontiguousarray(images[i][:height, :width], dtype=np.float32) for i, f in enumerate(made)}
+            frames = {f: self.net.output(images[i], f) for i, f in enumerate(made)}
             again = tuple(f for f in made if f in done)  # the seam pass makes frames a second time
             done.update(made)
             self.emit(FramesReady(window=index, frames=frames, level=window.level, mode=window.mode, seconds=time.perf_counter() - self.started,
                                   replaces=again, window_done=part == len(chunks) - 1))
         self.job.stats["encode_seconds"] = self.encoder.seconds
 
-
-__all__ = ["DiffusionTier", "DiffusionRun", "TierChoice", "composite", "diffusion_windows", "reference_frame"]

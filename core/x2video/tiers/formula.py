@@ -9,19 +9,9 @@ from typing import Sequence
 
 import numpy as np
 
-from x2video.conditioning import FrameConditioning
-from x2video.sampling.tier import PerFrameTier, RenderJob
-
-
-def formula_frame(cond: FrameConditioning) -> np.ndarray:
-    """Tier 0: (H, W, 3) linear albedo x irradiance of one frame's (edited) channels, zero inside A|M|R regions.
-
-    The plain product, not `x2video.model.shading.classical_shading`, whose grey-world GGX term
-    overshoots a path tracer's energy-conserving BSDF (`x2video.model.residual`)."""
-    from x2video.model.residual import formula
-
-    out = formula(cond.channels, np.shape(cond.amr_mask)[:2] if np.size(cond.amr_mask) else None)
-    return out * (np.asarray(cond.amr_mask, np.float32) <= 0.5)[..., None] if cond.amr_mask.size else out
+from x2video.conditioning.frame import FrameConditioning
+from x2video.formula import formula, formula_frame
+from x2video.tiers.base import PerFrameTier, RenderJob
 
 
 class FormulaTier(PerFrameTier):
@@ -37,7 +27,5 @@ class FormulaTier(PerFrameTier):
 
     def base_frames(self, job: RenderJob, conds: Sequence[FrameConditioning]) -> list[np.ndarray]:
         """Under a regional render the plain product, not zeroed inside A|M|R regions (the sampler's pixels cover them)."""
-        from x2video.model.residual import formula
-
         with job.clock.stage("residual"):
             return [formula(c.channels, np.shape(c.amr_mask)[:2] if np.size(c.amr_mask) else None) for c in conds]

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from x2video.conditioning import FrameConditioning
+from x2video.conditioning.frame import FrameConditioning
 
 #: pixels of the outward feather `feathered` draws (tier 1's unseen-light rule keeps the formula over it)
 FEATHER_PX = 6.0

@@ -1,12 +1,12 @@
 """Which tier a render runs (docs/ARCHITECTURE.md "Tiers": no more model than a scene needs), and the plan it will run.
 
-    0 formula    albedo x irradiance of the (edited) channels, exact for diffuse light, free (`tier_formula`);
+    0 formula    albedo x irradiance of the (edited) channels, exact for diffuse light, free (`tiers.formula`);
     1 residual   one deterministic pass of the tier-1 net over it: the glossy term, metals, emitters,
-                 windows; per frame, so it cannot flicker (`tier_residual`);
+                 windows; per frame, so it cannot flicker (`tiers.residual`);
     2 diffusion  the video diffusion sampler, for what must be generated: a dropped channel, a region
-                 whose albedo/material is masked out (A|M|R), a local prompt, a reference (`tier_diffusion`).
+                 whose albedo/material is masked out (A|M|R), a local prompt, a reference (`tiers.diffusion`).
 
-The tiers themselves are classes registered in `x2video.sampling.tier.TIERS` (one new class adds one: docs/
+The tiers themselves are classes registered in `x2video.tiers.base.TIERS` (one new class adds one: docs/
 ARCHITECTURE.md). `decide` picks one for a render (quality 'auto') and says why; `auto` composites per region:
 frames whose channels are all present take tier 1 outside the regions tier 2 must generate (A|M|R regions and
 local prompts' masks, `generated_region`), and the two meet over a seam feathered just inside the region (`composite_weight`). The user can
@@ -18,13 +18,11 @@ import logging
 from typing import TYPE_CHECKING, Sequence
 
 from x2video.channels import INTRINSIC
-from x2video.sampling import setup
-from x2video.sampling.regions import FEATHER_PX, composite_weight, feathered, generated_region
-from x2video.sampling.settings import RenderSettings
-from x2video.sampling.tier import TIERS, RenderPlan, Tier, TierChoice, coarse_to_fine
-from x2video.sampling.tier_diffusion import DiffusionTier
-from x2video.sampling.tier_formula import FormulaTier, formula_frame
-from x2video.sampling.tier_residual import ResidualTier, keep_formula_where_unseen, residual_frames
+from x2video.render.settings import RenderSettings, check_pixel_bounds, frame_range
+from x2video.tiers.base import TIERS, RenderPlan, Tier, TierChoice
+from x2video.tiers.diffusion import DiffusionTier
+from x2video.tiers.formula import FormulaTier
+from x2video.tiers.residual import ResidualTier
 
 if TYPE_CHECKING:
     from x2video.edits.model import Edits
@@ -98,8 +96,8 @@ def decide(quality: str, shot: Shot, edits: Edits | None, model: RenderModel | N
 def plan_render(shot: Shot, edits: Edits | None, settings: RenderSettings, model: RenderModel | None) -> RenderPlan:
     """What a render of `shot` with `edits` and `settings` on `model` runs: its tier and why, its frames, and for a
     windowed tier its windows and steps. Pure: read from the edits' structure and the settings, nothing encoded."""
-    frames = setup.frame_range(shot, settings)
-    setup.check_pixel_bounds(settings)
+    frames = frame_range(shot, settings)
+    check_pixel_bounds(settings)
     choice = decide(settings.quality, shot, edits, model)
     return get(choice.tier).plan(shot, edits, settings, model, choice, frames)
 
@@ -109,7 +107,7 @@ def estimate_plan(shot: Shot, edits: Edits | None, settings: RenderSettings) -> 
     model, else the diffusion tier's for a model without LCM weights; RenderStarted and StepDone correct it."""
     if not needs_model(settings.quality):
         return plan_render(shot, edits, settings, None)
-    frames = setup.frame_range(shot, settings)
+    frames = frame_range(shot, settings)
     return DiffusionTier().plan(shot, edits, settings, None, TierChoice(DIFFUSION, "estimated before the model is built"), frames)
 
 
@@ -177,7 +175,3 @@ def choose_tier(quality: str, reasons: list[str], only_regions: bool, has_residu
         return TierChoice("diffusion", f"{'; '.join(reasons)}: generated there, the formula around it", base="formula", regions=True)
     return TierChoice("diffusion", "; ".join(reasons))
 
-
-__all__ = ["FEATHER_PX", "FORMULA_IGNORES", "QUALITIES", "RenderPlan", "Tier", "TierChoice", "TIERS", "choose_tier", "coarse_to_fine",
-           "composite_weight", "decide", "dropped_channels", "feathered", "formula_frame", "generated_region", "generation_reasons", "generative", "get",
-           "keep_formula_where_unseen", "plan_render", "qualities", "residual_frames", "windowed"]

@@ -12,12 +12,12 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from x2video.conditioning import FrameConditioning
+from x2video.conditioning.frame import FrameConditioning
+from x2video.conditioning.working import downsample_conditioning, onto_formula, working_size
 from x2video.model.api import RenderModel
-from x2video.sampling import working
-from x2video.sampling.regions import feathered
-from x2video.sampling.settings import RenderSettings
-from x2video.sampling.tier import PerFrameTier, RenderJob
+from x2video.render.settings import RenderSettings
+from x2video.tiers.base import PerFrameTier, RenderJob
+from x2video.tiers.regions import feathered
 
 log = logging.getLogger(__name__)
 
@@ -35,7 +35,7 @@ class ResidualTier(PerFrameTier):
 
     def working_size(self, size: tuple[int, int], settings: RenderSettings, model: RenderModel | None) -> tuple[int, int] | None:
         assert model is not None and model.residual_net is not None
-        return working.working_size(size, model.residual_net.cfg.factor, settings.residual_pixels)
+        return working_size(size, model.residual_net.cfg.factor, settings.residual_pixels)
 
     def begin(self, job: RenderJob) -> None:
         work = self.working_size(job.shot.size, job.settings, job.model)
@@ -65,27 +65,27 @@ def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.devic
     correction is also 0 on such working pixels and next to them, so the guess does not spread when upsampled).
     With `plausible` (quality 'auto'), the formula wherever the net's correction of it is larger than any it made on
     validation data (`x2video.model.plausible.guard`): auto's promise never to render below the formula."""
-    from x2video.model.residual import formula
+    from x2video.formula import formula
 
-    sizes = [working.working_size(_size(c), net.cfg.factor, max_pixels) if max_pixels else None for c in conds]
+    sizes = [working_size(_size(c), net.cfg.factor, max_pixels) if max_pixels else None for c in conds]
     frames: list[np.ndarray] = [np.empty(0)] * len(conds)
     whole = [i for i, ws in enumerate(sizes) if ws is None]
     for i, f in zip(whole, _net_frames(net, [conds[i] for i in whole], device, batch)):
         frames[i] = f
     small = [i for i, ws in enumerate(sizes) if ws is not None]
-    lows = [working.downsample_conditioning(conds[i], sizes[i]) for i in small]
+    lows = [downsample_conditioning(conds[i], sizes[i]) for i in small]
     for i, low, r in zip(small, lows, _net_frames(net, lows, device, batch, corrections=True)):
         if not guess_unseen:  # upsampled, the guess would spread a working pixel onto the lit surfaces around
             r = _without_unseen(r, low)  # windows and mirrors (a bright rim): no correction there or next to it
-        frames[i] = working.onto_formula(r, formula(conds[i].channels, _shape(conds[i])))
+        frames[i] = onto_formula(r, formula(conds[i].channels, _shape(conds[i])))
     frames = frames if guess_unseen else [keep_formula_where_unseen(f, c.channels) for f, c in zip(frames, conds)]
     return [_plausible(f, c) for f, c in zip(frames, conds)] if plausible else frames
 
 
 def _plausible(frame: np.ndarray, c: FrameConditioning) -> np.ndarray:
     """`frame` with the formula where tier 1's correction of it is implausible (`plausible.guard`), said in the log."""
+    from x2video.formula import formula
     from x2video.model.plausible import guard
-    from x2video.model.residual import formula
 
     out, verdict = guard(frame, formula(c.channels, _shape(c)))
     if verdict.engaged:
@@ -118,7 +118,8 @@ def _net_frames(net, conds: Sequence[FrameConditioning], device: torch.device | 
                 corrections: bool = False) -> list[np.ndarray]:
     """The net's own output for each frame (`residual_frames` without the unseen-light rule), or with `corrections`
     its log-space correction of the formula (before the output is clipped at 0)."""
-    from x2video.model.residual import MAX_PIXELS, apply, apply_tiled, correction, features, formula, needs_tiles, view_args
+    from x2video.formula import formula
+    from x2video.model.residual import MAX_PIXELS, apply, apply_tiled, correction, features, needs_tiles, view_args
 
     shape, size = _shape, _size
     out: list[np.ndarray] = []
@@ -149,7 +150,8 @@ def _net_frames(net, conds: Sequence[FrameConditioning], device: torch.device | 
 def keep_formula_where_unseen(frame: np.ndarray, channels, px: float = 2.0) -> np.ndarray:
     """`frame` (H, W, 3, a tier-1 render) with the formula where `residual.unseen_light` says the channels hold
     nothing of the light, blended over `px` pixels beyond (`feathered`), so the net's halo at the edge goes too."""
-    from x2video.model.residual import formula, unseen_light
+    from x2video.formula import formula
+    from x2video.model.residual import unseen_light
 
     m = unseen_light(channels, frame.shape[:2])
     if m is None or not m.any():

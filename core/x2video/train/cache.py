@@ -102,8 +102,8 @@ def _shading_images(fr: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 def _tier1_images(frames: list[dict[str, np.ndarray]], net) -> list[dict[str, np.ndarray]]:
     """Per frame, tier 1's frame (as `Renderer` renders it by default, `residual_frames`) of each TIER1_KEYS variant, in
     the VAE's range: what `X2VideoModel.encode_frames` encodes for a "tier1" model with those channels kept."""
-    from x2video.conditioning import FrameConditioning
-    from x2video.sampling.tier_residual import residual_frames
+    from x2video.conditioning.frame import FrameConditioning
+    from x2video.tiers.residual import residual_frames
 
     conds, keys = [], []
     for i, fr in enumerate(frames):
