@@ -10,7 +10,7 @@ content), as a shot folder is read frame by frame. Tiers: 'formula' (albedo x ir
 'residual' (the tier-1 net; large frames at a working size of `RenderSettings.residual_pixels`,
 `x2video.tiers.residual.residual_frames`), 'residual@full' (the tier-1 net at full size, in tiles beyond
 896x896, `x2video.model.residual.apply_tiled`) and 'diffusion' (the fast preset; large frames at a working
-resolution, `x2video.conditioning.working`).
+resolution, `x2video.conditioning.network`).
 
 Accuracy (`--data`, path-traced shots, e.g. `x2video dataset make --renderer cycles --size 1024x1024`):
 each tier beside the formula, scored as `bench/pathtraced.py` scores them (its `evaluate`), tier 1 also at
@@ -174,14 +174,14 @@ def accuracy(data: Path, split: str, tiers: list[str], threads: int) -> dict:
 
 def ceiling(shots: list[Path], factor: int) -> dict:
     """What the working-resolution path can reach with a perfect network: the ground truth area-averaged to the
-    working size stands in for the network's frame, brought back to full size by `x2video.conditioning.working.to_full`
+    working size stands in for the network's frame, brought back to full size by `x2video.conditioning.network.to_full`
     (bilinear or guided) or upsampled alone (bilinear, no formula detail); mean display PSNR over the shots' frames
     per working-pixel budget."""
     import cv2
 
     from x2video.channels import tonemap
-    from x2video.conditioning import working
     from x2video.conditioning.frame import plain_conditioning
+    from x2video.conditioning.network import UPSAMPLE, resize_area, to_full, working_size
     from x2video.io import load_shot
     from x2video.metrics.image import psnr
 
@@ -194,15 +194,15 @@ def ceiling(shots: list[Path], factor: int) -> dict:
             cond = plain_conditioning(shot, t)
             disp = tonemap(gt / s)
             for pixels in (TRAINING_PIXELS, 320 * 224):
-                ws = working.working_size(shot.size, factor, pixels)
+                ws = working_size(shot.size, factor, pixels)
                 if ws is None:
                     continue
-                small = working.resize_area(gt, ws)
+                small = resize_area(gt, ws)
                 row = rows.setdefault(f"{ws[1]}x{ws[0]}", {})
                 row.setdefault("frame upsampled (bilinear)", []).append(
                     psnr(tonemap(cv2.resize(small, shot.size[::-1], interpolation=cv2.INTER_LINEAR) / s), disp))
-                for mode in working.UPSAMPLE:
-                    row.setdefault(f"to_full {mode}", []).append(psnr(tonemap(working.to_full(small, cond, mode) / s), disp))
+                for mode in UPSAMPLE:
+                    row.setdefault(f"to_full {mode}", []).append(psnr(tonemap(to_full(small, cond, mode) / s), disp))
     return {size: {k: round(float(np.mean(v)), 2) for k, v in row.items()} for size, row in rows.items()}
 
 

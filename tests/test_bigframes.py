@@ -9,9 +9,9 @@ import pytest
 import torch
 from sampling_fake import FakeModel
 
-from x2video.conditioning import working
 from x2video.conditioning.frame import FrameConditioning
-from x2video.formula import formula_frame
+from x2video.conditioning.network import UPSAMPLE, downsample_conditioning, resize_area, to_full, working_size
+from x2video.formula import formula, formula_frame
 from x2video.model import residual as R
 from x2video.render.events import FramesReady
 from x2video.render.renderer import Renderer
@@ -190,10 +190,10 @@ def test_a_large_shot_renders_through_tiles_in_bounded_passes(monkeypatch):
 
 
 def test_working_size():
-    assert working.working_size((112, 160), 4, 320 * 224) is None
-    assert working.working_size((1080, 1920), 4, 0) is None
+    assert working_size((112, 160), 4, 320 * 224) is None
+    assert working_size((1080, 1920), 4, 0) is None
     for size in ((1080, 1920), (1024, 1024), (768, 1366), (4000, 30)):
-        h, w = working.working_size(size, 4, 320 * 224)
+        h, w = working_size(size, 4, 320 * 224)
         assert h % 4 == 0 and w % 4 == 0 and h * w <= 320 * 224
         s = (320 * 224 / (size[0] * size[1])) ** 0.5  # both sides scaled alike (the aspect kept), floored to the factor grid
         assert size[0] * s - 4 < h <= size[0] * s and size[1] * s - 4 < w <= size[1] * s
@@ -207,27 +207,27 @@ def test_to_full_keeps_the_formulas_detail_and_the_networks_residual():
     h, w = 120, 200
     ch = room_channels(h, w)
     full = _cond(ch, h, w)
-    small = working.downsample_conditioning(full, (30, 50))
+    small = downsample_conditioning(full, (30, 50))
     assert small.channels["albedo"].shape == (30, 50, 3) and small.amr_mask.shape == (30, 50)
     n = np.linalg.norm(small.channels["normal"], axis=-1)
     assert np.all((np.abs(n - 1) < 1e-4) | (n == 0))
     base = formula_frame(full)
     # a network that adds nothing over the (area-averaged) formula gives the full-resolution formula back, detail and all
-    same = working.to_full(working.resize_area(base, (30, 50)), full)
+    same = to_full(resize_area(base, (30, 50)), full)
     np.testing.assert_allclose(same, base, rtol=1e-4, atol=1e-4)
     # a network that doubles the light gives twice... in log1p space: the residual rides on the full-resolution formula
-    brighter = working.to_full(np.expm1(np.log1p(working.resize_area(base, (30, 50))) + 0.5), full)
+    brighter = to_full(np.expm1(np.log1p(resize_area(base, (30, 50))) + 0.5), full)
     np.testing.assert_allclose(np.log1p(brighter) - np.log1p(base), 0.5, atol=2e-3)
-    guided = working.to_full(np.expm1(np.log1p(working.resize_area(base, (30, 50))) + 0.5), full, upsample="guided")
+    guided = to_full(np.expm1(np.log1p(resize_area(base, (30, 50))) + 0.5), full, upsample="guided")
     np.testing.assert_allclose(np.log1p(guided) - np.log1p(base), 0.5, atol=2e-3)
     # without irradiance there is no formula: the network's frame itself comes up (guided: by the albedo)
     ch2 = dict(ch, irradiance=None)
-    for mode in working.UPSAMPLE:
-        up = working.to_full(np.full((30, 50, 3), 0.25, np.float32), _cond(ch2, h, w), upsample=mode)
+    for mode in UPSAMPLE:
+        up = to_full(np.full((30, 50, 3), 0.25, np.float32), _cond(ch2, h, w), upsample=mode)
         assert up.shape == (h, w, 3)
         np.testing.assert_allclose(up, 0.25, atol=1e-3)
     with pytest.raises(ValueError, match="upsampling"):
-        working.to_full(base, full, upsample="nearest")
+        to_full(base, full, upsample="nearest")
 
 
 def test_large_diffusion_frames_run_at_the_working_resolution():
@@ -282,7 +282,7 @@ def test_large_tier1_frames_run_at_the_working_resolution(caplog):
     assert "shot size 100x60: the tier-1 net runs at 40x24" in caplog.text
     assert model.residual_net.pixels == [24 * 40, 24 * 40]  # 60x100 scaled by 0.4 on the factor-4 grid, the first frame alone
     for t in range(2):
-        base = R.formula(shot.frame(t))
+        base = formula(shot.frame(t))
         assert got[t].shape == (h, w, 3) and base.std() > 0.1
         np.testing.assert_allclose(np.log1p(got[t]) - np.log1p(base), 0.3, atol=1e-4)  # every full-resolution edge kept
     # without irradiance there is no formula: the net's own (working-size) frame comes up
@@ -307,7 +307,7 @@ def test_tier1_at_working_size_is_close_to_full_size_on_smooth_light():
     ch = room_channels(h, w, 4)
     full = residual_frames(net, [_cond(ch, h, w)], guess_unseen=True)[0]
     small = residual_frames(net, [_cond(ch, h, w)], guess_unseen=True, max_pixels=48 * 80)[0]
-    base = np.log1p(R.formula(ch))
+    base = np.log1p(formula(ch))
     flat = base + (np.log1p(full) - base).mean((0, 1))  # the right correction's frame mean everywhere
     err = np.abs(np.log1p(small) - np.log1p(full)).mean()
     assert small.shape == full.shape and err < 0.8 * np.abs(flat - np.log1p(full)).mean() and err < 0.5 * np.abs(base - np.log1p(full)).mean()
@@ -334,7 +334,7 @@ def test_no_bright_rim_around_windows_at_working_size():
     ch["normal"] = n
     geo = n[..., 2] > 0
     assert 0.05 < (~geo).mean() < 0.2
-    base = np.log1p(R.formula(ch))
+    base = np.log1p(formula(ch))
     for pixels in (0, 48 * 80):
         got = residual_frames(WindowNet(), [_cond(ch, h, w)], max_pixels=pixels)[0]
         assert float(np.abs(np.log1p(got) - base)[geo].max()) < 1e-5, pixels

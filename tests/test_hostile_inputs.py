@@ -5,6 +5,7 @@ import numpy as np
 from test_tiers import full_shot, render, with_net
 
 from x2video.edits import Edits
+from x2video.formula import formula
 from x2video.model import residual as R
 from x2video.render.settings import RenderSettings
 from x2video.shot import ArrayShot
@@ -12,7 +13,7 @@ from x2video.shot import ArrayShot
 
 def test_formula_and_features_with_every_channel_dropped():
     ch = {n: None for n in ("albedo", "normal", "roughness", "metallic", "irradiance")}
-    assert R.formula(ch, (5, 7)).shape == (5, 7, 3)
+    assert formula(ch, (5, 7)).shape == (5, 7, 3)
     x, f = R.features(ch, (5, 7))
     assert x.shape[1:] == (5, 7) and not f.any()
 

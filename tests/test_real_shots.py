@@ -152,7 +152,7 @@ def test_1366x768_formula_and_model_sizes(tmp_path):
                                on_event=events.append)
         frames = {f: a for e in events if isinstance(e, FramesReady) for f, a in e.frames.items()}
         assert sorted(frames) == [0, 1] and all(a.shape == (768, 1366, 3) for a in frames.values())
-        # working_pixels 0: 768 x 1368 in the model (padded); by default a working resolution of 200 x 352 (x2video.conditioning.working)
+        # working_pixels 0: 768 x 1368 in the model (padded); by default a working resolution of 200 x 352 (x2video.conditioning.network)
         assert model.windows[0].cond.shape[-2:] == latent
 
 

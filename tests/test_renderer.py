@@ -238,7 +238,7 @@ def test_any_frame_size_is_padded_and_cropped_back(size) -> None:
     assert model.windows[0].cond.shape[-2:] == ((h + 7) // 8, (w + 7) // 8)  # the model saw the padded frame
     # reflect padding, not a resize: the model's input equals the frame inside, mirrored outside
     from x2video.conditioning.frame import plain_conditioning
-    from x2video.conditioning.working import pad_conditioning
+    from x2video.conditioning.network import pad_conditioning
 
     c = pad_conditioning(plain_conditioning(shot, 0), (-h) % 8, (-w) % 8)
     a = c.channels["albedo"]
@@ -416,7 +416,7 @@ def test_frame_noise_gives_a_frame_the_same_noise_in_every_window_and_sub_range(
 
 
 def test_frame_noise_shares_the_requested_fraction_of_variance() -> None:
-    from x2video.sampling.noise import frame_noise
+    from x2video.sampling.samplers import frame_noise
 
     x = frame_noise(3, [0, 1, 7], (4, 64, 64), 0.5).reshape(3, -1).double()
     assert torch.allclose(x.std(1), torch.ones(3, dtype=torch.float64), atol=0.03)  # each frame stays N(0, 1)
@@ -518,8 +518,8 @@ def test_ref_dc_puts_inferred_frames_on_the_line_between_their_references(sample
 def test_mean_anchor_moves_only_the_region_to_infer() -> None:
     """With an A|M|R-style region, the anchor moves the generated frames only inside it, to the
     interpolation of the references' means over their own regions; outside it nothing changes."""
-    from x2video.sampling.noise import mean_anchor
     from x2video.sampling.planner import Window
+    from x2video.sampling.samplers import mean_anchor
 
     g = torch.Generator().manual_seed(0)
     window = Window(frames=(0, 1, 2, 3, 4), generate=(1, 2, 3), refs=(0, 4), mode="interp", level=1)

@@ -12,6 +12,7 @@ from x2video.edits import Edits
 from x2video.edits.masks import Mask
 from x2video.edits.model import Reference
 from x2video.edits.ops import MaskOut
+from x2video.formula import formula
 from x2video.model import residual as R
 from x2video.render.events import FramesReady, RenderStarted, StepDone
 from x2video.render.renderer import Renderer
@@ -96,7 +97,7 @@ def test_auto_runs_the_residual_net_per_frame_deterministically():
     x, f = R.features(ch)
     want = R.apply(model.residual_net, torch.from_numpy(x)[None], torch.from_numpy(f)[None])[0].permute(1, 2, 0).detach().numpy()
     np.testing.assert_allclose(frames[2], want, atol=1e-5)
-    assert not np.allclose(frames[2], R.formula(ch), atol=1e-3)
+    assert not np.allclose(frames[2], formula(ch), atol=1e-3)
     _, again = render(model, shot, RenderSettings())
     np.testing.assert_array_equal(again[2], frames[2])
 
@@ -188,7 +189,7 @@ def test_residual_net_any_size_zero_init_and_fp16_round_trip(tmp_path):
     x, f = R.features(shot.frame(0))
     y = R.apply(net, torch.from_numpy(x)[None], torch.from_numpy(f)[None])
     assert y.shape == (1, 3, 37, 53)
-    np.testing.assert_allclose(y[0].permute(1, 2, 0).detach().numpy(), R.formula(shot.frame(0)), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(y[0].permute(1, 2, 0).detach().numpy(), formula(shot.frame(0)), rtol=1e-5, atol=1e-6)
     torch.nn.init.normal_(net.out.weight, std=0.05)
     R.save(net, tmp_path / "w", {"note": "test"})
     assert json.loads((tmp_path / "w" / "residual.json").read_text())["config"]["widths"] == [8, 16, 16]
@@ -318,7 +319,7 @@ def test_tier1_keeps_the_formula_where_the_channels_hold_no_light():
     m = with_net()
     _, kept = render(m, ArrayShot(arrays), RenderSettings(quality="residual"))
     _, guessed = render(m, ArrayShot(arrays), RenderSettings(quality="residual", guess_unseen=True))
-    form = R.formula(ch)
+    form = formula(ch)
     sky = np.s_[13:, :2]  # inside the sky patch, away from the grown edge
     assert np.allclose(kept[0][sky], form[sky]) and not np.allclose(guessed[0][sky], form[sky])
     assert np.allclose(kept[0][:4, 8:12], guessed[0][:4, 8:12])  # metal: the net's output either way
@@ -378,7 +379,7 @@ def test_tiers_say_what_callers_used_to_compare_names_for():
 def test_windowed_and_working_size_are_the_tiers_own():
     """`tiers.windowed` (the sampler's windows, steps and engine) and `Tier.working_size` (where a tier's network runs on a
     large frame) answer what the benches compared tier names for."""
-    from x2video.conditioning import working
+    from x2video.conditioning.network import working_size
 
     assert [n for n in tiers.QUALITIES if tiers.windowed(n)] == ["diffusion"]
     assert not tiers.windowed("") and not tiers.windowed(None) and not tiers.windowed("no-such-tier")
@@ -387,9 +388,9 @@ def test_windowed_and_working_size_are_the_tiers_own():
     model = FakeModel()
     model.residual_net = R.ResidualNet(R.ResidualConfig(widths=(8, 16))).eval()
     assert tiers.get("formula").working_size(big, s, None) is None
-    assert tiers.get("residual").working_size(big, s, model) == working.working_size(big, model.residual_net.cfg.factor,
+    assert tiers.get("residual").working_size(big, s, model) == working_size(big, model.residual_net.cfg.factor,
                                                                                       s.residual_pixels) is not None
-    assert tiers.get("diffusion").working_size(big, s, model) == working.working_size(big, model.downsample, s.working_pixels) is not None
+    assert tiers.get("diffusion").working_size(big, s, model) == working_size(big, model.downsample, s.working_pixels) is not None
     assert all(tiers.get(n).working_size(small, s, model) is None for n in ("formula", "residual", "diffusion"))
 
 def test_plan_render_is_what_the_render_runs():

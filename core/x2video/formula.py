@@ -2,7 +2,7 @@
 
 Exact for diffuse light and free: no network, no weights, any frame size. It sits under everything that renders:
 tier 0 is it (`x2video.tiers.formula`), tier 1's net corrects it (`x2video.model.residual`), large frames come back
-onto it (`x2video.conditioning.working`). The plain product, not `x2video.model.shading.classical_shading`, whose
+onto it (`x2video.conditioning.network`). The plain product, not `x2video.model.shading.classical_shading`, whose
 grey-world GGX term overshoots a path tracer's energy-conserving BSDF.
 """
 from __future__ import annotations

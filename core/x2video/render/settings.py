@@ -96,7 +96,7 @@ class RenderSettings:
     """Diffusion tier, large frames: a frame with more pixels than this runs the diffusion network at a working
     resolution of at most this many pixels (aspect kept), near the size it was trained at, and the network's
     residual over the formula (log space) comes back to full size on top of the full-resolution formula, whose
-    detail so stays full resolution (`x2video.conditioning.working`). 0: always at full resolution (memory and time
+    detail so stays full resolution (`x2video.conditioning.network`). 0: always at full resolution (memory and time
     grow with the frame)."""
     residual_pixels: int = 512 * 512
     """Tier 1, large frames: a frame with more pixels than this runs the tier-1 net at a working resolution of at

@@ -3,7 +3,7 @@
 For what must be generated: a dropped channel, a region whose albedo/material is masked out (A|M|R), a local
 prompt, a reference. Per render: prompts encoded once, each frame's conditioning encoded once through the
 content-keyed cache (`x2video.tiers.encoder.Encoder`), initial noise seeded per window or frame
-(`x2video.sampling.noise`), and only the latents later windows read as references kept; decoded frames leave
+(`x2video.sampling.samplers`), and only the latents later windows read as references kept; decoded frames leave
 through `FramesReady` events. A regional render keeps the sampler's pixels inside the generated regions only,
 over the base tier's frame (`TierChoice.base`), the seam feathered just inside the region.
 """
@@ -18,15 +18,13 @@ import torch
 
 from x2video.conditioning.cache import conditioning_key
 from x2video.conditioning.frame import FrameConditioning
-from x2video.conditioning.network import NetworkConditioning
-from x2video.conditioning.working import working_size
+from x2video.conditioning.network import NetworkConditioning, working_size
 from x2video.edits.model import Prompts
 from x2video.model.api import RenderModel, WindowInputs
 from x2video.render.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted, StepDone, WindowStarted
 from x2video.render.settings import RenderSettings, resolve, select_steps
-from x2video.sampling.noise import frame_noise, inferred_region, mean_anchor, window_seed
 from x2video.sampling.planner import Window, last_use, plan, shift
-from x2video.sampling.samplers import Known, sample_ddim, sample_lcm
+from x2video.sampling.samplers import Known, frame_noise, inferred_region, mean_anchor, sample_ddim, sample_lcm, window_seed
 from x2video.tiers.base import TIERS, Emit, PerFrameTier, RenderJob, RenderPlan, Tier
 from x2video.tiers.encoder import Encoder
 from x2video.tiers.regions import composite_weight, generated_region

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from x2video.conditioning.frame import FrameConditioning
-from x2video.conditioning.working import downsample_conditioning, onto_formula, working_size
+from x2video.conditioning.network import downsample_conditioning, onto_formula, working_size
 from x2video.model.api import RenderModel
 from x2video.render.settings import RenderSettings
 from x2video.tiers.base import PerFrameTier, RenderJob

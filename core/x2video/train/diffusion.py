@@ -53,7 +53,7 @@ def check_noise_shared(value: float) -> None:
 def window_noise(x0: torch.Tensor, num_frames: int, shared: float = 0.0, generator: torch.Generator | None = None) -> torch.Tensor:
     """(B*N, C, h, w) standard normal noise for a batch of windows of `num_frames` frames, a fraction
     `shared` of whose variance the frames of each window share: the mixed noise prior the Renderer
-    samples with (`RenderSettings.noise_shared`, `x2video.sampling.noise.frame_noise`), so a model
+    samples with (`RenderSettings.noise_shared`, `x2video.sampling.samplers.frame_noise`), so a model
     trained with it sees at training what it is given at inference. 0: independent noise per frame."""
     if x0.shape[0] % num_frames:
         raise ValueError(f"{x0.shape[0]} frames are not whole windows of {num_frames}")
