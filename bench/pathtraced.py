@@ -29,11 +29,12 @@ import numpy as np
 import torch
 
 from bench.common import command, results_path
-from bench.ptscore import display, render_timed, score, shot_dirs, truth
+from bench.ptscore import display, render_timed, score, truth
 from x2video.channels import tonemap
 from x2video.eval.machine import machine_info
 from x2video.io import load_shot
 from x2video.io.atomic import write_json_atomic
+from x2video.io.dataset import shot_dirs
 from x2video.io.image import read_image
 from x2video.io.paths import portable_path
 from x2video.render.renderer import Renderer

@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 
 from x2video.channels import tonemap
+from x2video.fields import parse_size
 from x2video.procedural.camera import camera_path
 from x2video.procedural.renderer import ProceduralRenderer
 from x2video.procedural.scene import generate_scene
 from x2video.procedural.shotgen import render_frames, write_procedural_shot
-from x2video.train.data import parse_size
 
 
 def speed(args: argparse.Namespace) -> dict:

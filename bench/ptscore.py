@@ -9,7 +9,6 @@ warping error over the ground truth's (DIS flow on the ground truth: docs/ARCHIT
 from __future__ import annotations
 
 import time
-from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -19,11 +18,6 @@ from x2video.metrics.image import psnr, ssim
 from x2video.metrics.temporal import temporal_consistency
 from x2video.render.events import FramesReady
 from x2video.render.settings import RenderSettings
-
-
-def shot_dirs(root: Path) -> list[Path]:
-    """The finished shots under `root` (a shot's shot.json is written last, so its presence marks it complete)."""
-    return sorted(p for p in Path(root).iterdir() if (p / "shot.json").is_file())
 
 
 def display(frames: Sequence[np.ndarray], scale: float = 1.0) -> list[np.ndarray]:

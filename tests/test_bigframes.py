@@ -277,7 +277,7 @@ def test_large_tier1_frames_run_at_the_working_resolution(caplog):
         if isinstance(e, FramesReady):
             got.update(e.frames)
 
-    with caplog.at_level("INFO", logger="x2video.sampling"):
+    with caplog.at_level("INFO", logger="x2video"):
         Renderer(model).render(shot, None, RenderSettings(quality="residual", guess_unseen=True, residual_pixels=24 * 40), on)
     assert "shot size 100x60: the tier-1 net runs at 40x24" in caplog.text
     assert model.residual_net.pixels == [24 * 40, 24 * 40]  # 60x100 scaled by 0.4 on the factor-4 grid, the first frame alone

@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from x2video.cli.args import size_arg
-from x2video.cli.dataset import parse_size as dataset_size
-from x2video.train.data import parse_size, resize_channel, shot_dirs
+from x2video.fields import parse_size
+from x2video.io.dataset import shot_dirs
+from x2video.train.data import resize_channel
 
 
 def test_resize_channel_keeps_each_channel_convention():
@@ -35,7 +36,7 @@ def test_parse_size_and_dataset_errors(tmp_path):
     with pytest.raises(argparse.ArgumentTypeError, match="'96x-4' must be positive"):
         size_arg("96x-4")
     with pytest.raises(ValueError, match="at least 8"):
-        dataset_size("320x4")
+        parse_size("320x4", 8)
     with pytest.raises(FileNotFoundError):
         shot_dirs(tmp_path / "missing", "train")
     (tmp_path / "train" / "room_a").mkdir(parents=True)

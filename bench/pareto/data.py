@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from bench.ptscore import shot_dirs
+from x2video.io.dataset import shot_dirs
 
 
 def per_size(values: tuple[int, ...], sizes: list, flag: str) -> list[int]:

@@ -209,11 +209,15 @@ def to_flags(cls: type, instance: Any, *, only_changed: bool = True) -> list[str
     return out
 
 
-def parse_size(text: str, minimum: int = 8) -> tuple[int, int]:
-    """'320x224' -> (320, 224) (`x2video.train.data.parse_size`), at least `minimum` pixels each way."""
-    from x2video.train.data import parse_size as parse
-
-    w, h = parse(text)
+def parse_size(text: str, minimum: int = 1) -> tuple[int, int]:
+    """'320x224' -> (width, height) = (320, 224), at least `minimum` pixels each way (the one "WxH" parser: the CLI,
+    the data sets, the farm and the benches read sizes through it)."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError as e:
+        raise ValueError(f"size {text!r} is not WIDTHxHEIGHT (e.g. 160x112)") from e
+    if w <= 0 or h <= 0:
+        raise ValueError(f"size {text!r} must be positive")
     if w < minimum or h < minimum:
-        raise ValueError(f"--size {text}: width and height must be at least {minimum}")
+        raise ValueError(f"size {text!r}: width and height must be at least {minimum}")
     return w, h

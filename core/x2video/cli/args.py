@@ -7,8 +7,8 @@ import argparse
 
 
 def size_arg(text: str) -> tuple[int, int]:
-    """argparse type: 'WxH' -> (width, height) by `x2video.train.data.parse_size`."""
-    from x2video.train.data import parse_size
+    """argparse type: 'WxH' -> (width, height) by `x2video.fields.parse_size`."""
+    from x2video.fields import parse_size
 
     try:
         return parse_size(text)

@@ -4,14 +4,8 @@ from __future__ import annotations
 import argparse
 import time
 
+from x2video.fields import parse_size
 from x2video.procedural.demo import DEMO
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    """'320x224' -> (320, 224), at least 8 pixels each way (`x2video.fields.parse_size`, where the library reads it too)."""
-    from x2video.fields import parse_size as parse
-
-    return parse(text)
 
 
 def make(args: argparse.Namespace) -> int:
@@ -20,7 +14,7 @@ def make(args: argparse.Namespace) -> int:
     if args.renderer == "cycles":  # Blender's path tracer, in processes of its own
         from x2video.cycles.dataset import make_cycles
 
-        return make_cycles(args, *parse_size(args.size))
+        return make_cycles(args, *parse_size(args.size, 8))
 
     from x2video.procedural.dataset import make_dataset
 
@@ -39,7 +33,7 @@ def make(args: argparse.Namespace) -> int:
         bar.set_postfix(fps=f"{frames / (time.perf_counter() - t0):.2f}", refresh=True)
 
     try:
-        doc = make_dataset(args.out, args.rooms, args.frames, parse_size(args.size), seed=args.seed, test_every=args.test_every,
+        doc = make_dataset(args.out, args.rooms, args.frames, parse_size(args.size, 8), seed=args.seed, test_every=args.test_every,
                            workers=args.workers, on_room=on_room)
     finally:
         bar.close()

@@ -97,8 +97,8 @@ def load_eval_shots(
     """The first `rooms` shots of `data_dir/split` (sorted by name), each cut to `frames` frames and
     resized to `size` = (W, H). Every shot must carry rgb (ground truth)."""
     from x2video.io import load_shot
+    from x2video.io.dataset import shot_dirs
     from x2video.metrics import read_motion
-    from x2video.train.data import shot_dirs
 
     dirs = shot_dirs(data_dir, split)
     if not dirs:
@@ -123,7 +123,7 @@ def load_eval_shots(
 
 def native_size(data_dir: str | Path, split: str = "test") -> tuple[int, int]:
     """(W, H) of the first shot of a split (what `dataset make --size` wrote)."""
-    from x2video.train.data import shot_dirs
+    from x2video.io.dataset import shot_dirs
 
     dirs = shot_dirs(data_dir, split)
     if not dirs:

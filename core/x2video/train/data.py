@@ -11,22 +11,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from x2video.io.dataset import shot_dirs
 from x2video.shot import Shot
 
 SPLITS = ("train", "test")
-
-
-def shot_dirs(data_dir: str | Path, split: str) -> list[Path]:
-    """The shot folders (those holding a shot.json) of one split of a data set, sorted by name."""
-    root = Path(data_dir)
-    if not root.is_dir():
-        raise FileNotFoundError(f"data set folder not found: {root}")
-    base = root / split
-    if not base.is_dir():
-        if (root / "shot.json").is_file():
-            raise ValueError(f"{root} is one shot folder; --data wants a data set folder with train/ and test/ rooms")
-        return []
-    return sorted(p for p in base.iterdir() if p.is_dir() and (p / "shot.json").is_file())
 
 
 def open_split(data_dir: str | Path, split: str) -> list[Shot]:
@@ -44,17 +32,6 @@ def open_dataset(data_dir: str | Path, need_test: bool = True) -> dict[str, list
     if need_test and not out["test"]:
         raise FileNotFoundError(f"{data_dir}: no held-out rooms (expected {Path(data_dir) / 'test'}/<room>/shot.json)")
     return out
-
-
-def parse_size(text: str) -> tuple[int, int]:
-    """'160x112' -> (width, height)."""
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError as e:
-        raise ValueError(f"size {text!r} is not WIDTHxHEIGHT (e.g. 160x112)") from e
-    if w <= 0 or h <= 0:
-        raise ValueError(f"size {text!r} must be positive")
-    return w, h
 
 
 def resize_channel(name: str, x: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:

@@ -28,6 +28,7 @@ from torch.nn import functional as F
 
 from x2video.channels import INTRINSIC
 from x2video.io.atomic import atomic_path, write_json_atomic
+from x2video.io.dataset import shot_dirs
 from x2video.model import residual as R
 from x2video.model import screen_space as SS
 
@@ -145,12 +146,6 @@ def noisy_irradiance(frame_file: Path) -> np.ndarray | None:
     img = read_image(frame_file, channels=[c for cs in comps.values() for c in cs])  # those 6 of the frame's ~70
     parts = [img.stack(cs) for cs in comps.values()]
     return np.nan_to_num(parts[0] + parts[1], nan=0.0, posinf=0.0, neginf=0.0).clip(0, None).astype(np.float32)
-
-
-def shot_dirs(data: Path, split: str) -> list[Path]:
-    """Finished shots (shot.json present) of `data/<split>/`, sorted."""
-    root = data / split
-    return sorted(p for p in root.iterdir() if (p / "shot.json").is_file()) if root.is_dir() else []
 
 
 class Frames:

@@ -58,7 +58,7 @@ def make_outside(args: argparse.Namespace) -> int:
     from x2video.procedural.dataset import begin_dataset, is_done
 
     require_bpy()
-    width, height = parse_size(args.size)
+    width, height = parse_size(args.size, 8)
     scenes = parse_scenes(args.scenes)
     if args.frames < 1 or args.samples < 1:
         raise ValueError(f"--frames and --samples must be at least 1 (got {args.frames}, {args.samples})")
