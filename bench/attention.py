@@ -34,6 +34,7 @@ import torch
 import torch.nn.functional as F
 from diffusers.models.attention_processor import Attention, AttnProcessor2_0
 
+from x2video.fields import parse_size
 from x2video.model.config import HybridConfig
 from x2video.model.context import AttnContext
 from x2video.model.hybrid_attention import HybridSelfAttnProcessor
@@ -115,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
         torch.set_num_threads(args.threads)
     clock_name = args.clock or ("cpu" if device.type == "cpu" else "wall")
     clock = time.process_time if clock_name == "cpu" else time.perf_counter
-    w, h = (int(v) for v in args.size.lower().split("x"))
+    w, h = parse_size(args.size)
     length, c = w * h, args.channels
     torch.manual_seed(0)
     attn = Attention(query_dim=c, heads=args.heads, dim_head=c // args.heads).to(device, dtype).eval()

@@ -25,6 +25,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from x2video.fields import parse_size
+
 #: rooms of data set seed 43 (scene seed = 43 * 1000003 + i), which no training set of ours holds (they use seed 41):
 #: the first decides the settings (validation), the others report (test)
 VALIDATION_SEEDS = "43000129"
@@ -118,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--low", default="1,2,4", help="Cycles on every frame at these samples (+ OIDN): the low-sample curve")
     ap.add_argument("--out", default=None, help="root folder (default: the cache folder)")
     args = ap.parse_args(argv)
-    w, h = (int(v) for v in args.size.lower().split("x"))
+    w, h = parse_size(args.size)
     root = Path(args.out) if args.out else default_root(w, h)
     for s in (int(v) for v in args.seeds.split(",") if v):
         print(make_clip(root / f"room_{s}", s, args.frames, w, h, args.samples, args.truth_samples, args.low), flush=True)

@@ -47,6 +47,7 @@ import numpy as np
 from bench.clips import TEST_SEEDS, VALIDATION_SEEDS
 from bench.common import clean_json, command, results_path
 from bench.edits_data import KINDS, default_root
+from x2video.fields import parse_size
 
 #: pixels around the edited object scored as its band (the spill margin of `x2video.base.difference`)
 BAND = 6
@@ -372,7 +373,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--picture", default="albedo:base-auto", help="KIND:METHOD of the picture beside the JSON (the first room's "
                     "middle frame as rendered, after the edit, and by Cycles); '' for none")
     args = ap.parse_args(argv)
-    w, h = (int(v) for v in args.size.lower().split("x"))
+    w, h = parse_size(args.size)
     root = Path(args.root) if args.root else default_root(w, h)
     seeds = [int(s) for s in (args.seeds or (VALIDATION_SEEDS if args.validation else TEST_SEEDS)).split(",") if s]
     methods = tuple(m for m in args.methods.split(",") if m)

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from bench.clips import TEST_SEEDS, VALIDATION_SEEDS
+from x2video.fields import parse_size
 
 KINDS = ("albedo", "rough", "gloss", "metal_off", "metal_on", "light")
 #: objects no look-dev edit of ours picks (the room's shell and what shows the outside)
@@ -279,7 +280,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--kinds", default=",".join(KINDS), help=f"edit kinds among {', '.join(KINDS)}")
     ap.add_argument("--out", default=None, help="root folder (default: the cache folder)")
     args = ap.parse_args(argv)
-    w, h = (int(v) for v in args.size.lower().split("x"))
+    w, h = parse_size(args.size)
     kinds = tuple(k for k in args.kinds.split(",") if k)
     bad = [k for k in kinds if k not in KINDS]
     if bad:

@@ -29,6 +29,7 @@ import numpy as np
 from bench.clips import TEST_SEEDS, VALIDATION_SEEDS, default_root
 from bench.common import clean_json, command, results_path
 from x2video.channels import tonemap
+from x2video.fields import parse_size
 from x2video.metrics.image import psnr, ssim
 from x2video.metrics.temporal import temporal_consistency
 
@@ -158,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--methods", default="hold,rife,classical,classical_flow")
     ap.add_argument("--validation", action="store_true", help="score the validation clip (deciding settings), not the test clips")
     args = ap.parse_args(argv)
-    w, h = (int(v) for v in args.size.split("x"))
+    w, h = parse_size(args.size)
     root = Path(args.clips) if args.clips else default_root(w, h)
     seeds = VALIDATION_SEEDS if args.validation else TEST_SEEDS
     folders = [root / f"room_{s}" for s in seeds.split(",")]

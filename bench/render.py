@@ -45,6 +45,7 @@ import torch
 
 from bench.common import command, results_path
 from x2video.channels import SPECS
+from x2video.fields import parse_size
 from x2video.io.atomic import write_json_atomic
 from x2video.model.pipeline import X2VideoModel
 from x2video.render.events import FramesReady, StepDone
@@ -224,7 +225,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--untrained", action="store_true", help="untrained tiny weights even when shipped ones exist")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)
-    width, height = (int(v) for v in args.size.split("x"))
+    width, height = parse_size(args.size)
     device = torch.device(args.device)
     dtype = torch.float16 if args.fp16 else torch.float32
     if args.threads:

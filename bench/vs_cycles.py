@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import command, results_path
+from x2video.fields import parse_size
 
 CYCLES_CHILD = """
 import json, sys
@@ -60,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--engine", default="auto", help="RenderSettings.engine of the X2Video renders")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)
-    width, height = (int(v) for v in args.size.split("x"))
+    width, height = parse_size(args.size)
     load_before = [round(v, 2) for v in os.getloadavg()]
     with tempfile.TemporaryDirectory(prefix="x2video-vs-cycles-") as tmp:
         folder = Path(tmp) / "room"

@@ -24,6 +24,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from x2video.fields import parse_size
+
 ROOT = Path(__file__).resolve().parents[3]
 ADDON = ROOT / "packaging" / "blender" / "x2video_export"
 OUT = Path(__file__).resolve().parent / "gbuffer_cost.json"
@@ -64,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", type=Path, default=OUT)
     args = p.parse_args(argv)
-    w, h = (int(v) for v in args.size.lower().split("x"))
+    w, h = parse_size(args.size)
 
     import bpy
 
