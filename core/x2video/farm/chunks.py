@@ -170,7 +170,7 @@ class StagedFrames:
         import io
 
         from x2video.io.atomic import DiskFullError, is_disk_full, looks_full
-        from x2video.render.frames import _write_exr
+        from x2video.render.frames import write_exr_frame
 
         try:
             with atomic_path(self.folder / frame_name(index, self.fmt)) as tmp:
@@ -180,7 +180,7 @@ class StagedFrames:
                     with open(tmp, "wb") as f:
                         f.write(buf.getbuffer())
                 else:
-                    _write_exr(tmp, rgb, self.units)
+                    write_exr_frame(tmp, rgb, self.units)
         except OSError as exc:
             if not (is_disk_full(exc) or looks_full(self.folder, np.asarray(rgb).size * 2)):
                 raise

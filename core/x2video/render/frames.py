@@ -88,8 +88,9 @@ def _readable(path: Path) -> bool:
         return False
 
 
-def _write_exr(path: Path, rgb: np.ndarray, units: OutputUnits) -> None:
-    """Rendered linear RGB (H, W, 3) as a half-float EXR with channels R, G, B, in the input's units."""
+def write_exr_frame(path: Path, rgb: np.ndarray, units: OutputUnits) -> None:
+    """Rendered linear RGB (H, W, 3) as a half-float EXR with channels R, G, B, in the input's units: the one layout of a
+    rendered frame, written by `FrameSink` (the CLI, the editor's render) and the farm's chunks (`x2video.farm.chunks`)."""
     from x2video.io.image import write_exr
 
     rgb = units.scene(rgb)
@@ -207,7 +208,7 @@ class FrameSink:
                     with open(tmp, "wb") as f:  # a Python write: a full disk raises ENOSPC (numpy's own write says only bytes)
                         f.write(buf.getbuffer())
                 else:
-                    _write_exr(tmp, rgb, self.units)
+                    write_exr_frame(tmp, rgb, self.units)
         except OSError as exc:
             if is_disk_full(exc) or looks_full(self._staging, np.asarray(rgb).size * 2):
                 raise self._disk_full(f"frame {index}", rgb) from None
