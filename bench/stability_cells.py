@@ -202,12 +202,14 @@ class Context:
                 self.model_info["weights"] = "untrained tiny (fallback: the weights failed to load)"
                 m = load_model(None, device="cpu", untrained=True)
             if self.residual:
-                from x2video.model.residual import engine, load
+                from x2video.model.residual import load
+                from x2video.model.residual_engine import engine
 
                 m.residual_net = engine(load(self.residual), m.device)
                 self.model_info["residual_net"] = "trained (--residual)"
             elif m.residual_net is None:
-                from x2video.model.residual import ResidualNet, engine
+                from x2video.model.residual import ResidualNet
+                from x2video.model.residual_engine import engine
 
                 torch.manual_seed(0)
                 m.residual_net = engine(ResidualNet(), m.device)

@@ -13,6 +13,7 @@ from x2video.conditioning.frame import FrameConditioning
 from x2video.conditioning.network import UPSAMPLE, downsample_conditioning, resize_area, to_full, working_size
 from x2video.formula import formula, formula_frame
 from x2video.model import residual as R
+from x2video.model import residual_engine
 from x2video.render.events import FramesReady
 from x2video.render.renderer import Renderer
 from x2video.render.settings import RenderSettings
@@ -84,8 +85,8 @@ def test_tiles_equal_the_whole_frame_and_shortcuts_do_not():
     assert float(np.abs(np.log1p(short) - np.log1p(want)).max()) > 10 * TOL
     own = R.apply_tiled(OwnContext(net), ch, tile=32, halo=32, feather=8)  # each tile's own light
     assert float(np.abs(np.log1p(own) - np.log1p(want)).max()) > 10 * TOL
-    eng = R.engine(net, "cpu")
-    assert isinstance(eng, R.OnnxResidual)
+    eng = residual_engine.engine(net, "cpu")
+    assert isinstance(eng, residual_engine.OnnxResidual)
     onnx = R.apply_tiled(eng, ch, tile=32, halo=32, feather=8)
     assert float(np.abs(np.log1p(onnx) - np.log1p(want)).max()) < TOL
 

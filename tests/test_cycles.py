@@ -113,7 +113,7 @@ def test_cycles_clip_trains_tier1_one_step(tmp_path, monkeypatch):
 
     from x2video.model.checkpoint import read_config
     from x2video.model.residual import load as load_residual
-    from x2video.model.residual import weights_sha
+    from x2video.model.residual_engine import weights_sha
     from x2video.train.cache import build_cache
     from x2video.train.data import open_dataset
     from x2video.train.diffusion_stages import VideoStageConfig, run_video_stage

@@ -109,7 +109,7 @@ def tier1_runs(tmp_path_factory):
 
 def test_cache_holds_tier_one_frames(tier1_runs):
     from x2video.conditioning.frame import FrameConditioning
-    from x2video.model.residual import weights_sha
+    from x2video.model.residual_engine import weights_sha
     from x2video.model.vae import encode_mode, images_to_tensor, to_vae_range
     from x2video.tiers.residual import residual_frames
     from x2video.train.cache import TIER1_KEYS, load_split
@@ -150,7 +150,8 @@ def test_a_shipped_folder_warns_when_its_tier_one_net_is_not_the_prior_s(tmp_pat
     import json
     import logging
 
-    from x2video.model.residual import load, save, weights_sha
+    from x2video.model.residual import load, save
+    from x2video.model.residual_engine import weights_sha
 
     net = _tier1_net(5)
     m = _model(net)

@@ -14,6 +14,7 @@ from x2video.edits.model import Reference
 from x2video.edits.ops import MaskOut
 from x2video.formula import formula
 from x2video.model import residual as R
+from x2video.model import residual_engine
 from x2video.render.events import FramesReady, RenderStarted, StepDone
 from x2video.render.renderer import Renderer
 from x2video.render.settings import RenderSettings
@@ -273,8 +274,8 @@ def test_irradiance_dropout_gives_the_features_of_a_shot_without_irradiance(tmp_
 def test_onnx_engine_matches_pytorch():
     net = R.ResidualNet(R.ResidualConfig(widths=(8, 16, 16))).eval()
     torch.nn.init.normal_(net.out.weight, std=0.1)
-    eng = R.engine(net, "cpu")
-    assert isinstance(eng, R.OnnxResidual)
+    eng = residual_engine.engine(net, "cpu")
+    assert isinstance(eng, residual_engine.OnnxResidual)
     shot = full_shot(1, 37, 53)
     x, f = (torch.from_numpy(a)[None] for a in R.features(shot.frame(0)))
     with torch.inference_mode():
@@ -282,7 +283,7 @@ def test_onnx_engine_matches_pytorch():
     got = R.apply(eng, x, f)
     assert got.shape == want.shape == (1, 3, 37, 53)
     assert float((got - want).abs().max()) < 1e-4  # stated parity: float32 on both sides
-    assert R.engine(net, "cpu", prefer="torch") is net
+    assert residual_engine.engine(net, "cpu", prefer="torch") is net
 
 
 def test_auto_keeps_the_formula_when_the_net_is_not_trusted():

@@ -163,8 +163,8 @@ class X2VideoModel:
         if (directory / "residual.safetensors").is_file():
             import json
 
-            from x2video.model.residual import engine
             from x2video.model.residual import load as load_residual
+            from x2video.model.residual_engine import engine
 
             model.residual_net = engine(load_residual(directory, model.device), model.device)
             #: whether quality 'auto' may use it: residual.json's "auto", set when the net beat the formula on the outside check
@@ -181,7 +181,7 @@ class X2VideoModel:
         `prior_net` its training.json records): the sampler then starts from frames it was not trained over."""
         import json
 
-        from x2video.model.residual import weights_sha
+        from x2video.model.residual_engine import weights_sha
 
         doc = directory / "training.json"
         want = json.loads(doc.read_text()).get("shipped", {}).get("model", {}).get("prior_net") if doc.is_file() else None
@@ -260,7 +260,7 @@ class X2VideoModel:
             h.update(str(self.encoder_dtype).encode())  # a bf16 encoder gives other latents
             parts = [("", self.vae)] + ([("channel_encoder.", self.channel_encoder)] if self.channel_encoder is not None else [])
             if self.config.prior == "tier1":  # the prior slot holds the tier-1 net's frame: its weights shape the latents
-                from x2video.model.residual import torch_module
+                from x2video.model.residual_engine import torch_module
 
                 if self.residual_net is None:
                     raise ValueError("this model samples its residual over tier 1's frame (config prior 'tier1') and has no tier-1 net")

@@ -37,7 +37,7 @@ from x2video.channels import INTRINSIC
 from x2video.io.atomic import atomic_path, write_json_atomic
 from x2video.model.checkpoint import save_checkpoint
 from x2video.model.config import LATENT_SCALE_KEYS, ModelConfig
-from x2video.model.residual import weights_sha
+from x2video.model.residual_engine import weights_sha
 from x2video.model.shading import classical_shading
 from x2video.model.text import TextEncoder, build_text_encoder
 from x2video.model.vae import area_downsample, encode_mode, images_to_tensor, irradiance_to_unit, measure_latent_scales, to_vae_range
