@@ -5,7 +5,8 @@ import sys, time, json
 from pathlib import Path
 import numpy as np, torch, cv2
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root (bench/)
-from bench.ptscore import display, render_timed, score, shot_dirs, truth
+from bench.ptscore import display, render_timed, score, truth
+from x2video.io.dataset import shot_dirs
 from x2video.io import load_shot
 from x2video.render.settings import RenderSettings
 from x2video.render.renderer import Renderer

@@ -88,8 +88,8 @@ def rewrite_dotted(text: str, modules: dict[str, str], names: dict[tuple[str, st
         after = re.match(r"\.(\w+)", text[m.end():])
         if after and f"{m.group(1)}.{after.group(1)}" in new_modules:  # already the new path (`pkg` became `pkg.sub`)
             return m.group(1)
-        if text.startswith(" import ", m.end()) and any(v.startswith(m.group(1) + ".") for v in new_modules):
-            return m.group(1)  # `from pkg import module`: the package of new modules, rewritten by `rewrite_from`
+        if any(v.startswith(m.group(1) + ".") for v in new_modules):
+            return m.group(1)  # the old module is a package now: `from pkg import module` is `rewrite_from`'s, a bare name stays
         return table[m.group(1)]
 
     return pattern.sub(sub, text)

@@ -2,7 +2,7 @@
 
 One entry point for every tier (`x2video.tiers.base`): `render` decides the tier (`tiers.decide`: the one
 forced by `RenderSettings.quality`, or auto's choice), builds the frames' conditioning
-(`x2video.conditioning.frame`) and lets the tier emit its frames; tier 0 needs no model (`Renderer(None)`). The
+(`x2video.conditioning`) and lets the tier emit its frames; tier 0 needs no model (`Renderer(None)`). The
 diffusion tier encodes each frame's conditioning once through a content-keyed cache that outlives the render (a
 prompt-only re-render re-encodes nothing; `retain=False` for one-off renders drops each frame's entries after
 its last window). No global state: one Renderer per thread, or one shared Renderer driven from one thread at a
