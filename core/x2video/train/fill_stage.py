@@ -42,7 +42,8 @@ class FillTrainConfig:
     steps: int = 6000
     """Optimiser steps (a run stops earlier at --minutes)."""
     minutes: float = 0.0
-    """Wall-clock limit in minutes (0: none); a checkpoint and a validation are written when it is reached."""
+    """Wall-clock limit of the training loop in minutes (0: none; reading new shots into the cache comes before it); a
+    checkpoint and a validation are written when it is reached."""
     batch: int = 8
     """Crops per step."""
     crop: int = 128
@@ -128,8 +129,8 @@ def train(train_shots: Sequence[Shot], val_shots: Sequence[Shot], out: Path, cfg
     """Train (or resume from OUT/checkpoint.pt) the fill network on `train_shots`; returns the summary."""
     if not train_shots:
         raise ValueError("no shots to train the learned fill on")
-    for i, s in enumerate(train_shots):
-        D.check_shot(s, s.info.source or f"training shot {i}")
+    for i, s in enumerate([*train_shots, *val_shots]):
+        D.check_shot(s, s.info.source or f"shot {i}")
     for name, v in (("irradiance_dropout", cfg.irradiance_dropout), ("flow_p", cfg.flow_p)):
         if not 0 <= v <= 1:
             raise ValueError(f"{name} must lie in [0, 1], got {v}")
