@@ -38,7 +38,8 @@ def _cpu() -> float:
 def scene_of(shot_dir: Path, meta: dict) -> dict:
     """How to build a shot's scene again, from its shot.json: {"kind": "room", "seed", "version"} or {"kind":
     "outside", "scene"}; ValueError naming the shot and the field when it cannot be rebuilt."""
-    from x2video.cycles.outside import GENERATOR as OUTSIDE, SCENES
+    from x2video.cycles.outside import GENERATOR as OUTSIDE
+    from x2video.cycles.outside import SCENES
 
     extra = meta.get("extra") or {}
     gen = str(extra.get("generator", ""))
@@ -70,7 +71,7 @@ def open_scene(shot_dir: Path, meta: dict, threads: int):
     """The shot's scene built again in this (Blender) process, set to render Combined alone."""
     import numpy as np
 
-    from x2video.cycles.shot import beauty_only, beauty_scene, scale_lights, setup_render, CyclesConfig
+    from x2video.cycles.shot import CyclesConfig, beauty_only, beauty_scene, scale_lights, setup_render
     from x2video.io.metadata import parse_cameras_json
 
     how = scene_of(shot_dir, meta)

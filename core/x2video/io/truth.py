@@ -100,7 +100,8 @@ def ground_truth(shot: Any, folder: str | Path | None = None) -> Truth:
     """The truth a shot is scored against: ``truth/`` beside its frames when it holds every frame, else its rgb.
 
     `folder`: the shot's folder (default `shot.info.source`); `shot` may be a view of its first frames, at its size.
-    A truth apart that is there but unfinished, or of fewer frames or another size, is an error naming what is missing: mixing truths in one score is never silent."""
+    A truth apart that is there but unfinished, or of fewer frames or another size, is an error naming what is
+    missing: mixing truths in one score is never silent."""
     d = Path(folder) if folder is not None else shot_folder(shot)
     rec = read_record(d) if d is not None else None
     if rec is None:
