@@ -245,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
     write_json_atomic(dest, out)
     from x2video.io.atomic import write_text_atomic
 
-    write_text_atomic(dest.with_suffix(".md"), "\n".join(markdown(summary)) + "\n")
+    write_text_atomic(dest.with_suffix(".md"), "\n".join(markdown(summary) + ["", f"Truth: {out['truth']}."]) + "\n")
     for key, v in summary.items():
         print(f"{key:28s} PSNR {v['psnr']:6.2f}  SSIM {v['ssim']:.4f}  TC {v['tc']}  s/frame {v['sec_per_frame']:.3f}  {v['psnr_by_material']}")
     print(f"wrote {dest}")
