@@ -36,6 +36,8 @@ from x2video.io import load_shot
 from x2video.io.atomic import write_json_atomic
 from x2video.io.image import read_image
 from x2video.io.paths import portable_path
+from x2video.io.truth import ground_truth
+from x2video.io.truth import summary as truth_summary
 from x2video.sampling import tiers
 from x2video.sampling.events import RenderSettings
 from x2video.sampling.renderer import Renderer
@@ -151,7 +153,8 @@ def evaluate(renderer: Renderer, shots: list[Path], runs: list[tuple[str, str, s
         for key, tier, cond, overrides in runs:
             frames, secs = render_tier(renderer, shot, tier, conds[cond][0], **overrides)
             results[key] = (display(frames, s), secs)
-        shot_row = {"shot": f"{sp.parent.name}/{sp.name}", "frames": shot.num_frames, "size": list(shot.size[::-1])}
+        shot_row = {"shot": f"{sp.parent.name}/{sp.name}", "frames": shot.num_frames, "size": list(shot.size[::-1]),
+                    "truth": ground_truth(shot).label}
         for key, (disp, secs) in results.items():
             r = rows.setdefault(key, {"psnr": [], "ssim": [], "tc": [], "sec_per_frame": [], "sse": np.zeros(len(CLASSES)), "npx": np.zeros(len(CLASSES)),
                                       "sse_mask": 0.0, "npx_mask": 0, "sse_ring": 0.0, "npx_ring": 0})
@@ -230,7 +233,8 @@ def main(argv: list[str] | None = None) -> int:
         runs.append(("residual_guess|all", "residual", "all", {"guess_unseen": True}))
     summary, per_shot = evaluate(renderer, shots, runs)
     out = {"format": "x2video-pathtraced", "command": command("pathtraced", argv), "data": portable_path(args.data), "split": args.split,
-           "shots": len(shots), "weights": portable_path(weights) if args.weights else "shipped", "threads": args.threads,
+           "shots": len(shots), "truth": truth_summary(r["truth"] for r in per_shot),
+           "weights": portable_path(weights) if args.weights else "shipped", "threads": args.threads,
            "residual_net": model.residual_net is not None, "machine": machine_info(model.device),
            "note": "PSNR/SSIM on tonemap (clip, sRGB) in the shot's units; TC = warping error / ground truth's, DIS flow; "
                    "per-material PSNR pools squared errors over the class's pixels; 'formula' = tier 0 (classical shading), "
@@ -241,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
     write_json_atomic(dest, out)
     from x2video.io.atomic import write_text_atomic
 
-    write_text_atomic(dest.with_suffix(".md"), "\n".join(markdown(summary)) + "\n")
+    write_text_atomic(dest.with_suffix(".md"), "\n".join(markdown(summary) + ["", f"Truth: {out['truth']}."]) + "\n")
     for key, v in summary.items():
         print(f"{key:28s} PSNR {v['psnr']:6.2f}  SSIM {v['ssim']:.4f}  TC {v['tc']}  s/frame {v['sec_per_frame']:.3f}  {v['psnr_by_material']}")
     print(f"wrote {dest}")

@@ -23,6 +23,7 @@ from x2video.eval.data import GROUND_TRUTH, EvalShot, EvalView
 from x2video.eval.machine import machine_info
 from x2video.eval.scoring import Scorer
 from x2video.eval.tables import PAPER, PAPER_NOTE, TITLES, RowSpec, table_rows
+from x2video.io.truth import summary as truth_summary
 from x2video.metrics.suite import DEFINITIONS
 from x2video.metrics.unavailable import unavailable_metrics
 from x2video.model.api import RenderModel
@@ -205,6 +206,7 @@ def evaluate(
         "tables": tables,
         "settings": config.to_dict(),
         "ground_truth": GROUND_TRUTH,
+        "truth": truth_summary(s.truth for shots in data.values() for s in shots),
         "baseline": BASELINE_DESCRIPTION,
         "definitions": dict(DEFINITIONS),
         "unavailable": unavailable_metrics(),
