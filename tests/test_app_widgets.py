@@ -311,3 +311,15 @@ def test_render_panel_scrolls_instead_of_squeezing_in_a_short_window(qtbot):
     for w in (panel.quality, panel.seed, panel.device, *panel._bars.values()):
         assert w.height() >= w.sizeHint().height()
     assert panel.scroll.verticalScrollBar().maximum() > 0 and below.height() >= below.minimumHeight()
+
+
+def test_render_panel_shows_the_base_line(qtbot):
+    from x2video_app._qt.render_panel import RenderPanel
+
+    panel = RenderPanel()
+    qtbot.addWidget(panel)
+    assert panel.base_label.isHidden()
+    panel.set_base("Base: the shot's path-traced frames (rgb on every frame)")
+    assert not panel.base_label.isHidden() and "path-traced" in panel.base_label.text()
+    panel.set_base("")
+    assert panel.base_label.isHidden()

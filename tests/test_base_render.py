@@ -194,3 +194,15 @@ def test_base_caption_says_what_the_base_is():
     assert "2 keyframes of 5 frames" in base_caption(wall_shot([0.0] * 5), RenderSettings(keyframes="0,4"))
     assert "off" in base_caption(room(), RenderSettings(base="off"))
     assert base_caption(room(rgb=False), RenderSettings()) == ""
+
+
+def test_editor_document_says_its_shot_is_the_base():
+    from x2video_app.state.document import Document
+
+    doc = Document()
+    assert doc.base_caption == ""
+    doc.set_shot(room(), None)
+    assert doc.base_caption == "Base: the shot's path-traced frames (rgb on every frame)"
+    doc.set_shot(room(rgb=False), None)
+    assert doc.base_caption == ""
+

@@ -148,8 +148,8 @@ def render_over_base(job: RenderJob, tier: Tier | None, emit: Emit, cancel: Canc
         _generative_over_base(job, tier, bases, original, emit, cancel, done)
         return
     order = coarse_to_fine(*job.frames)
-    emit(RenderStarted(num_frames=len(order), num_windows=0, levels=[0], tier=job.choice.tier, reason=f"{job.choice.reason}; over the"
-                       f" shot's path-traced frames ({_keys_text(shot)})", per_frame=True))
+    reason = job.choice.reason if job.choice.tier == BASE else f"{job.choice.reason}; over the shot's path-traced frames ({_keys_text(shot)})"
+    emit(RenderStarted(num_frames=len(order), num_windows=0, levels=[0], tier=job.choice.tier, reason=reason, per_frame=True))
     for index, i in enumerate([0, *range(1, len(order), 4)]):
         if cancel is not None and cancel.cancelled:
             raise Cancelled(f"cancelled after {len(done)} frames")
