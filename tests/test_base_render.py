@@ -98,6 +98,26 @@ def test_an_albedo_edit_changes_only_what_it_reaches():
         np.testing.assert_allclose(out[BOX], np.maximum(want, 0), rtol=1e-5, atol=1e-5)
 
 
+def test_a_roughness_edit_takes_tier_1s_difference_inside_its_reach_only():
+    from test_tiers import with_net
+
+    from x2video.edits.ops import ScalarOp
+
+    shot, model = room(scale=0.5), with_net()
+    e = box_edit()
+    e.ops = [ScalarOp(mask="sofa", target_channel="roughness", value=0.05)]
+    events, frames = render(shot, RenderSettings(), e, Renderer(model))  # auto: tier 1 runs, its difference where gloss changed
+    assert events[0].tier == "residual" and "over the shot's path-traced frames" in events[0].reason
+    assert {ev.mode for ev in events if isinstance(ev, FramesReady)} == {"formula+residual"}
+    reach = np.zeros((H, W), bool)
+    reach[BOX[0].start - SPILL_MARGIN - 1:BOX[0].stop + SPILL_MARGIN + 1, BOX[1].start - SPILL_MARGIN - 1:BOX[1].stop + SPILL_MARGIN + 1] = True
+    units = OutputUnits.for_shot(shot)
+    for t in range(T):
+        out, base = units.scene(frames[t]), shot.channel("rgb", t)
+        np.testing.assert_array_equal(out[~reach], base[~reach])
+        assert np.abs(out[BOX] - base[BOX]).max() > 1e-4  # the formula's difference is 0 here: only tier 1 changes it (a small random net)
+
+
 def test_base_off_renders_as_before():
     with_rgb, without = room(), room(rgb=False)
     events, off = render(with_rgb, RenderSettings(quality="formula", base="off"))
