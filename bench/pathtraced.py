@@ -100,7 +100,7 @@ def mask_ring(mask: np.ndarray, px: int = 6) -> np.ndarray:
 def render_tier(renderer: Renderer, shot, tier: str, edits=None, **overrides) -> tuple[list[np.ndarray], float]:
     """Frames and seconds of one tier (or "auto": what the product picks) with `edits`."""
     windowed = tier == "auto" or not tiers.get(tier).per_frame  # what may run the sampler takes the fast preset
-    settings = RenderSettings(quality=tier, preset="fast" if windowed else None, **overrides)
+    settings = RenderSettings(quality=tier, preset="fast" if windowed else None, **{"base": "off", **overrides})  # scored against the rgb
     return render_timed(renderer, shot, settings, edits)
 
 

@@ -369,7 +369,7 @@ def run_cell(cell: dict, ctx: Context) -> dict:
         rec["frames"] = shot.num_frames
         scorer = Scorer(shot, float(shot.info.irradiance_scale), classes, names, delta_e=cell["family"] == "length",
                         fit_exposure=cell["family"] == "foreign", truth=case_truth(cell, ctx, shot))
-        settings = RenderSettings(quality=method, preset="fast" if needs_model else None)
+        settings = RenderSettings(quality=method, preset="fast" if needs_model else None, base="off")
         if model is None:
             Renderer(None).render(shot, edits, settings, scorer.on_event)  # tier 0 needs no model
         else:

@@ -106,7 +106,7 @@ def warm_up(renderer: Renderer, shot: EvalShot, sampler: str) -> None:
     """One untimed 2-frame, 1-step render, so one-off costs (first calls, allocator growth, text encoder
     start-up) do not land in the first timed row."""
     view = EvalShot(shot.name, shot.path, EvalView(shot.shot, frames=2), None, shot.gt[:2])
-    render_shot(renderer, view, None, RenderSettings(sampler=sampler, steps=1, window=2))  # type: ignore[arg-type]
+    render_shot(renderer, view, None, RenderSettings(sampler=sampler, steps=1, window=2, base="off"))  # type: ignore[arg-type]
 
 
 def _settings(spec: RowSpec, config: EvalConfig, num_frames: int) -> RenderSettings:
@@ -114,7 +114,7 @@ def _settings(spec: RowSpec, config: EvalConfig, num_frames: int) -> RenderSetti
     return RenderSettings(sampler=spec.sampler, steps=spec.steps, seed=config.seed, window=window, scheme=spec.scheme,  # type: ignore[arg-type]
                           replace_refs=config.replace_refs, seams=config.seams, max_levels=config.max_levels, noise=config.noise,  # type: ignore[arg-type]
                           noise_shared=config.noise_shared, resample=config.resample,
-                          ref_dc=config.ref_dc)
+                          ref_dc=config.ref_dc, base="off")  # scored against the shot's own rgb: never return it
 
 
 def evaluate(
