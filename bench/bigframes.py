@@ -109,7 +109,7 @@ def run_case(size: tuple[int, int], tier: str, frames: int, threads: int) -> dic
     ready: list[float] = []
     quality = tier.split("@")[0]
     runs = tiers.get(quality)  # a windowed tier (the sampler's steps) takes the fast preset
-    settings = RenderSettings(quality=quality, preset="fast" if not runs.per_frame else None, **TIER_SETTINGS.get(tier, {}))  # type: ignore[arg-type]
+    settings = RenderSettings(quality=quality, preset="fast" if not runs.per_frame else None, base="off", **TIER_SETTINGS.get(tier, {}))  # type: ignore[arg-type]
 
     def on_event(e) -> None:
         if isinstance(e, FramesReady):

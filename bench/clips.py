@@ -41,7 +41,6 @@ samples, truth_samples, low = int(sys.argv[6]), int(sys.argv[7]), [int(s) for s 
 from x2video.cycles.shot import CyclesConfig, beauty_scene, render_beauty, write_room_shot
 from x2video.io.image import write_exr
 from x2video.io.metadata import parse_cameras_json
-from x2video.shot import CameraPose
 
 def cpu():
     r = resource.getrusage(resource.RUSAGE_SELF)
@@ -56,10 +55,8 @@ if secs:
     meta["passes"] = {"samples": samples, "denoise": True, "seed": 0, "seconds": secs, "cpu_seconds": cpu() - c0}
 shot_meta = json.loads((out / "passes" / "shot.json").read_text())
 gain = shot_meta["extra"]["light_gain"]
-poses = parse_cameras_json(out / "passes" / "cameras.json", frames)
-axes = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1]], float)  # Blender -> ours: beauty_scene maps back
-ours = [CameraPose(axes @ np.asarray(p.cam_to_world, float), p.fov_y_deg) for p in poses]
-scene = beauty_scene(seed, ours, w, h, gain, threads=2)
+poses = parse_cameras_json(out / "passes" / "cameras.json", frames)  # Blender's world, as beauty_scene takes them
+scene = beauty_scene(seed, poses, w, h, gain, threads=2)
 for name, spp, rseed in [("truth", truth_samples, 1)] + [(f"cycles-{s}", s, 2) for s in low]:
     d = out / name
     d.mkdir(parents=True, exist_ok=True)

@@ -85,8 +85,9 @@ def load_models(args: argparse.Namespace, *, with_image: bool = False) -> tuple[
 
 
 def settings(args: argparse.Namespace, **overrides: Any) -> RenderSettings:
-    """The RenderSettings the sampling flags give, with `overrides`."""
-    return from_args(RenderSettings, args, **overrides)
+    """The RenderSettings the sampling flags give, with `overrides`; base 'off' unless overridden: the accuracy benches
+    score the tiers against the shot's own rgb, which a render over the base would return."""
+    return from_args(RenderSettings, args, **{"base": "off", **overrides})
 
 
 def run_measure(args: argparse.Namespace, measure_fn: Callable[[argparse.Namespace], dict]) -> dict:

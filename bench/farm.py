@@ -46,7 +46,7 @@ def measure(args: argparse.Namespace) -> dict:
     from x2video.procedural.shotgen import write_procedural_shot
     from x2video.weights import ModelOptions
 
-    settings = from_args(RenderSettings, args)
+    settings = from_args(RenderSettings, args, base="off")  # the tiers' throughput, not the shot's own frames
     w, h = args.size
     runs = []
     with tempfile.TemporaryDirectory() as tmp:

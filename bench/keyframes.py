@@ -5,12 +5,13 @@ and a truth rendered apart at more samples with another seed), for N in `--every
 
 - methods on the frames between: hold (the nearest keyframe), RIFE (colour only: `bench.rife`), the classical
   fill by reprojection (`x2video.base.fill`, by depth and camera), the same by G-buffer flow (as on a shot without
-  depth or camera), each scored by PSNR and SSIM on the frames between and TC over the whole clip (keyframes
-  included), against the truth;
+  depth or camera), the learned fill (`x2video.base.learned`: the classical fill corrected by the fill network, from
+  `--fill` or beside the shipped weights; skipped, saying why, where there are none), each scored by PSNR and SSIM
+  on the frames between and TC over the whole clip (keyframes included), against the truth;
 - cost per frame = keyframe cost / N + G-buffer frame cost + the method's own seconds, beside Cycles at the
   keyframes' samples and at 1, 2, 4 samples + OIDN on every frame (their PSNR against the same truth).
 
-    python -m bench.keyframes [--clips DIR] [--every 2,4,8,16] [--validation]
+    python -m bench.keyframes [--clips DIR] [--every 2,4,8,16] [--validation] [--fill DIR]
 
 `--validation` scores the validation clip only (where the fill's settings are chosen); without it, the test clips
 (`bench.clips.TEST_SEEDS`) are scored and written to bench/results/keyframes/keyframes.json.
@@ -100,16 +101,40 @@ class NoDepth:
         return self._shot.size
 
 
-def methods() -> dict[str, Callable[..., np.ndarray]]:
-    return {
+def methods(fill: Any = None) -> dict[str, Callable[..., np.ndarray]]:
+    """The methods by name; "learned" only with `fill` (a `LearnedFill`)."""
+    out = {
         "hold": lambda shot, keys, t, cache: hold(shot, keys, t),
         "rife": lambda shot, keys, t, cache: rife(shot, keys, t),
         "classical": classical,
         "classical_flow": lambda shot, keys, t, cache: classical(NoDepth(shot), keys, t, cache),
     }
+    if fill is not None:
+        from x2video.base.fill import fill_frame
+
+        out["learned"] = lambda shot, keys, t, cache: fill_frame(shot, t, keyframes=keys, shading=cache, learned=fill).rgb
+    return out
 
 
-def score_clip(folder: Path, every: list[int], names: list[str]) -> dict:
+def fill_sha(fill: Any) -> str:
+    """sha256 (first 16 hex digits) of the fill network's weights file: which weights a result was measured with."""
+    import hashlib
+
+    return hashlib.sha256((fill.folder / "fill.safetensors").read_bytes()).hexdigest()[:16]
+
+
+def learned_fill(folder: str | None) -> Any:
+    """The learned fill from `folder` (else beside the shipped weights), or None, printing why, where there is none."""
+    from x2video.base.learned import load_learned_fill
+
+    try:
+        return load_learned_fill(folder)
+    except FileNotFoundError as e:
+        print(f"learned: skipped ({e})", flush=True)
+        return None
+
+
+def score_clip(folder: Path, every: list[int], names: list[str], fill: Any = None) -> dict:
     shot, truth, meta = load_clip(folder)
     n = shot.num_frames
     gts = [tonemap(f) for f in truth]
@@ -121,7 +146,7 @@ def score_clip(folder: Path, every: list[int], names: list[str]) -> dict:
             keys.append(n - 1)
         between = [t for t in range(n) if t not in keys]
         for name in names:
-            fn, cache, secs = methods()[name], {}, []
+            fn, cache, secs = methods(fill)[name], {}, []
             disp = {}
             for t in range(n):
                 if t in keys:
@@ -156,7 +181,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clips", default=None, help="root of bench.clips' clips (default its cache folder at --size)")
     ap.add_argument("--size", default="320x224")
     ap.add_argument("--every", default="2,4,8,16")
-    ap.add_argument("--methods", default="hold,rife,classical,classical_flow")
+    ap.add_argument("--methods", default="hold,rife,classical,classical_flow,learned")
+    ap.add_argument("--fill", default=None, help="folder with fill.safetensors + fill.json (default: beside the shipped weights)")
     ap.add_argument("--validation", action="store_true", help="score the validation clip (deciding settings), not the test clips")
     args = ap.parse_args(argv)
     w, h = parse_size(args.size)
@@ -167,8 +193,12 @@ def main(argv: list[str] | None = None) -> int:
     if missing:
         raise SystemExit(f"{missing[0]}: no clip (make it with python -m bench.clips --seeds {seeds} --size {args.size})")
     every = [int(v) for v in args.every.split(",")]
+    names = args.methods.split(",")
+    fill = learned_fill(args.fill) if "learned" in names else None
+    if fill is None and "learned" in names:
+        names.remove("learned")
     out = {"bench": "keyframes", "command": command("keyframes", argv), "split": "validation" if args.validation else "test",
-           "size": args.size, "clips": [score_clip(f, every, args.methods.split(",")) for f in folders]}
+           "size": args.size, "fill_weights": None if fill is None else fill_sha(fill), "clips": [score_clip(f, every, names, fill) for f in folders]}
     if GBUFFER_COST.is_file():
         out["gbuffer_cost"] = json.loads(GBUFFER_COST.read_text())
     path = results_path("keyframes", "keyframes_validation" if args.validation else "keyframes")

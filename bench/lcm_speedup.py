@@ -79,7 +79,7 @@ def back_to_back(renderers: dict, shots: list, args: argparse.Namespace) -> dict
         for sampler in order:
             for reference in (False, True):
                 r = renderers[sampler]
-                settings = RenderSettings(sampler=sampler, steps=steps[sampler], seed=args.seed, window=args.window,  # type: ignore[arg-type]
+                settings = RenderSettings(base="off", sampler=sampler, steps=steps[sampler], seed=args.seed, window=args.window,  # type: ignore[arg-type]
                                           replace_refs=args.replace_refs, noise=args.noise, noise_shared=args.noise_shared,
                                           ref_dc=args.ref_dc, resample=args.resample)
                 secs = enc = 0.0

@@ -90,7 +90,7 @@ def measure(args: argparse.Namespace) -> dict:
             for name, (noise, shared) in zip(names, settings):
                 per_seed = {}
                 for seed in seeds:
-                    rs = RenderSettings(sampler="ddim", steps=args.steps, seed=seed, window=window, replace_refs=args.replace_refs,  # type: ignore[arg-type]
+                    rs = RenderSettings(base="off", sampler="ddim", steps=args.steps, seed=seed, window=window, replace_refs=args.replace_refs,  # type: ignore[arg-type]
                                         noise=noise, noise_shared=shared, ref_dc=args.ref_dc, resample=args.resample)  # type: ignore[arg-type]
                     ps, pe, ge = [], [], []
                     for s in shots:

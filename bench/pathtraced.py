@@ -37,6 +37,8 @@ from x2video.io.atomic import write_json_atomic
 from x2video.io.dataset import shot_dirs
 from x2video.io.image import read_image
 from x2video.io.paths import portable_path
+from x2video.io.truth import ground_truth
+from x2video.io.truth import summary as truth_summary
 from x2video.render.renderer import Renderer
 from x2video.render.settings import RenderSettings
 from x2video.tiers import registry as tiers
@@ -99,7 +101,7 @@ def mask_ring(mask: np.ndarray, px: int = 6) -> np.ndarray:
 def render_tier(renderer: Renderer, shot, tier: str, edits=None, **overrides) -> tuple[list[np.ndarray], float]:
     """Frames and seconds of one tier (or "auto": what the product picks) with `edits`."""
     windowed = tier == "auto" or not tiers.get(tier).per_frame  # what may run the sampler takes the fast preset
-    settings = RenderSettings(quality=tier, preset="fast" if windowed else None, **overrides)
+    settings = RenderSettings(quality=tier, preset="fast" if windowed else None, **{"base": "off", **overrides})  # scored against the rgb
     return render_timed(renderer, shot, settings, edits)
 
 
@@ -152,7 +154,8 @@ def evaluate(renderer: Renderer, shots: list[Path], runs: list[tuple[str, str, s
         for key, tier, cond, overrides in runs:
             frames, secs = render_tier(renderer, shot, tier, conds[cond][0], **overrides)
             results[key] = (display(frames, s), secs)
-        shot_row = {"shot": f"{sp.parent.name}/{sp.name}", "frames": shot.num_frames, "size": list(shot.size[::-1])}
+        shot_row = {"shot": f"{sp.parent.name}/{sp.name}", "frames": shot.num_frames, "size": list(shot.size[::-1]),
+                    "truth": ground_truth(shot).label}
         for key, (disp, secs) in results.items():
             r = rows.setdefault(key, {"psnr": [], "ssim": [], "tc": [], "sec_per_frame": [], "sse": np.zeros(len(CLASSES)), "npx": np.zeros(len(CLASSES)),
                                       "sse_mask": 0.0, "npx_mask": 0, "sse_ring": 0.0, "npx_ring": 0})
@@ -231,7 +234,8 @@ def main(argv: list[str] | None = None) -> int:
         runs.append(("residual_guess|all", "residual", "all", {"guess_unseen": True}))
     summary, per_shot = evaluate(renderer, shots, runs)
     out = {"format": "x2video-pathtraced", "command": command("pathtraced", argv), "data": portable_path(args.data), "split": args.split,
-           "shots": len(shots), "weights": portable_path(weights) if args.weights else "shipped", "threads": args.threads,
+           "shots": len(shots), "truth": truth_summary(r["truth"] for r in per_shot),
+           "weights": portable_path(weights) if args.weights else "shipped", "threads": args.threads,
            "residual_net": model.residual_net is not None, "machine": machine_info(model.device),
            "note": "PSNR/SSIM on tonemap (clip, sRGB) in the shot's units; TC = warping error / ground truth's, DIS flow; "
                    "per-material PSNR pools squared errors over the class's pixels; 'formula' = tier 0 (classical shading), "
@@ -242,7 +246,7 @@ def main(argv: list[str] | None = None) -> int:
     write_json_atomic(dest, out)
     from x2video.io.atomic import write_text_atomic
 
-    write_text_atomic(dest.with_suffix(".md"), "\n".join(markdown(summary)) + "\n")
+    write_text_atomic(dest.with_suffix(".md"), "\n".join(markdown(summary) + ["", f"Truth: {out['truth']}."]) + "\n")
     for key, v in summary.items():
         print(f"{key:28s} PSNR {v['psnr']:6.2f}  SSIM {v['ssim']:.4f}  TC {v['tc']}  s/frame {v['sec_per_frame']:.3f}  {v['psnr_by_material']}")
     print(f"wrote {dest}")

@@ -3,7 +3,8 @@
 A shot's frames are compared in the shot's own units: the renderer's frames are in the model's
 exposure (the shot's irradiance normalisation), so they are divided by `shot.info.irradiance_scale`
 before display; the ground truth (Cycles' Combined) and any Cycles re-render are already in those
-units. PSNR and SSIM are on display images (`x2video.channels.tonemap`: clip, sRGB), TC is the
+units. The truth is the shot's truth apart (``truth/``: more samples, another noise seed than the passes the
+tiers read) when it has one, else its rgb (`x2video.io.truth`). PSNR and SSIM are on display images (`x2video.channels.tonemap`: clip, sRGB), TC is the
 warping error over the ground truth's (DIS flow on the ground truth: docs/ARCHITECTURE.md "Measuring it").
 """
 from __future__ import annotations
@@ -14,6 +15,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from x2video.channels import tonemap
+from x2video.io.truth import ground_truth
+from x2video.io.truth import summary as truth_summary
 from x2video.metrics.image import psnr, ssim
 from x2video.metrics.temporal import temporal_consistency
 from x2video.render.events import FramesReady
@@ -26,9 +29,17 @@ def display(frames: Sequence[np.ndarray], scale: float = 1.0) -> list[np.ndarray
 
 
 def truth(shot: Any, frames: int | None = None) -> list[np.ndarray]:
-    """Display images of the shot's ground truth (its rgb channel), first `frames` frames (default all)."""
+    """Display images of the shot's ground truth, first `frames` frames (default all): its truth apart (``truth/``,
+    `x2video dataset truth`) when it has one, else its rgb channel (`truth_label` says which)."""
     n = shot.num_frames if frames is None else min(frames, shot.num_frames)
-    return [tonemap(shot.channel("rgb", t)) for t in range(n)]
+    gt = ground_truth(shot)
+    return [tonemap(gt.frame(t)) for t in range(n)]
+
+
+def truth_label(shots: Sequence[Any]) -> str:
+    """What the shots were scored against, for a result's "truth" field: 'apart, 64 spp seed 1' (``truth/``) or
+    "the passes' own Combined" (one label, or each with its count when the shots differ)."""
+    return truth_summary(ground_truth(s).label for s in shots)
 
 
 def score(disp: Sequence[np.ndarray], gts: Sequence[np.ndarray]) -> dict[str, float | None]:

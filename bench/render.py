@@ -260,9 +260,9 @@ def main(argv: list[str] | None = None) -> None:
     load_before = os.getloadavg()
     results = []
     if args.preset:
-        configs = [RenderSettings(preset=args.preset, window=args.window, quality=args.quality, engine=e) for e in engines]
+        configs = [RenderSettings(preset=args.preset, window=args.window, quality=args.quality, engine=e, base="off") for e in engines]
     else:
-        configs = [RenderSettings(sampler=sampler, steps=steps, window=args.window, scheme=scheme, engine=e, quality=args.quality)
+        configs = [RenderSettings(sampler=sampler, steps=steps, window=args.window, scheme=scheme, engine=e, quality=args.quality, base="off")
                    for e in engines for scheme in args.schemes.split(",") for sampler, steps in
                    [(c.split("-")[0], int(c.split("-")[1])) for c in args.samplers.split(",") if c]]
     parts = None

@@ -158,7 +158,7 @@ def render_tiers(model: Any, shot: Any, frame: int, gts: list[np.ndarray]) -> li
     scale = float(shot.info.irradiance_scale)
     panels = []
     for key, label, quality, preset in TIER_PANELS:
-        settings = x2video.RenderSettings(quality=quality, preset=preset)
+        settings = x2video.RenderSettings(quality=quality, preset=preset, base="off")
         render_timed(x2video.Renderer(model), shot, settings)  # untimed warm-up
         c0 = time.process_time()
         frames, secs = render_timed(x2video.Renderer(model), shot, settings)

@@ -30,7 +30,8 @@ Families (the grid; `--quick` runs a few cells of each at small sizes and short 
               stay within AUTO_BELOW_DB of the formula on every case (issue 49)
 
 Source data: `--data`, a folder of path-traced shots with rgb ground truth (Cycles multi-layer EXRs, e.g.
-DATA/test); without it a small synthetic shot (numpy, no renderer) stands in and the results say so.
+DATA/test); without it a small synthetic shot (numpy, no renderer) stands in and the results say so. A source with
+a truth apart (``truth/``, `x2video dataset truth`) is scored against it; the result's "truth" says which.
 The diffusion tier is skipped (recorded as skipped, with why) above `--diffusion-max-pixels` and
 `--diffusion-max-frames`: on a 2-core CPU a 1920x1080 or 1,000-frame diffusion render takes hours.
 
@@ -213,7 +214,11 @@ def main(argv: list[str] | None = None) -> int:
     else:
         sources = [SyntheticShot(8, (112, 160))]
     has_cycles = cycles_noise(sources[0]) is not None
-    ctx = Context(sources, weights=args.weights, residual=args.residual, diffusion_max_pixels=args.diffusion_max_pixels,
+    from x2video.io.truth import ground_truth
+    from x2video.io.truth import summary as truth_summary
+
+    truths = [ground_truth(s) for s in sources]  # truth/ (rendered apart from the passes) where a source has it, else its rgb
+    ctx = Context(sources, truths=truths, weights=args.weights, residual=args.residual, diffusion_max_pixels=args.diffusion_max_pixels,
                   diffusion_max_frames=args.diffusion_max_frames or (17 if args.quick else 65), threads=args.threads)
     families = tuple(f for f in args.families.split(",") if f)
     methods = tuple(m for m in args.methods.split(",") if m)
@@ -228,7 +233,8 @@ def main(argv: list[str] | None = None) -> int:
     def write() -> dict:
         out = {"format": "x2video-stability", "command": command("stability", argv), "quick": args.quick,
                "data": portable_path(args.data) if args.data else "synthetic (no --data)",
-               "sources": [Path(str(s.info.source)).name for s in sources], "threads": args.threads,
+               "sources": [Path(str(s.info.source)).name for s in sources], "truth": truth_summary(t.label for t in truths),
+               "threads": args.threads,
                "model": ctx.model_info, "machine": machine_info(ctx._model.device if ctx._model is not None else "cpu"),
                "note": "PSNR on tonemap (clip, sRGB) in the shot's units; TC = warping error / ground truth's (DIS flow, first "
                        f"{TC_FRAMES} frames); seconds exclude scoring and model loading; peak_rss_mb = the process's VmHWM reset "

@@ -12,7 +12,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from bench.stability_shots import HOSTILE, ViewShot, cycles_noise, poisson_noise
+from bench.stability_shots import HOSTILE, ViewShot, cycles_noise, poisson_noise, resize_channel
 from x2video.channels import INTRINSIC, tonemap
 from x2video.shot import Shot
 
@@ -93,12 +93,17 @@ class Scorer:
     TC_FRAMES frames, so a 1,000-frame shot is never in memory. Its own time is kept apart (`seconds`)."""
 
     def __init__(self, gt_shot: Shot, scale: float, classes: Callable[[int], np.ndarray] | None = None, class_names: tuple[str, ...] = (),
-                 delta_e: bool = False, fit_exposure: bool = False):
+                 delta_e: bool = False, fit_exposure: bool = False, truth: Callable[[int], np.ndarray] | None = None):
         self.gt_shot, self.scale, self.classes, self.class_names, self.delta_e = gt_shot, scale, classes, class_names, delta_e
+        self.truth = truth  # frame t's truth when it is not the shot's rgb (a truth apart: `case_truth`)
         self.fit_exposure = fit_exposure  # one exposure per frame fitted to the truth (a truth in another tool's units)
         self.per_frame: dict[int, dict] = {}
         self.keep: dict[int, np.ndarray] = {}
         self.seconds = 0.0
+
+    def gt(self, t: int) -> np.ndarray:
+        """Frame t's linear truth: `truth(t)`, else the shot's rgb."""
+        return self.truth(t) if self.truth is not None else self.gt_shot.channel("rgb", t)
 
     def on_event(self, e: Any) -> None:
         from x2video.render.events import FramesReady
@@ -116,9 +121,9 @@ class Scorer:
         if self.fit_exposure:
             from bench.stability_foreign import best_exposure
 
-            lin = lin * best_exposure(lin, np.nan_to_num(self.gt_shot.channel("rgb", t)), tonemap)
+            lin = lin * best_exposure(lin, np.nan_to_num(self.gt(t)), tonemap)
         disp = tonemap(lin)
-        gt = tonemap(np.nan_to_num(self.gt_shot.channel("rgb", t)))
+        gt = tonemap(np.nan_to_num(self.gt(t)))
         if disp.shape != gt.shape:
             raise ValueError(f"frame {t}: output {disp.shape[1]}x{disp.shape[0]}, the shot is {gt.shape[1]}x{gt.shape[0]}")
         sq = ((disp.astype(np.float64) - gt) ** 2).mean(-1)  # (H, W)
@@ -161,7 +166,7 @@ class Scorer:
         if len(kept) >= 2 and kept == list(range(len(kept))):
             from x2video.metrics.temporal import temporal_consistency
 
-            gts = [tonemap(np.nan_to_num(self.gt_shot.channel("rgb", t))) for t in kept]
+            gts = [tonemap(np.nan_to_num(self.gt(t))) for t in kept]
             try:
                 out["tc"] = temporal_consistency([self.keep[t].astype(np.float32) for t in kept], gts).tc
                 out["tc_frames"] = len(kept)
@@ -177,6 +182,8 @@ class Context:
     """What cells share: the source shots, the model (loaded on first use) and the limits."""
 
     sources: list[Shot]
+    #: each source's truth (`x2video.io.truth.ground_truth`); empty: every source is scored against its rgb
+    truths: list[Any] = field(default_factory=list)
     weights: str | None = None
     residual: str | None = None
     diffusion_max_pixels: int = 640 * 360
@@ -295,6 +302,24 @@ def build_case(cell: dict, ctx: Context) -> tuple[Shot, Any, Callable[[int], np.
     return shot, edits, classes, names
 
 
+def case_truth(cell: dict, ctx: Context, shot: Shot) -> Callable[[int], np.ndarray] | None:
+    """Frame t's truth for a cell whose source has a truth apart (``truth/``), at the case's size and in its units
+    (the foreign family: through the same fixture and scale as its picture, never through its 8 bits); None where
+    the source has none (the case shot's rgb is the truth)."""
+    i = cell["params"].get("source", 0) % len(ctx.sources)
+    tr = ctx.truths[i] if i < len(ctx.truths) else None
+    if tr is None or not tr.apart:
+        return None
+    if cell["family"] == "foreign":
+        from functools import lru_cache
+
+        from bench.stability_foreign import CASES, foreign_channels
+
+        src, case = ctx.sources[i], CASES[cell["params"]["case"]]
+        return lru_cache(maxsize=2)(lambda t: foreign_channels(src, t, case, rgb=tr.frame(t))["rgb"])
+    return lambda t: resize_channel("rgb", tr.frame(shot.src_index(t)), shot.size)
+
+
 def _largest_ids(shot: Shot, n: int) -> list[int]:
     """The n largest objects of frame 0 that cover under 15% of it (floor, walls and ceiling are not edits' targets)."""
     ids = shot.channel("ids", 0)[..., 0].ravel()
@@ -345,8 +370,8 @@ def run_cell(cell: dict, ctx: Context) -> dict:
         rec["size"] = [shot.size[1], shot.size[0]]
         rec["frames"] = shot.num_frames
         scorer = Scorer(shot, float(shot.info.irradiance_scale), classes, names, delta_e=cell["family"] == "length",
-                        fit_exposure=cell["family"] == "foreign")
-        settings = RenderSettings(quality=method, preset="fast" if needs_model else None)
+                        fit_exposure=cell["family"] == "foreign", truth=case_truth(cell, ctx, shot))
+        settings = RenderSettings(quality=method, preset="fast" if needs_model else None, base="off")
         if model is None:
             Renderer(None).render(shot, edits, settings, scorer.on_event)  # tier 0 needs no model
         else:

@@ -71,14 +71,16 @@ def lamp(size: tuple[int, int], level: float) -> tuple[np.ndarray, np.ndarray]:
     return disc, np.where(disc, LAMP_LEVEL * level, glow).astype(np.float32)
 
 
-def foreign_channels(src: Shot, t: int, case: Foreign) -> dict[str, np.ndarray]:
+def foreign_channels(src: Shot, t: int, case: Foreign, rgb: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Frame t of `src` as the foreign tool holds it before writing, linear and in our channel names: resized, the
     fixture added, irradiance and picture in the foreign scale (irradiance x `irradiance_gain`, the picture divided by
-    the source's exposure normalisation and times the same gain, so formula and truth share the foreign units)."""
+    the source's exposure normalisation and times the same gain, so formula and truth share the foreign units).
+    `rgb`: the picture to take instead of the source's (its truth apart, for scoring)."""
     from bench.stability_shots import resize_channel
 
     size = src.size if case.size is None else (case.size[1], case.size[0])
-    ch = {n: resize_channel(n, np.nan_to_num(src.channel(n, t)), size) for n in ("albedo", "normal", "roughness", "metallic", "irradiance", "rgb")}
+    ch = {n: resize_channel(n, np.nan_to_num(src.channel(n, t) if n != "rgb" or rgb is None else rgb), size)
+          for n in ("albedo", "normal", "roughness", "metallic", "irradiance", "rgb")}
     s = float(src.info.irradiance_scale)
     irr, rgb = ch["irradiance"] / s, ch["rgb"]  # both in the source renderer's units
     if case.emitter:

@@ -93,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
         runs = []
         for entry in args.runs.split(","):
             preset, quality = entry.split(":")
-            s = RenderSettings(preset=preset, quality=quality, engine=args.engine)
+            s = RenderSettings(preset=preset, quality=quality, engine=args.engine, base="off")
             valid = resolve(s, renderer.model)
             renderer.render(shot, None, RenderSettings(**{**valid.__dict__, "frames": (0, 2), "steps": 1, "preset": None}))  # text encoder, tiers
             if tiers.windowed(renderer.last_tier.tier):  # the sampler's windows: its engine's graphs built outside the clock

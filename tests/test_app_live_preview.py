@@ -57,6 +57,7 @@ def win(qtbot, tmp_path, monkeypatch, shot_dir, torch_one_thread):
     w.show()
     assert w.project.open_path(shot_dir), w.errors_shown
     w.render_panel.window.setValue(3)
+    w.render_panel.base_check.setChecked(False)  # tier 1's own frames (over the base, the edits' differences over the shot's rgb)
     w.act_untrained.setChecked(True)  # a model choice; builds the fake one in the background
     assert w.render_ctl.wait(TIMEOUT_MS) and w.render_ctl.renderer is not None
     w.doc.set_view("rendered")

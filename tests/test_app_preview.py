@@ -65,6 +65,7 @@ def open_window(qtbot, tmp_path, monkeypatch, shot_dir, model) -> MainWindow:
     w.show()
     assert w.project.open_path(shot_dir), w.errors_shown
     w.render_panel.window.setValue(3)
+    w.render_panel.base_check.setChecked(False)  # the tiers' renders (over the shot's rgb a render without edits returns it)
     w.act_untrained.setChecked(True)  # a model choice; builds it in the background
     assert w.render_ctl.wait(TIMEOUT_MS) and w.render_ctl.renderer is not None
     return w

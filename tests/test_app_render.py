@@ -51,6 +51,8 @@ def win(qtbot, shot_dir, tmp_path, monkeypatch, tiny_model):
     w.show()
     assert w.project.open_path(shot_dir), w.errors_shown
     w.render_panel.window.setValue(3)  # 5 frames, N=3: one keyframe window (0, 2, 4), then two interpolation windows
+    assert w.render_panel.base_check.isVisible()  # the shot carries rgb: a render would return it
+    w.render_panel.base_check.setChecked(False)  # these tests are about the tiers' renders
     yield w
     w.render_ctl.cancel()
     w.render_ctl.wait(RENDER_TIMEOUT_MS)  # the render and the background model build

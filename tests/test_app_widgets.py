@@ -312,3 +312,21 @@ def test_render_panel_scrolls_instead_of_squeezing_in_a_short_window(qtbot):
     for w in (panel.quality, panel.seed, panel.device, *panel._bars.values()):
         assert w.height() >= w.sizeHint().height()
     assert panel.scroll.verticalScrollBar().maximum() > 0 and below.height() >= below.minimumHeight()
+
+
+def test_render_panel_shows_the_base_and_turns_it_off(qtbot):
+    from x2video_app._qt.render_controller import RenderController
+    from x2video_app._qt.render_panel import RenderPanel
+
+    panel = RenderPanel()
+    qtbot.addWidget(panel)
+    assert panel.base_check.isHidden()  # no shot with path-traced frames
+    panel.set_base("Base: the shot's path-traced frames (rgb on every frame)")
+    assert not panel.base_check.isHidden() and "path-traced" in panel.base_check.text()
+    assert RenderController.settings(None, **panel.values()).base == "auto"  # type: ignore[arg-type]  (does not touch self)
+    changed = []
+    panel.sigSettingsChanged.connect(lambda: changed.append(1))
+    panel.base_check.setChecked(False)
+    assert changed and RenderController.settings(None, **panel.values()).base == "off"  # type: ignore[arg-type]
+    panel.set_base("")
+    assert panel.base_check.isHidden()

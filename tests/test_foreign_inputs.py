@@ -41,7 +41,7 @@ def shot(tmp_path_factory):
 def _psnr(shot, model, quality: str) -> tuple[float, object]:
     scorer = Scorer(shot, float(shot.info.irradiance_scale), fit_exposure=True)
     r = Renderer(model)
-    r.render(shot, None, RenderSettings(quality=quality, preset="fast" if quality != "formula" else None), scorer.on_event)
+    r.render(shot, None, RenderSettings(quality=quality, preset="fast" if quality != "formula" else None, base="off"), scorer.on_event)
     return scorer.result(shot.num_frames)["psnr"], getattr(r, "last_tier", None)
 
 

@@ -16,7 +16,7 @@ import numpy as np
 from bench.common import command
 from bench.pareto.data import bpy_available, cycles_job, frames_sha256, images_sha256, parse_sizes, per_size, run_cycles, shots_by_size
 from bench.pareto.methods import METHODS, diffusion_settings, parse_method, same_plan, warm_up
-from bench.ptscore import display, render_timed, score, truth
+from bench.ptscore import display, render_timed, score, truth, truth_label
 
 #: within this many dB of the best PSNR counts as "as good" for the summary's fastest setting
 NEAR_BEST_DB = 0.5
@@ -124,13 +124,24 @@ def measure(opts: ParetoOptions, argv: list[str] | None, on_partial: Any = None)
             ground_truth[size_key] = {"kind": "bench reference", "samples": want_ref, "denoise": "OpenImageDenoise", "seed": 1,
                                       "note": f"Cycles at {want_ref} spp, denoised, rendered by this run with another noise seed than "
                                               "the Cycles rows; the data set's frames "
-                                              f"({'/'.join(map(str, samples_gt)) or '?'} spp, denoised) give psnr_dataset"}
+                                              f"({'/'.join(map(str, samples_gt)) or '?'} spp, denoised; truth: {truth_label(shots)})"
+                                              " give psnr_dataset"}
         else:
             why = "--reference-samples 0" if not opts.reference_samples else f"no bench reference: {why_no_cycles}"
-            ground_truth[size_key] = {"kind": "data set frames", "samples": samples_gt, "denoise": "OpenImageDenoise",
-                                      "note": f"the data set's frames at {'/'.join(map(str, samples_gt)) or '?'} spp, denoised ({why})"
-                                              + ("; Cycles rows at more samples than these are scored against a noisier reference"
-                                                 if any(m.samples > max(samples_gt or [0]) for m in cyc) else "")}
+            apart = truth_label(shots)
+            if apart.startswith("apart, "):  # every shot has its truth apart (`x2video dataset truth`): that is the reference
+                recs = [ground_truth(s).record or {} for s in shots]
+                samples_t, seeds = sorted({r["samples"] for r in recs}), sorted({r["seed"] for r in recs})
+                ground_truth[size_key] = {"kind": "data set truth apart", "samples": samples_t, "denoise": "OpenImageDenoise",
+                                          "seed": seeds[0] if len(seeds) == 1 else seeds,
+                                          "note": f"the data set's truth apart ({apart}, denoised; the passes at "
+                                                  f"{'/'.join(map(str, samples_gt)) or '?'} spp, seed 0) ({why})"}
+            else:
+                ground_truth[size_key] = {"kind": "data set frames", "samples": samples_gt, "denoise": "OpenImageDenoise",
+                                          "note": f"the data set's frames at {'/'.join(map(str, samples_gt)) or '?'} spp, denoised ({why};"
+                                                  f" truth: {apart})"
+                                                  + ("; Cycles rows at more samples than these are scored against a noisier reference"
+                                                     if any(m.samples > max(samples_gt or [0]) for m in cyc) else "")}
         # what a merge checks (--merge): the same shots, frames and inputs (now, before Cycles runs), the same reference
         ground_truth[size_key].update(shots=[d.name for d in dirs], frames=nframes, data_sha256=frames_sha256(shots, nframes))
         if on_partial is not None:

@@ -77,8 +77,8 @@ def diffusion_settings(m: Method, frames: int):
     from x2video.render.settings import RenderSettings
 
     if m.windowed:
-        return RenderSettings(quality=m.kind, sampler=m.sampler, steps=m.steps, scheme=m.scheme, frames=(0, frames))
-    return RenderSettings(quality=m.kind, frames=(0, frames))
+        return RenderSettings(quality=m.kind, sampler=m.sampler, steps=m.steps, scheme=m.scheme, frames=(0, frames), base="off")
+    return RenderSettings(quality=m.kind, frames=(0, frames), base="off")
 
 
 def same_plan(model: Any, shot: Any, m: Method, frames: int) -> bool:

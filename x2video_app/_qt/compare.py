@@ -145,7 +145,9 @@ class Compare(QObject):
 
             self._next_id += 1
             self._inflight = key
-            settings = self.win.render_ctl.settings(**self.win.render_panel.values())
+            # each tier's own frame, from the channels: what Compare sets beside the shot's path-traced frames (over the
+            # base, a tier would return them where no edit reaches)
+            settings = self.win.render_ctl.settings(**{**self.win.render_panel.values(), "base": "off"})
             self.worker.submit(LiveRequest(self._next_id, doc.frame, doc.version, False, doc.shot, snapshot_edits(doc.edits), settings,
                                            model, LiveChoice(TierChoice(tier, "compare view"), None), time.perf_counter()))
         return None, f"{name}: rendering…"

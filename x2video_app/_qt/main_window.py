@@ -287,6 +287,7 @@ class MainWindow(QMainWindow):
         fps = self.doc.shot.info.fps if self.doc.shot is not None else 10.0
         self.timeline.set_num_frames(n, fps)
         self.charts.reset(1)
+        self.render_panel.set_base(self.doc.base_caption)
         self.refresh_all()
         self.rendering.prepare()
 

@@ -224,9 +224,10 @@ class RenderController(QObject):
 
     def settings(self, preset: str, seed: int, window: int, scheme: str, seams: bool = RenderSettings.seams,
                  noise_shared: float = RenderSettings.noise_shared, max_levels: int | None = None,
-                 exposure: float | str = RenderSettings.exposure, quality: str = RenderSettings.quality) -> RenderSettings:
+                 exposure: float | str = RenderSettings.exposure, quality: str = RenderSettings.quality,
+                 base: str = RenderSettings.base) -> RenderSettings:
         return RenderSettings(preset=preset, seed=seed, window=window, scheme=scheme, seams=seams, noise="frame", noise_shared=noise_shared,
-                              max_levels=max_levels, exposure=exposure, quality=quality)
+                              max_levels=max_levels, exposure=exposure, quality=quality, base=base)  # type: ignore[arg-type]
 
     def start(self, settings: RenderSettings) -> bool:
         """Start a render of the document's shot and edits; False when one is running or nothing is open.

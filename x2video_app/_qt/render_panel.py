@@ -151,6 +151,14 @@ class RenderPanel(QWidget):
         buttons.addWidget(self.cancel_button)
 
         self.model_label = QLabel()
+        self.base_check = QCheckBox()  # the shot's path-traced frames as the base (`set_base`; RenderSettings.base)
+        self.base_check.setChecked(RenderSettings.base == "auto")
+        self.base_check.setToolTip("Where the shot carries its own path-traced frames, a render keeps them: frames no edit "
+                                   "reaches come back bit for bit, edits render as differences over them, frames between "
+                                   "keyframes are filled from them. Off: every frame re-rendered from the channels "
+                                   "(x2video render --base off), to compare.")
+        self.base_check.setVisible(False)
+        self.base_check.toggled.connect(lambda _on: self.sigSettingsChanged.emit())
         self.status_label = QLabel("Ready")
         self.status_label.setWordWrap(True)
         self.status_label.setAlignment(Qt.AlignmentFlag.AlignLeft | Qt.AlignmentFlag.AlignTop)
@@ -170,6 +178,7 @@ class RenderPanel(QWidget):
         lay.addLayout(form)
         lay.addLayout(buttons)
         lay.addWidget(self.model_label)
+        lay.addWidget(self.base_check)
         lay.addWidget(self.bars_box)
         lay.addWidget(self.status_label)
         lay.addStretch(1)
@@ -240,7 +249,14 @@ class RenderPanel(QWidget):
             "max_levels": self.levels.value() or None if self.scheme.currentData() == "recursive" else None,
             "exposure": "auto" if self.exposure_auto.isChecked() else float(self.exposure.value()),
             "quality": self.quality.currentData(),
+            "base": "auto" if self.base_check.isChecked() else "off",
         }
+
+    def set_base(self, caption: str) -> None:
+        """Say what a render keeps as its base (`Document.base_caption`), with a box to turn it off; '' (a shot without
+        path-traced frames) hides it."""
+        self.base_check.setText(caption)
+        self.base_check.setVisible(bool(caption))
 
     def set_residual_available(self, available: bool | None) -> None:
         """Grey out quality 'residual' unless the model has the tier-1 network (`set_tier_available`). None: no

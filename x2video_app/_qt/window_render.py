@@ -158,7 +158,7 @@ class WindowRender(QObject):
         """Ring the running render's setting on the speed/accuracy chart (docs/pareto.json), at the shot's size."""
         w = self.win
         settings, model = self.render_settings, getattr(w.render_ctl.renderer, "model", None)
-        if settings is None or w.doc.shot is None:
+        if settings is None or w.doc.shot is None or tier == "base":  # base: no tier ran, the shot's own frames (x2video.base.stage)
             return None
         if model is not None:
             from x2video.tiers import registry as tiers  # the preset as the tier resolves it

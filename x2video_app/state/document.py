@@ -78,6 +78,16 @@ class Document:
         return 0 if self.shot is None else self.shot.num_frames
 
     @property
+    def base_caption(self) -> str:
+        """What a render keeps as its base (`x2video.base.stage.base_caption`): the shot's path-traced frames, or ''."""
+        if self.shot is None:
+            return ""
+        from x2video.base.stage import base_caption
+        from x2video.render.settings import RenderSettings
+
+        return base_caption(self.shot, RenderSettings())
+
+    @property
     def num_masks(self) -> int:
         return 0 if self.edits is None else len(self.edits.masks)
 

@@ -65,7 +65,7 @@ def run(argv: list[str]) -> int:
         win.render_ctl.sigEvent.connect(on_event)
         win.render_ctl.sigRunning.connect(finished)
         report["start"] = time.perf_counter()
-        settings = RenderSettings(preset="fast", quality="diffusion", frames=FRAMES, noise="frame")
+        settings = RenderSettings(preset="fast", quality="diffusion", frames=FRAMES, noise="frame", base="off")
         if not win.render_ctl.start(settings):
             say(False, "the render did not start (no model: are the weights missing? " + win.render_panel.model_label.text() + ")")
 

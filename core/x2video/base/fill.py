@@ -9,18 +9,24 @@ distance in time and their validity. A pixel that no keyframe sees (a surface un
 frame's own irradiance where the shot has it (the diffuse light, in the rgb's units), else the shading spread in
 from the pixels around it (normalised convolution): `FillResult.holes` says how many pixels that was.
 
+`fill_inputs` gives what the fill of a frame is made of as arrays (the warped keyframes, their validity, the time
+weights, the blended shading); the learned fill (`base.learned`, tier 1) corrects that shading with a network.
+
 Everything here is in the units of the shot's rgb channel (file units: a Blender shot's Combined as Cycles wrote
 it), not the renderer's exposure.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from x2video.base.camera import View, project, unproject, world_normals
 from x2video.shot import Shot
+
+if TYPE_CHECKING:
+    from x2video.base.learned import LearnedFill
 
 
 @dataclass(frozen=True)
@@ -113,19 +119,36 @@ def warp_by_depth(shot: Shot, t: int, k: int, shading_k: np.ndarray, cfg: FillCo
     return np.where(valid[..., None], acc / np.maximum(wsum, 1e-12)[..., None], 0).astype(np.float32), valid
 
 
-def fill_frame(shot: Shot, t: int, cfg: FillConfig = FillConfig(), keyframes: Sequence[int] | None = None,
-               shading: dict[int, np.ndarray] | None = None) -> FillResult:
-    """Frame t of `shot` filled from its nearest keyframes (default `shot.keyframes`); a keyframe returns its rgb.
+@dataclass
+class FillInputs:
+    """What the classical fill of a frame between is made of, as arrays (the learned fill's input, `base.learned`).
 
-    `shading` caches keyframes' demodulated shading across calls (frame -> array)."""
+    `near` holds the one or two keyframes it is carried from (earlier first); `warped[i]` is keyframe near[i]'s
+    demodulated shading seen from the frame, (H, W, 3), `valid[i]` where that is the same surface, (H, W) bool, and
+    `time_weight[i]` its weight by distance in time (the two sum to 1). `shading` is the blend with the holes filled,
+    the classical fill's demodulated shading (H, W, 3); `holes` (H, W) bool the pixels no keyframe saw."""
+
+    near: tuple[int, ...]
+    warped: list[np.ndarray]
+    valid: list[np.ndarray]
+    time_weight: list[float]
+    shading: np.ndarray
+    holes: np.ndarray
+    method: str
+
+
+def fill_inputs(shot: Shot, t: int, cfg: FillConfig = FillConfig(), keyframes: Sequence[int] | None = None,
+                shading: dict[int, np.ndarray] | None = None) -> FillInputs:
+    """The warped keyframes, their validity and the classical fill's shading of frame t, which is no keyframe."""
     keys = tuple(shot.keyframes if keyframes is None else keyframes)
     near = nearest_keyframes(t, keys)
     if near == (t,):
-        return FillResult(shot.channel("rgb", t), 0.0, "keyframe")
+        raise ValueError(f"shot {shot.info.source!r}: frame {t} is a keyframe; there is nothing to fill")
     cache = shading if shading is not None else {}
     use_depth = can_reproject(shot)
     acc = np.zeros((*shot.size, 3), np.float32)
     weight = np.zeros(shot.size, np.float32)
+    warped, valids, times = [], [], []
     for k in near:
         if k not in cache:
             cache[k] = demodulated(shot, k, cfg)
@@ -139,13 +162,41 @@ def fill_frame(shot: Shot, t: int, cfg: FillConfig = FillConfig(), keyframes: Se
         w = valid.astype(np.float32) * max(w_time, 1e-3)
         acc += s * w[..., None]
         weight += w
+        warped.append(s)
+        valids.append(valid)
+        times.append(float(w_time))
     seen = weight > 0
     out = np.where(seen[..., None], acc / np.maximum(weight, 1e-12)[..., None], 0).astype(np.float32)
     holes = ~seen
     if holes.any():
         out = _fill_holes(shot, t, out, holes)
-    rgb = out * _albedo(shot, t, cfg.albedo_floor) + _emission(shot, t)
-    return FillResult(np.maximum(rgb, 0).astype(np.float32), float(holes.mean()), "depth" if use_depth else "flow")
+    return FillInputs(near, warped, valids, times, out, holes, "depth" if use_depth else "flow")
+
+
+def modulation(shot: Shot, t: int, cfg: FillConfig = FillConfig()) -> tuple[np.ndarray, np.ndarray]:
+    """Frame t's (albedo floored as the fill floors it, emission), each (H, W, 3): rgb = shading x albedo + emission."""
+    return _albedo(shot, t, cfg.albedo_floor), _emission(shot, t)
+
+
+def modulated(shot: Shot, t: int, shading: np.ndarray, cfg: FillConfig = FillConfig()) -> np.ndarray:
+    """(H, W, 3) rgb of frame t from its demodulated `shading`: shading x albedo + emission, >= 0."""
+    albedo, emission = modulation(shot, t, cfg)
+    return np.maximum(shading * albedo + emission, 0).astype(np.float32)
+
+
+def fill_frame(shot: Shot, t: int, cfg: FillConfig = FillConfig(), keyframes: Sequence[int] | None = None,
+               shading: dict[int, np.ndarray] | None = None, learned: LearnedFill | None = None) -> FillResult:
+    """Frame t of `shot` filled from its nearest keyframes (default `shot.keyframes`); a keyframe returns its rgb.
+
+    `shading` caches keyframes' demodulated shading across calls (frame -> array). `learned` (tier 1 of the fill,
+    `base.learned.load_learned_fill`): its network corrects the classical fill's shading; without it the fill is
+    the classical one (tier 0)."""
+    keys = tuple(shot.keyframes if keyframes is None else keyframes)
+    if nearest_keyframes(t, keys) == (t,):
+        return FillResult(shot.channel("rgb", t), 0.0, "keyframe")
+    inputs = fill_inputs(shot, t, cfg, keys, shading)
+    out = inputs.shading if learned is None else learned.shading(shot, t, inputs, cfg)
+    return FillResult(modulated(shot, t, out, cfg), float(inputs.holes.mean()), inputs.method)
 
 
 def _fill_holes(shot: Shot, t: int, shading: np.ndarray, holes: np.ndarray) -> np.ndarray:

@@ -6,6 +6,7 @@ their keyframes as a shot exported with keyframes would.
 """
 from __future__ import annotations
 
+import sys
 from dataclasses import replace
 
 import numpy as np
@@ -33,10 +34,23 @@ def parse_keyframes(text: str, num_frames: int) -> tuple[int, ...]:
         raise ValueError(f"--keyframes {text!r}: expected every:N or a comma-separated list of frame numbers") from None
     if not frames:
         raise ValueError("--keyframes: no frames given")
+    if frames[0] < 0:
+        raise ValueError(f"--keyframes: frame {frames[0]} is negative (frames are numbered from 0)")
     bad = [f for f in frames if not 0 <= f < num_frames]
     if bad:
         raise ValueError(f"--keyframes: frame {bad[0]} is outside the shot's {num_frames} frames (0..{num_frames - 1})")
     return tuple(frames)
+
+
+def check_keyframes(text: object) -> None:
+    """ValueError naming --keyframes unless `text` reads as every:N or a list of frame numbers (what needs no shot:
+    whether the frames lie inside it is `parse_keyframes`'s)."""
+    if not isinstance(text, str):
+        raise ValueError(f"--keyframes: expected every:N or a comma-separated list of frame numbers, got {text!r}")
+    if text.strip().startswith("every:"):
+        parse_keyframes(text, 1)
+        return
+    parse_keyframes(text, sys.maxsize)
 
 
 class KeyframeShot(Shot):

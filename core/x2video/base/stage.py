@@ -22,10 +22,14 @@ import numpy as np
 
 from x2video.base.difference import GLOSSY_CHANNELS, SPILL_MARGIN, changed, grow, over_base, relit_metal
 from x2video.base.fill import FillConfig, fill_frame
+from x2video.base.keyframes import only_keyframes
 from x2video.render.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted
+from x2video.tiers.base import RenderPlan, TierChoice
 
 if TYPE_CHECKING:
     from x2video.conditioning.frame import FrameConditioning
+    from x2video.edits.model import Edits
+    from x2video.render.settings import RenderSettings
     from x2video.shot import Shot
     from x2video.tiers.base import Emit, RenderJob, Tier
 
@@ -36,6 +40,51 @@ BASE = "base"
 def base_available(shot: Shot) -> bool:
     """The shot carries path-traced rgb on at least one frame."""
     return bool(shot.keyframes)
+
+
+def uses_base(shot: Shot, settings: RenderSettings) -> bool:
+    """A render of `shot` with `settings` renders over the shot's base (`RenderSettings.base` 'auto', rgb on some frame)."""
+    return settings.base == "auto" and base_available(shot)
+
+
+def changes_nothing(edits: Edits | None) -> bool:
+    """`edits` change no pixel of the base: none, or no operation, dropped channel, local prompt or reference (masks
+    alone change nothing; a global prompt alone changes nothing a tier would render over the base)."""
+    return edits is None or not (edits.ops or edits.dropped or edits.local_prompt_masks() or edits.reference is not None)
+
+
+def keyframed(shot: Shot, settings: RenderSettings) -> Shot:
+    """`shot` with rgb kept on `RenderSettings.keyframes` only (`base.keyframes.only_keyframes`), or as it is when unset."""
+    return shot if settings.keyframes is None else only_keyframes(shot, settings.keyframes)
+
+
+def base_choice(shot: Shot, edits: Edits | None, settings: RenderSettings) -> TierChoice | None:
+    """What a render that runs no tier says it runs (every frame is the base: `uses_base` and `changes_nothing`); None
+    when a tier must run, which the tiers decide (`x2video.tiers.registry.decide`). Needs no model."""
+    if not (uses_base(shot, settings) and changes_nothing(edits)):
+        return None
+    return TierChoice(BASE, f"no edits: the shot's path-traced frames ({_keys_text(shot)}); base 'off' re-renders them")
+
+
+def base_plan(shot: Shot, edits: Edits | None, settings: RenderSettings) -> RenderPlan | None:
+    """The plan of a render that runs no tier (`base_choice`): per frame, no model; None when a tier must run."""
+    choice = base_choice(shot, edits, settings)
+    if choice is None:
+        return None
+    from x2video.render.settings import frame_range
+
+    return RenderPlan(choice.tier, choice.reason, frame_range(shot, settings), per_frame=True)
+
+
+def render(job: RenderJob, tier: Tier | None, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:
+    """The Renderer's one call: `job` over the shot's base where it has one and the settings use it (`uses_base`), else
+    `tier` renders it as it always has. `tier` None: no tier runs (`base_choice`)."""
+    if uses_base(job.shot, job.settings):
+        render_over_base(job, tier, emit, cancel, done)
+        return
+    if tier is None:
+        raise ValueError(f"no tier to render shot {job.shot.info.source!r}: it has no path-traced frames to be the base")
+    tier.render(job, emit, cancel, done)
 
 
 class BaseFrames:
@@ -81,7 +130,7 @@ def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameCon
     return np.where(glossy[..., None], over_base(base, r_e, r_o, glossy), out), "formula+residual"
 
 
-def render_over_base(job: RenderJob, tier: Tier, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:
+def render_over_base(job: RenderJob, tier: Tier | None, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:
     """Render `job` over the shot's base: every frame the base where no edit reaches it, else base + the tiers'
     differences (per-frame tiers) or the tier's frame inside the edit's reach (a generative tier); emits the events
     every tier emits (RenderStarted, FramesReady), coarse to fine, a few frames per event."""
@@ -91,15 +140,16 @@ def render_over_base(job: RenderJob, tier: Tier, emit: Emit, cancel: CancelToken
     shot = job.shot
     bases = BaseFrames(shot)
     original = frame_conditioning(shot, None)
-    generative = not tier.per_frame
-    glossy = tier.name != "formula" and job.model is not None and getattr(job.model, "residual_net", None) is not None
+    generative = tier is not None and not tier.per_frame
+    glossy = tier is not None and tier.name != "formula" and job.model is not None and getattr(job.model, "residual_net", None) is not None
     residual = _residual_fn(job) if glossy else None
     if generative:
+        assert tier is not None
         _generative_over_base(job, tier, bases, original, emit, cancel, done)
         return
     order = coarse_to_fine(*job.frames)
-    emit(RenderStarted(num_frames=len(order), num_windows=0, levels=[0], tier=job.choice.tier, reason=f"{job.choice.reason}; over the"
-                       f" shot's path-traced frames ({_keys_text(shot)})", per_frame=True))
+    reason = job.choice.reason if job.choice.tier == BASE else f"{job.choice.reason}; over the shot's path-traced frames ({_keys_text(shot)})"
+    emit(RenderStarted(num_frames=len(order), num_windows=0, levels=[0], tier=job.choice.tier, reason=reason, per_frame=True))
     for index, i in enumerate([0, *range(1, len(order), 4)]):
         if cancel is not None and cancel.cancelled:
             raise Cancelled(f"cancelled after {len(done)} frames")
@@ -109,7 +159,7 @@ def render_over_base(job: RenderJob, tier: Tier, emit: Emit, cancel: CancelToken
         for t in fs:
             with job.clock.stage("base"):
                 base = bases(t)
-            if job.edits is None:
+            if changes_nothing(job.edits):
                 frames[t], mode = base, BASE
             else:
                 frames[t], mode = edited_frame(base, original(t), job.conditioning(t), glossy_tier=glossy, residual=residual)
@@ -147,6 +197,15 @@ def _generative_over_base(job: RenderJob, tier: Tier, bases: BaseFrames, origina
         emit(event)
 
     tier.render(job, over, cancel, done)
+
+
+def base_caption(shot: Shot, settings: RenderSettings) -> str:
+    """What a render of `shot` with `settings` keeps as its base, in a line for the editor ('' without rgb)."""
+    if not base_available(shot):
+        return ""
+    if settings.base == "off":
+        return "Base off: every frame re-rendered from the channels (the shot's path-traced frames unused)"
+    return f"Base: the shot's path-traced frames ({_keys_text(keyframed(shot, settings))})"
 
 
 def _keys_text(shot: Shot) -> str:

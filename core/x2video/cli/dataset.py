@@ -1,4 +1,5 @@
-"""`x2video dataset make|demo`: generate procedural interior shots (train/test split by room, resumable)."""
+"""`x2video dataset make|outside|truth|demo`: generate procedural interior shots (train/test split by room, resumable), the
+outside scenes, and a truth apart from the passes for test shots."""
 from __future__ import annotations
 
 import argparse
@@ -56,6 +57,12 @@ def _outside(args: argparse.Namespace) -> int:
     return make_outside(args)
 
 
+def _truth(args: argparse.Namespace) -> int:
+    from x2video.cycles.truth import make_truth
+
+    return make_truth(args)
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser("dataset", help="generate procedural interior shots (training data, demo scene)")
     sub = p.add_subparsers(dest="dataset_command", metavar="ACTION")
@@ -89,6 +96,15 @@ def register(subparsers) -> None:
     o.add_argument("--samples", type=int, default=32, help="path-tracing samples per pixel (Combined is denoised)")
     o.add_argument("--scenes", default="kitchen,corridor,night_mirror", help="comma-separated scenes to render")
     o.set_defaults(func=_outside)
+    t = sub.add_parser("truth", help="render a truth apart from the passes (more samples, another seed) into DIR/<split>/<shot>/truth/"
+                                     " for finished Cycles rooms and outside scenes (resumable)")
+    t.add_argument("--data", required=True, help="data set folder (DATA/<split>/<shot>/shot.json)")
+    t.add_argument("--split", default="test", help="split(s) to give a truth apart, comma-separated (e.g. 'val,test')")
+    t.add_argument("--samples", type=int, default=0, help="samples per pixel of the truth (+ OpenImageDenoise; 0: twice the shot's,"
+                                                          " at least 32)")
+    t.add_argument("--seed", type=int, default=1, help="Cycles noise seed of the truth (the passes use 0)")
+    t.add_argument("--threads", type=int, default=0, help="render threads of the Blender process (0: every core)")
+    t.set_defaults(func=_truth)
     d = sub.add_parser("demo", help="write the small demo shot (1 room, 33 frames, 320x224, deterministic)")
     d.add_argument("out", help="output shot folder")
     d.set_defaults(func=demo)

@@ -107,6 +107,7 @@ def _resume_key(args: argparse.Namespace, shot: Any, settings: RenderSettings, o
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
+    from x2video.base.stage import BASE, base_choice
     from x2video.render.frames import FrameSink
     from x2video.render.renderer import Renderer
     from x2video.sampling.planner import plan
@@ -123,7 +124,8 @@ def run(args: argparse.Namespace) -> int:
     units = OutputUnits.for_shot(shot, settings.exposure)
     log.info("%s: %s", args.out, units.describe())
     model = None
-    if tiers.needs_model(settings.quality):  # the formula needs no network and no weights
+    # the formula needs no network and no weights; nor does a render of the shot's own path-traced frames with no edits
+    if tiers.needs_model(settings.quality) and base_choice(shot, edits, settings) is None:
         plan(settings.scheme, stop - start, settings.window, max_levels=settings.max_levels)  # bad window sizes or levels fail before the model loads
         if options.untrained and options.weights is not None:
             raise ValueError("--untrained and --weights exclude each other")
@@ -160,7 +162,8 @@ def run(args: argparse.Namespace) -> int:
 
         try:  # a re-run after a failure (a full disk) resumes: a tier exact in part (the formula) renders only the frames
             # not kept, other tiers render again and write only those (a tier-1 batch of other frames may differ in the last bit)
-            runs = sink.missing_runs() if sink.kept and TIERS[planned.tier].exact_in_part else [(start, stop)]
+            exact = planned.tier == BASE or TIERS[planned.tier].exact_in_part
+            runs = sink.missing_runs() if sink.kept and exact else [(start, stop)]
             if sink.kept:
                 log.info("%s: %d of %d frames kept from the last attempt", args.out, len(sink.kept), stop - start)
             for a, b in runs:

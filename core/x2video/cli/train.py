@@ -1,4 +1,4 @@
-"""`x2video train vae|cache|image|video|lcm`: the training stages (issue 5), each resumable, with a progress bar."""
+"""`x2video train vae|cache|image|video|lcm|residual|fill`: the training stages (issue 5), each resumable, with a progress bar."""
 from __future__ import annotations
 
 import argparse
@@ -255,6 +255,24 @@ def cmd_residual(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_fill(args: argparse.Namespace) -> int:
+    from x2video.train.fill_stage import FillTrainConfig, train_folder
+
+    cfg = from_args(FillTrainConfig, args)
+    out = Path(args.out)
+
+    def show(v: dict) -> None:
+        scores = f"val PSNR {v['psnr']:.2f} dB (classical fill {v['psnr_classical']:.2f})" if "psnr" in v else "no held-out shots"
+        print(f"step {v['step']:6d}  loss {v['loss']:.4f}  {scores}  {v['seconds']:.0f} s", flush=True)
+
+    summary = train_folder(Path(args.data), out, cfg, threads=args.threads, progress=show)
+    best = summary["best_val_psnr"]
+    print(f"{summary['steps']} steps in {summary['seconds']:.0f} s on {summary['train_shots']} shots"
+          + (f"; best val PSNR {best:.2f} dB" if best is not None else "")
+          + f"; weights in {out / 'best'} (ship: copy fill.safetensors and fill.json beside the model's weights)")
+    return 0
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser("train", help="train the VAE, cache latents, train the image, video and LCM models, distil the channel encoder",
                               description="Training stages, in order: vae -> cache -> image -> video -> lcm (-> encoder). Each is resumable: "
@@ -330,6 +348,18 @@ def register(subparsers) -> None:
 
     add_fields(s, ResidualTrainConfig)
     s.set_defaults(func=cmd_residual)
+
+    s = sub.add_parser("fill", help="the learned keyframe fill: a small net correcting the classical fill between path-traced keyframes",
+                       description="Trains on shots with rgb on every frame (random keyframe spacing and phase, a frame "
+                                   "between held out). Resumable: run the same command again to continue.")
+    s.add_argument("--data", required=True, help="data set with train/ and val/ (or test/) shot folders: rgb on every frame, "
+                                                 "G-buffers, depth and cameras.json where they have them")
+    s.add_argument("--out", required=True, help="run folder (resumes from its checkpoint.pt; the shots are cached in OUT/cache)")
+    s.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    from x2video.train.fill_stage import FillTrainConfig
+
+    add_fields(s, FillTrainConfig)
+    s.set_defaults(func=cmd_fill)
 
     s = sub.add_parser("ship", help="write a trained model (fp16 safetensors + training.json) into resources/",
                        description="Copies the newest model of a run (lcm, video or image) in fp16 into OUT with a "

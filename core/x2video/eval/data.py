@@ -1,7 +1,8 @@
 """Held-out shots for evaluation (paper Sec. Test Data): the test rooms, cut to T frames and area-resized to the model's size.
 
-The ground truth is each shot's `rgb/` channel: linear HDR radiance from our procedural PBR
-renderer, compared display-referred after `x2video.channels.tonemap` (as every metric in
+The ground truth is each shot's `rgb/` channel (linear HDR radiance), or, for a path-traced shot given a truth
+apart from its passes (``truth/``, `x2video dataset truth`: more samples, another noise seed), that truth;
+compared display-referred after `x2video.channels.tonemap` (as every metric in
 `x2video.metrics` does). When the model was trained at a smaller size than the data, the
 channels, the ground truth and the exact motion are all area-downsampled to the model's size
 (object ids by nearest neighbour, motion vectors scaled with the image), and the results say so.
@@ -16,12 +17,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from x2video.io.truth import OWN, ground_truth
 from x2video.shot import Shot, ShotInfo
 
 log = logging.getLogger(__name__)
 
 GROUND_TRUTH = (
-    "the shot's rgb/ channel (linear HDR radiance of our procedural PBR renderer), compared after "
+    "the shot's rgb/ channel (linear HDR radiance), or its truth apart (truth/: more samples, another noise seed than "
+    "the passes; results' 'truth' says which), compared after "
     "x2video.channels.tonemap (clip to [0, 1], sRGB), like every prediction"
 )
 
@@ -81,6 +84,8 @@ class EvalShot:
     shot: Shot  # an EvalView: T frames at the evaluation size
     motion: np.ndarray | None  # (T-1, H, W, 2) exact motion at the evaluation size, None -> DIS flow
     gt: list[np.ndarray] = field(default_factory=list)  # T linear (H, W, 3) ground-truth frames
+    #: which truth `gt` is (`x2video.io.truth.label`): 'apart, 64 spp seed 1' or the shot's own rgb
+    truth: str = OWN
 
     @property
     def num_frames(self) -> int:
@@ -116,8 +121,9 @@ def load_eval_shots(
         motion = read_motion(d, n) if n >= 2 else None
         if motion is not None and view.target is not None:
             motion = resize_motion(motion, view.target)
-        gt = [view.channel("rgb", t) for t in range(n)]
-        out.append(EvalShot(d.name, d, view, motion, gt))
+        truth = ground_truth(view._shot, d)  # truth/ beside the frames (rendered apart from the passes) when there, else rgb
+        gt = [view._resize("rgb", truth.frame(t), view.target) for t in range(n)]
+        out.append(EvalShot(d.name, d, view, motion, gt, truth.label))
     return out
 
 

@@ -182,7 +182,7 @@ def results_markdown(results: dict[str, Any], *, heading: str | None = "X2Video 
         out.append("")
     out.append("Columns: FID/PSNR/SSIM/TC/s per frame of the model against the ground truth; *classical* = "
                f"{results.get('baseline', 'classical shading')}, scored the same way.")
-    out.append(f"Ground truth: {results.get('ground_truth', '')}.")
+    out.append(f"Ground truth: {results.get('ground_truth', '')}" + (f"; truth: {results['truth']}." if results.get("truth") else "."))
     unav = results.get("unavailable", {})
     if unav:
         out.append("¹ " + " ".join(f"{k.upper()} not computed: {v['reason']}." for k, v in unav.items()))

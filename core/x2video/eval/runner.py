@@ -23,6 +23,7 @@ from x2video.eval.data import GROUND_TRUTH, EvalShot, EvalView
 from x2video.eval.machine import machine_info
 from x2video.eval.scoring import Scorer
 from x2video.eval.tables import PAPER, PAPER_NOTE, TITLES, RowSpec, table_rows
+from x2video.io.truth import summary as truth_summary
 from x2video.metrics.suite import DEFINITIONS
 from x2video.metrics.unavailable import unavailable_metrics
 from x2video.model.api import RenderModel
@@ -105,7 +106,7 @@ def warm_up(renderer: Renderer, shot: EvalShot, sampler: str) -> None:
     """One untimed 2-frame, 1-step render, so one-off costs (first calls, allocator growth, text encoder
     start-up) do not land in the first timed row."""
     view = EvalShot(shot.name, shot.path, EvalView(shot.shot, frames=2), None, shot.gt[:2])
-    render_shot(renderer, view, None, RenderSettings(sampler=sampler, steps=1, window=2))  # type: ignore[arg-type]
+    render_shot(renderer, view, None, RenderSettings(sampler=sampler, steps=1, window=2, base="off"))  # type: ignore[arg-type]
 
 
 def _settings(spec: RowSpec, config: EvalConfig, num_frames: int) -> RenderSettings:
@@ -113,7 +114,7 @@ def _settings(spec: RowSpec, config: EvalConfig, num_frames: int) -> RenderSetti
     return RenderSettings(sampler=spec.sampler, steps=spec.steps, seed=config.seed, window=window, scheme=spec.scheme,  # type: ignore[arg-type]
                           replace_refs=config.replace_refs, seams=config.seams, max_levels=config.max_levels, noise=config.noise,  # type: ignore[arg-type]
                           noise_shared=config.noise_shared, resample=config.resample,
-                          ref_dc=config.ref_dc)
+                          ref_dc=config.ref_dc, base="off")  # scored against the shot's own rgb: never return it
 
 
 def evaluate(
@@ -205,6 +206,7 @@ def evaluate(
         "tables": tables,
         "settings": config.to_dict(),
         "ground_truth": GROUND_TRUTH,
+        "truth": truth_summary(s.truth for shots in data.values() for s in shots),
         "baseline": BASELINE_DESCRIPTION,
         "definitions": dict(DEFINITIONS),
         "unavailable": unavailable_metrics(),

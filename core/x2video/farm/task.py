@@ -82,12 +82,17 @@ def plan_job(job: Job, settings: RenderSettings, options: ModelOptions, threads:
     Tiers 0 and 1 ('formula', 'residual') are per frame: the farm splits them into frame chunks (`render_chunk`); a
     diffusion render into its windows (`render_window`), or one task (`render_job`)."""
 
+    from x2video.base.stage import uses_base
+
     _threads(threads)
     shot, edits, base_dir = load_job(job)
     start, stop = frame_range(job, shot, settings)
     planned = _renderer(settings, options).plan_render(shot, edits, settings)
-    windows = None if planned.per_frame else [{"frames": list(w.frames), "generate": list(w.generate), "refs": list(w.refs), "level": w.level}
-                                              for w in planned.windows]
+    # a diffusion render over the shot's base (x2video.base.stage) runs as one task: its windows' frames are laid over the
+    # base by `Renderer.render`, which `render_windows` does not do
+    over_base = uses_base(shot, settings)
+    windows = None if planned.per_frame or over_base else [{"frames": list(w.frames), "generate": list(w.generate), "refs": list(w.refs),
+                                                            "level": w.level} for w in planned.windows]
     return {"tier": planned.tier, "reason": planned.reason, "per_frame": planned.per_frame, "start": start, "stop": stop,
             "fps": shot.info.fps, "windows": windows}
 

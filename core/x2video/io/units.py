@@ -67,6 +67,10 @@ class OutputUnits:
 
     def scene(self, rgb: np.ndarray) -> np.ndarray:
         """Rendered linear RGB (model exposure) -> the input's radiometric units, float32."""
+        if self.irradiance_scale != 1.0 and np.asarray(rgb).dtype == np.float64:
+            # the base's frames (x2video.base.stage: the shot's float32 rgb x scale, in float64): divided as they were
+            # multiplied, they come back bit for bit
+            return (np.asarray(rgb) / self.irradiance_scale).astype(np.float32)
         a = np.asarray(rgb, dtype=np.float32)
         return a if self.irradiance_scale == 1.0 else (a / np.float32(self.irradiance_scale)).astype(np.float32)
 

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Callable, Sequence
 
 import torch
 
+from x2video.base import stage as base_stage
 from x2video.conditioning.cache import CacheStats, ConditioningCache, conditioning_key
 from x2video.conditioning.edited import frame_conditioning, resolve_reference
 from x2video.conditioning.network import NetworkConditioning
@@ -146,7 +147,7 @@ class Renderer:
 
     def plan_render(self, shot: Shot, edits: Edits | None, settings: RenderSettings) -> RenderPlan:
         """What a render of `shot` with `edits` and `settings` runs with this model (`tiers.plan_render`, pure)."""
-        return registry.plan_render(shot, edits, settings, self.model)
+        return base_stage.base_plan(shot, edits, settings) or registry.plan_render(shot, edits, settings, self.model)
 
     def choose_tier(self, shot: Shot, edits: Edits | None, settings: RenderSettings) -> TierChoice:
         """The tier a render of `shot` with `edits` (or None) and `settings` runs with this model, and why
@@ -208,13 +209,14 @@ class Renderer:
         try:
             try:
                 settings.validate()  # every field, before any tier is chosen (a field changed in place since it was made, too)
-                choice = self.choose_tier(shot, edits, settings)
+                shot = base_stage.keyframed(shot, settings)  # the shot's path-traced frames: the base (x2video.base.stage)
+                choice = base_stage.base_choice(shot, edits, settings) or self.choose_tier(shot, edits, settings)
                 self.last_tier = choice
                 log.info("quality %s: tier %s (%s)", settings.quality, choice.tier, choice.reason)
-                tier = registry.get(choice.tier)
-                job = self._job(shot, edits, settings, choice, tier.reads_reference, base_dir)
+                tier = None if choice.tier == base_stage.BASE else registry.get(choice.tier)
+                job = self._job(shot, edits, settings, choice, tier is not None and tier.reads_reference, base_dir)
                 try:
-                    tier.render(job, emit, cancel, done)
+                    base_stage.render(job, tier, emit, cancel, done)
                 finally:
                     self._report(job)
                 emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))

@@ -76,6 +76,17 @@ class RenderSettings:
     diffusion sampler where something must (a dropped channel, a masked A|M|R region, a local prompt, a
     reference) and, when only some regions must be generated, tier 1 around them, the seam feathered inside the regions; a model
     without the tier-1 network renders with the diffusion sampler. The log says what ran and why."""
+    base: Literal["auto", "off"] = "auto"
+    """Where the shot carries its own path-traced rgb (on every frame, or on keyframes): 'auto' keeps it as the base
+    (`x2video.base.stage`): a frame no edit reaches is the shot's rgb, bit for bit in the input's units (a frame
+    between keyframes: filled from its nearest keyframes, `x2video.base.fill`), and an edit renders as the tier's
+    difference over it, base + R(edited) - R(original), inside the edit's reach only; no tier runs, and no model is
+    needed, without edits. 'off': every frame re-rendered from the channels by the tier, as before the base existed
+    (what scoring a tier against the shot's own rgb needs)."""
+    keyframes: str | None = None
+    """Keep the shot's rgb on these frames only: 'every:N' (frames 0, N, 2N, ... and the last) or a list '0,8,20';
+    with base 'auto' the frames between are filled from them (`x2video.base.keyframes`), so a fully rendered shot
+    scores the fill against its own rgb. Unset: every frame that carries rgb."""
     exposure: float | str = "auto"
     """MP4 exposure in stops on the input's radiometric units, or 'auto': the shot's own irradiance
     normalisation, i.e. what the model saw (`x2video.io.units.OutputUnits`). EXR output is always in the
@@ -164,6 +175,10 @@ class RenderSettings:
                 raise ValueError(f"frames: START must be 0 or more, got {start}:{stop}")
             if stop <= start:
                 raise ValueError(f"frames: the range {start}:{stop} is empty (STOP must be greater than START)")
+        if self.keyframes is not None:
+            from x2video.base.keyframes import check_keyframes
+
+            check_keyframes(self.keyframes)  # ValueError naming --keyframes; the frames' range is checked against the shot
         if isinstance(self.exposure, str):
             if self.exposure != "auto":
                 from x2video.io.units import parse_exposure

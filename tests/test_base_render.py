@@ -1,0 +1,222 @@
+"""The Renderer over a shot's base (x2video.base.stage, `RenderSettings.base` and `.keyframes`): the shot's own
+path-traced frames come back bit for bit where no edit reaches, edits render as differences over them, a keyframe
+shot's frames between are filled, and `--base off` renders as before the base existed."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_base_fill import wall_shot
+
+from x2video.base.difference import SPILL_MARGIN
+from x2video.base.stage import BASE, base_caption
+from x2video.cli import main as cli
+from x2video.edits import Edits
+from x2video.edits.masks import Mask
+from x2video.edits.ops import AlbedoSet
+from x2video.io.image import read_image
+from x2video.io.load import load_shot
+from x2video.io.sequence import find_frames
+from x2video.io.shotdir import ShotWriter
+from x2video.io.units import OutputUnits
+from x2video.render.events import CancelToken, FramesReady, RenderCancelled, RenderFinished, RenderStarted
+from x2video.render.renderer import Renderer
+from x2video.render.settings import RenderSettings
+from x2video.shot import ArrayShot
+
+H, W, T = 32, 48, 5
+BOX = (slice(10, 20), slice(14, 30))  # the edited object's pixels
+
+
+def room(rgb: bool = True, scale: float = 1.0) -> ArrayShot:
+    """Five channels and a path-traced rgb that holds light they lack (a bright 'window' the formula cannot make)."""
+    rng = np.random.default_rng(3)
+    albedo = rng.uniform(0.1, 0.9, (T, H, W, 3)).astype(np.float32)
+    irr = np.broadcast_to(np.linspace(0.5, 2.0, W, dtype=np.float32)[None, None, :, None], (T, H, W, 3)).copy()
+    normal = np.zeros((T, H, W, 3), np.float32)
+    normal[..., 2] = 1
+    arrays = {"albedo": albedo, "irradiance": irr * scale, "normal": normal,
+              "roughness": np.full((T, H, W, 1), 0.6, np.float32), "metallic": np.zeros((T, H, W, 1), np.float32)}
+    if rgb:
+        shot_rgb = albedo * irr
+        shot_rgb[:, 2:8, 2:12] += 3.0  # the window: light the five channels do not hold
+        arrays["rgb"] = shot_rgb + rng.uniform(0, 0.01, shot_rgb.shape).astype(np.float32)  # path-tracing noise
+    return ArrayShot(arrays, irradiance_scale=scale)
+
+
+def render(shot, settings: RenderSettings, edits=None, renderer=None, cancel=None) -> tuple[list, dict[int, np.ndarray]]:
+    events: list = []
+    (renderer or Renderer(None)).render(shot, edits, settings, events.append, cancel)
+    frames: dict[int, np.ndarray] = {}
+    for e in events:
+        if isinstance(e, FramesReady):
+            assert not set(e.frames) & set(frames)
+            frames.update(e.frames)
+    return events, frames
+
+
+def box_edit() -> Edits:
+    e = Edits()
+    m = np.zeros((H, W), np.float32)
+    m[BOX] = 1
+    e.masks["sofa"] = Mask(frames={0: m}, hold=True)
+    e.ops.append(AlbedoSet(mask="sofa", color=(0.9, 0.1, 0.1)))
+    return e
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.37])
+def test_no_edits_return_the_shots_rgb_bit_for_bit_without_a_model(scale):
+    shot = room(scale=scale)
+    events, frames = render(shot, RenderSettings())  # quality auto, no model: no tier runs
+    assert isinstance(events[0], RenderStarted) and events[0].tier == BASE and events[0].per_frame
+    assert isinstance(events[-1], RenderFinished) and events[-1].num_frames == T
+    units = OutputUnits.for_shot(shot)
+    for t in range(T):
+        np.testing.assert_array_equal(units.scene(frames[t]), shot.channel("rgb", t))
+    assert Renderer(None).plan_render(shot, None, RenderSettings()).tier == BASE
+    assert Renderer(None).plan_render(shot, Edits(), RenderSettings()).tier == BASE  # no operation: nothing to render
+
+
+def test_an_albedo_edit_changes_only_what_it_reaches():
+    shot = room(scale=0.5)
+    _, frames = render(shot, RenderSettings(quality="formula"), box_edit())
+    reach = np.zeros((H, W), bool)
+    reach[BOX[0].start - SPILL_MARGIN - 1:BOX[0].stop + SPILL_MARGIN + 1, BOX[1].start - SPILL_MARGIN - 1:BOX[1].stop + SPILL_MARGIN + 1] = True
+    units = OutputUnits.for_shot(shot)
+    for t in range(T):
+        out, base = units.scene(frames[t]), shot.channel("rgb", t)
+        np.testing.assert_array_equal(out[~reach], base[~reach])  # the window and the rest: the base, bit for bit
+        assert np.abs(out[BOX] - base[BOX]).max(-1).min() > 1e-3  # every pixel of the object changed
+        # tier 0's difference: base + albedo' x irradiance - albedo x irradiance (in the shot's units)
+        irr = shot.channel("irradiance", t)[BOX] / 0.5
+        want = base[BOX] + (np.array([0.9, 0.1, 0.1], np.float32) - shot.channel("albedo", t)[BOX]) * irr
+        np.testing.assert_allclose(out[BOX], np.maximum(want, 0), rtol=1e-5, atol=1e-5)
+
+
+def test_a_roughness_edit_takes_tier_1s_difference_inside_its_reach_only():
+    from test_tiers import with_net
+
+    from x2video.edits.ops import ScalarOp
+
+    shot, model = room(scale=0.5), with_net()
+    e = box_edit()
+    e.ops = [ScalarOp(mask="sofa", target_channel="roughness", value=0.05)]
+    events, frames = render(shot, RenderSettings(), e, Renderer(model))  # auto: tier 1 runs, its difference where gloss changed
+    assert events[0].tier == "residual" and "over the shot's path-traced frames" in events[0].reason
+    assert {ev.mode for ev in events if isinstance(ev, FramesReady)} == {"formula+residual"}
+    reach = np.zeros((H, W), bool)
+    reach[BOX[0].start - SPILL_MARGIN - 1:BOX[0].stop + SPILL_MARGIN + 1, BOX[1].start - SPILL_MARGIN - 1:BOX[1].stop + SPILL_MARGIN + 1] = True
+    units = OutputUnits.for_shot(shot)
+    for t in range(T):
+        out, base = units.scene(frames[t]), shot.channel("rgb", t)
+        np.testing.assert_array_equal(out[~reach], base[~reach])
+        assert np.abs(out[BOX] - base[BOX]).max() > 1e-4  # the formula's difference is 0 here: only tier 1 changes it (a small random net)
+
+
+def test_base_off_renders_as_before():
+    with_rgb, without = room(), room(rgb=False)
+    events, off = render(with_rgb, RenderSettings(quality="formula", base="off"))
+    assert events[0].tier == "formula"
+    _, before = render(without, RenderSettings(quality="formula"))  # a shot without rgb has no base: as before
+    for t in range(T):
+        np.testing.assert_array_equal(off[t], before[t])
+        assert not np.array_equal(OutputUnits.for_shot(with_rgb).scene(off[t]), with_rgb.channel("rgb", t))
+    with pytest.raises(ValueError, match="needs a model"):  # no base to stand in: auto needs its model, as before
+        render(with_rgb, RenderSettings(base="off"))
+
+
+def test_keyframes_render_every_frame_keyframes_exact_and_the_rest_filled():
+    xs = [0.05 * i for i in range(9)]
+    shot = wall_shot(xs)
+    events, frames = render(shot, RenderSettings(keyframes="every:4"))
+    assert sorted(frames) == list(range(9)) and "3 keyframes of 9 frames" in events[0].reason
+    for t in range(9):
+        rgb = shot.channel("rgb", t)
+        if t in (0, 4, 8):
+            np.testing.assert_array_equal(frames[t].astype(np.float32), rgb)
+        else:
+            assert np.isfinite(frames[t]).all()
+            assert 10 * np.log10(1.5**2 / np.mean((frames[t] - rgb) ** 2)) > 35  # reprojected from the keyframes
+    with pytest.raises(ValueError, match="--keyframes: frame 12 is outside the shot's 9 frames"):
+        render(shot, RenderSettings(keyframes="0,12"))
+
+
+def test_cancel_between_batches_of_base_frames():
+    token = CancelToken()
+
+    def cancel_after_first(e) -> None:
+        if isinstance(e, FramesReady):
+            token.cancel()
+
+    events: list = []
+    Renderer(None).render(room(), None, RenderSettings(), lambda e: (events.append(e), cancel_after_first(e)), token)
+    assert isinstance(events[-1], RenderCancelled) and events[-1].frames_done == [0]
+
+
+def read_exr(path) -> np.ndarray:
+    img = read_image(path)
+    return np.stack([img.planes[c] for c in "RGB"], -1).astype(np.float32)
+
+
+def write_shot(folder, shot, frames_without_rgb=()) -> None:
+    with ShotWriter(folder, shot.info, irradiance_normalized=False) as w:
+        for t in range(shot.num_frames):
+            w.write_frame(t, shot.frame(t))
+    for t in frames_without_rgb:
+        (folder / "rgb" / f"{t:06d}.exr").unlink()
+
+
+def test_cli_writes_the_shots_rgb_in_its_units(tmp_path):
+    write_shot(tmp_path / "shot", room())
+    shot = load_shot(tmp_path / "shot")
+    assert shot.info.irradiance_scale != 1.0  # measured by the loader: the frames go through a real exposure
+    assert cli(["render", str(tmp_path / "shot"), "--out", str(tmp_path / "out")]) == 0  # no weights needed
+    files = find_frames(tmp_path / "out")
+    assert len(files) == T
+    for t, f in enumerate(files):
+        np.testing.assert_array_equal(read_exr(f)[..., :3], shot.channel("rgb", t))
+
+
+def test_cli_renders_a_keyframe_shot_with_gaps(tmp_path):
+    write_shot(tmp_path / "shot", wall_shot([0.05 * i for i in range(5)]), frames_without_rgb=(1, 2, 3))
+    assert load_shot(tmp_path / "shot").keyframes == (0, 4)
+    assert cli(["render", str(tmp_path / "shot"), "--out", str(tmp_path / "out")]) == 0
+    frames = [read_exr(f) for f in find_frames(tmp_path / "out")]
+    assert len(frames) == 5 and all(np.isfinite(f).all() for f in frames)
+
+
+def test_cli_flags_parse_and_bad_values_name_the_flag(tmp_path, capsys):
+    from x2video.cli import build_parser
+    from x2video.fields import from_args
+
+    args = build_parser().parse_args(["render", "s", "--out", "o", "--base", "off", "--keyframes", "every:4"])
+    s = from_args(RenderSettings, args)
+    assert (s.base, s.keyframes) == ("off", "every:4")
+    assert from_args(RenderSettings, build_parser().parse_args(["render", "s", "--out", "o"])).base == "auto"
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["render", "s", "--out", "o", "--base", "on"])
+    assert "--base" in capsys.readouterr().err
+    write_shot(tmp_path / "shot", room())
+    for bad, msg in [("every:x", "--keyframes 'every:x'"), ("1,a", "--keyframes '1,a'"), ("0,40", "--keyframes: frame 40 is outside")]:
+        assert cli(["render", str(tmp_path / "shot"), "--out", str(tmp_path / "o"), "--keyframes", bad]) == 2
+        assert msg in capsys.readouterr().err
+    with pytest.raises(ValueError, match="unknown base 'on'"):
+        RenderSettings(base="on")  # type: ignore[arg-type]
+
+
+def test_base_caption_says_what_the_base_is():
+    assert base_caption(room(), RenderSettings()) == "Base: the shot's path-traced frames (rgb on every frame)"
+    assert "2 keyframes of 5 frames" in base_caption(wall_shot([0.0] * 5), RenderSettings(keyframes="0,4"))
+    assert "off" in base_caption(room(), RenderSettings(base="off"))
+    assert base_caption(room(rgb=False), RenderSettings()) == ""
+
+
+def test_editor_document_says_its_shot_is_the_base():
+    from x2video_app.state.document import Document
+
+    doc = Document()
+    assert doc.base_caption == ""
+    doc.set_shot(room(), None)
+    assert doc.base_caption == "Base: the shot's path-traced frames (rgb on every frame)"
+    doc.set_shot(room(rgb=False), None)
+    assert doc.base_caption == ""
+
