@@ -30,6 +30,7 @@ import numpy as np
 from bench.clips import TEST_SEEDS, VALIDATION_SEEDS, default_root
 from bench.common import clean_json, command, results_path
 from x2video.channels import tonemap
+from x2video.eval.machine import machine_info
 from x2video.fields import parse_size
 from x2video.metrics.image import psnr, ssim
 from x2video.metrics.temporal import temporal_consistency
@@ -169,11 +170,17 @@ def score_clip(folder: Path, every: list[int], names: list[str], fill: Any = Non
         if isinstance(rec, dict) and name.startswith("cycles-"):
             frames = [read_exr_rgb(folder / name / f"{t:06d}.exr") for t in range(n)]
             cycles.append({"clip": folder.name, "samples": rec["samples"], "seconds_per_frame": float(np.mean(list(rec["seconds"].values()))),
+                           "cpu_seconds_per_frame": float(np.mean(list(rec["cpu_seconds"].values()))),
                            "psnr": float(np.mean([psnr(tonemap(f), g) for f, g in zip(frames, gts)]))})
     truth_cost = float(np.mean(list(meta["truth"]["seconds"].values())))
-    keys_psnr = float(np.mean([psnr(tonemap(shot.channel("rgb", t)), gts[t]) for t in range(n)]))
-    return {"rows": rows, "cycles": cycles, "truth": {"samples": meta["truth"]["samples"], "seconds_per_frame": truth_cost},
-            "keyframes": {"samples": meta["passes"]["samples"], "seconds_per_frame": key_cost, "psnr_vs_truth": keys_psnr}}
+    keys_video = [tonemap(shot.channel("rgb", t)) for t in range(n)]
+    keys_psnr = float(np.mean([psnr(f, g) for f, g in zip(keys_video, gts)]))
+    keys_tc = float(temporal_consistency(keys_video, gts).tc)  # Cycles at the keyframes' samples on every frame
+    # the passes' CPU seconds are the whole child process's (scene build and exposure probe included), over its frames
+    key_cpu = float(meta["passes"]["cpu_seconds"]) / n
+    return {"rows": rows, "cycles": cycles, "frames": n, "truth": {"samples": meta["truth"]["samples"], "seconds_per_frame": truth_cost},
+            "keyframes": {"samples": meta["passes"]["samples"], "seconds_per_frame": key_cost, "cpu_seconds_per_frame": key_cpu,
+                          "psnr_vs_truth": keys_psnr, "tc": keys_tc}}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -197,8 +204,11 @@ def main(argv: list[str] | None = None) -> int:
     fill = learned_fill(args.fill) if "learned" in names else None
     if fill is None and "learned" in names:
         names.remove("learned")
-    out = {"bench": "keyframes", "command": command("keyframes", argv), "split": "validation" if args.validation else "test",
-           "size": args.size, "fill_weights": None if fill is None else fill_sha(fill), "clips": [score_clip(f, every, names, fill) for f in folders]}
+    out = {"bench": "keyframes", "description": "keyframe fills (hold, RIFE, classical, learned) on the frames between 1 path-traced"
+           " keyframe in N, against a truth rendered apart, beside Cycles on every frame",
+           "command": command("keyframes", argv), "split": "validation" if args.validation else "test", "size": args.size,
+           "machine": machine_info(), "fill_weights": None if fill is None else fill_sha(fill),
+           "clips": [score_clip(f, every, names, fill) for f in folders]}
     if GBUFFER_COST.is_file():
         out["gbuffer_cost"] = json.loads(GBUFFER_COST.read_text())
     path = results_path("keyframes", "keyframes_validation" if args.validation else "keyframes")
