@@ -27,6 +27,7 @@ CARD_OUT = "resources/MODEL_CARD.md"
 
 #: the result JSON each figure comes from (repository-relative); the shipped weights' newest measurement of each set
 SOURCES = {
+    "keyframes": "bench/results/keyframes/keyframes.json",  # bench.keyframes on the test clips (2026-12-05)
     "outside": "bench/results/pathtraced/outside320_shipped.json",  # tiers 0-2 and auto, final code and weights (2026-12-04)
     "v3_test10": "bench/results/pathtraced/pt160v3_test10_shipped.json",  # the same, the first 10 v3 test rooms
     "v3_test20": "bench/results/pathtraced/pt160v3_r4.json",  # the shipped tier-1 net (run w_r4) on all 20 v3 test rooms
@@ -194,6 +195,35 @@ def readme_pareto() -> str:
             + f" (`{SOURCES['pareto']}`). " + _pick_sentence(p, rows))
 
 
+def readme_keyframes() -> str:
+    """The keyframe bench's headline: per N, the fills beside hold, RIFE and Cycles read off its own curve at the same cost."""
+    from bench.keyframes_report import LABELS, cycles_at, cycles_curve, gbuffer_cpu
+
+    d = load("keyframes")
+    clips, curve, gb = d["clips"], cycles_curve(d), gbuffer_cpu(d)
+    key_cpu = sum(c["keyframes"]["cpu_seconds_per_frame"] for c in clips) / len(clips)
+    methods = [m for m in ("hold", "rife", "classical", "learned") if any(r["method"] == m for c in clips for r in c["rows"])]
+    lines = ["| 1 keyframe in N | " + " | ".join(LABELS[m] for m in methods) + " | CPU s a frame, all in (the slowest fill) | Cycles on every frame at that time |",
+             "|---|" + "---|" * (len(methods) + 2)]
+    for n in sorted({r["every"] for c in clips for r in c["rows"]}):
+        if n < 4:
+            continue
+        cells, fills = [], []
+        for m in methods:
+            rows = [r for c in clips for r in c["rows"] if r["every"] == n and r["method"] == m]
+            cells.append(f"{sum(r['psnr'] for r in rows) / len(rows):.1f}")
+            fills.append(max(r["fill_seconds"] for r in rows))
+        cost = key_cpu / n + (gb + max(fills)) * (n - 1) / n
+        at = cycles_at(curve, cost)
+        cells += [f"{cost:.2f}", "below its cheapest point (1 spp)" if at is None and cost < curve[0][0] else
+                  ("\u2014" if at is None else f"{at:.1f}")]
+        lines.append(f"| {n} | " + " | ".join(cells) + " |")
+    cyc = "; ".join(f"{label.split(',')[0]} {p:.1f} dB at {s:.2f} CPU s" for s, p, label in curve)
+    return "\n".join(lines + ["", f"PSNR (dB) on the frames between, {len(clips)} path-traced test clips at {d['size']}, against a truth "
+                              f"rendered apart; Cycles on every frame: {cyc} (`{SOURCES['keyframes']}`, "
+                              "[`keyframes.md`](bench/results/keyframes/keyframes.md))."])
+
+
 def _pick_sentence(p: dict, rows: dict) -> str:
     """What a user who must render the passes should pick: each tier's total with the passes' Cycles render beside the
     cheapest Cycles row that scores at least as well (bench/results/pareto/input_cost.json)."""
@@ -220,7 +250,8 @@ def _pick_sentence(p: dict, rows: dict) -> str:
 
 
 BLOCKS: dict[str, Callable[[], str]] = {"tier1": tier1_table, "diffusion": diffusion_table, "reproduce": reproduce,
-                                        "readme-figures": readme_figures, "readme-pareto": readme_pareto}
+                                        "readme-figures": readme_figures, "readme-pareto": readme_pareto,
+                                        "readme-keyframes": readme_keyframes}
 
 
 def fill(text: str, where: str) -> str:
