@@ -220,3 +220,34 @@ def test_editor_document_says_its_shot_is_the_base():
     doc.set_shot(room(rgb=False), None)
     assert doc.base_caption == ""
 
+
+
+def test_a_keyframe_shot_fills_the_frames_nearest_a_keyframe_first():
+    from x2video.base.keyframes import only_keyframes
+    from x2video.base.stage import base_order
+
+    shot = wall_shot([0.05 * i for i in range(9)])
+    assert base_order(shot, 0, 9) == [0, 8, 4, 2, 6, 1, 3, 5, 7]  # rgb on every frame: coarse to fine, as before
+    keyed = only_keyframes(shot, "0,8")
+    assert keyed.keyframes == (0, 8)
+    order = base_order(keyed, 0, 9)
+    dist = [min(abs(t - 0), abs(t - 8)) for t in order]
+    assert order[:2] == [0, 8] and dist == sorted(dist) and sorted(order) == list(range(9))
+    assert base_order(keyed, 2, 6) == [2, 3, 5, 4]  # a range without a keyframe: by distance to the shot's keyframes
+    events, frames = render(shot, RenderSettings(keyframes="0,8"))
+    arrived = [t for e in events if isinstance(e, FramesReady) for t in e.frames]
+    assert arrived == order and sorted(frames) == list(range(9))
+
+
+def test_each_event_carries_one_mode_for_all_its_frames():
+    shot = room()
+    e = box_edit()
+    m = np.zeros((H, W), np.float32)
+    m[BOX] = 1
+    e.masks["sofa"].frames = {0: m, 1: m, 2: np.zeros((H, W), np.float32)}  # frames 2.. the mask is empty: no edit
+    e.masks["sofa"].hold = True
+    events, frames = render(shot, RenderSettings(quality="formula"), e)
+    modes = {t: ev.mode for ev in events if isinstance(ev, FramesReady) for t in ev.frames}
+    assert modes == {0: "formula", 1: "formula", 2: BASE, 3: BASE, 4: BASE}
+    done = [ev for ev in events if isinstance(ev, FramesReady) and ev.window_done]
+    assert len(done) == len({ev.window for ev in events if isinstance(ev, FramesReady)})  # each batch ends once

@@ -122,6 +122,8 @@ class Compare(QObject):
         if name == "ground truth":
             if doc.shot is None or not doc.shot.has("rgb"):
                 return None, "ground truth: this shot has none (no rgb channel)"
+            if not doc.shot.has_rgb(t):  # a keyframe shot: Cycles rendered some frames only
+                return None, f"ground truth: frame {t} has none (a frame between the shot's keyframes)"
             cycles = str(doc.shot.info.extra.get("renderer", "")).startswith("Cycles")  # the path-traced demo's, a Cycles data set's
             # in the exposure the renders are in: the loader scaled the irradiance by irradiance_scale, not the rgb
             truth = doc.shot.channel("rgb", t).astype(np.float32) * np.float32(doc.shot.info.irradiance_scale)
@@ -194,6 +196,9 @@ class Compare(QObject):
             self.psnr_label.setText("")
             return
         truth, _ = self.source("ground truth")
+        if truth is None:  # a frame between a keyframe shot's keyframes
+            self.psnr_label.setText("")
+            return
         names = ["rendered"] + ([self.a.currentData(), self.b.currentData()] if self.active else [])
         for name in dict.fromkeys(names):
             if name in ("ground truth", "channel"):

@@ -62,7 +62,8 @@ class ExportController(QObject):
         if kind == "mp4":
             worker = create_worker(exporter.export_mp4, frames, path, fps, units)
         else:
-            worker = create_worker(exporter.export_exr, frames, path, shot, edits if with_channels else None, units)
+            worker = create_worker(exporter.export_exr, frames, path, shot, edits if with_channels else None, units,
+                                   dict(self.doc.render.exact))
         worker.yielded.connect(lambda i: dlg.setValue(i))
         dlg.canceled.connect(worker.quit)
 

@@ -321,17 +321,31 @@ class MainWindow(QMainWindow):
         s = self.doc.shot
         if s is not None:
             st, t = self.doc.render, self.doc.frame
-            rendered = "rendered" if t in st.frames else "formula preview" if t in st.preview else "not rendered"
-            lvl = st.levels.get(t)
-            where = "" if lvl is None else " (one pass)" if lvl <= 0 else f" (level {lvl})"
+            src = self.frame_sources()
+            if src.base:  # the badge: path-traced, filled from the keyframes, and which tier edited it
+                rendered = src.badge(t, t in st.frames) if t in st.frames or t not in st.preview else "formula preview"
+                where = ""
+            else:
+                rendered = "rendered" if t in st.frames else "formula preview" if t in st.preview else "not rendered"
+                lvl = st.levels.get(t)
+                where = "" if lvl is None else " (one pass)" if lvl <= 0 else f" (level {lvl})"
             self.info_label.setText(f"frame {t}/{s.num_frames - 1}: {rendered}{where}")
             self.info_label.setToolTip(f"{s.size[1]}×{s.size[0]} pixels, {s.num_frames} frames at {s.info.fps:g} fps; {s.info.source}")
         self.live.mark(self.info_label)
 
+    def frame_sources(self):
+        """Where each frame comes from and which tier edited it (`x2video_app.state.frame_sources`), by the render's
+        record, else by the Render panel's settings."""
+        from x2video_app.state.frame_sources import frame_sources
+
+        return frame_sources(self.doc.shot, self.render_ctl.settings(**self.render_panel.values()), self.doc.render)
+
     def refresh_timeline(self) -> None:
         st = self.doc.render
         self.timeline.set_num_frames(max(1, self.doc.num_frames), self.doc.shot.info.fps if self.doc.shot else 10.0)
-        self.timeline.bar.set_state(max(1, self.doc.num_frames), st.keyframes, st.levels, st.top_level, st.in_flight, st.preview)
+        src = self.frame_sources()
+        self.timeline.bar.set_state(max(1, self.doc.num_frames), st.keyframes, st.levels, st.top_level, st.in_flight, st.preview,
+                                    src.keyframes, src.kinds)
         self.timeline.set_current(self.doc.frame)
 
     def refresh_panels(self) -> None:

@@ -22,6 +22,7 @@ from x2video.tiers.base import RenderPlan
 from x2video_app._qt.render_worker import RenderWorker
 from x2video_app._qt.worker_slot import WorkerSlot
 from x2video_app.state.document import Document
+from x2video_app.state.frame_sources import path_traced_frames
 from x2video_app.state.model_source import ModelChoice, load_model
 from x2video_app.state.preview import PreviewReady, preview_frame, preview_frames, preview_order
 
@@ -251,7 +252,8 @@ class RenderController(QObject):
             except Exception as e:  # a plan we cannot show must not stop the render; the Renderer reports the error
                 log.warning("could not plan for the progress bars: %s", e)
         # without a plan, RenderStarted and StepDone fill in the windows and steps as the render starts
-        self.doc.render.begin(planned.steps if planned else 0, planned.windows_per_level() if planned else {})
+        self.doc.render.begin(planned.steps if planned else 0, planned.windows_per_level() if planned else {},
+                              path_traced=path_traced_frames(shot, settings), irradiance_scale=shot.info.irradiance_scale)
         if needs_model(settings.quality):  # a render that needs no model is about as fast as the preview
             self._preview(shot, edits, model is not None)
         base_dir = self.doc.project_path.parent if self.doc.project_path is not None else None

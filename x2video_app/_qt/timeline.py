@@ -12,6 +12,12 @@ LEVEL_COLOURS = [QColor(255, 196, 0), QColor(64, 170, 255), QColor(90, 210, 140)
 PER_FRAME_COLOUR = QColor(0, 200, 200)
 #: the formula's preview of a frame the render has not delivered yet (hatched)
 PREVIEW_COLOUR = QColor(150, 150, 160)
+#: the shot's path-traced keyframes (a keyframe shot, or the keyframes setting): diamonds above the cells
+PATH_TRACED_KEY_COLOUR = QColor(235, 235, 245)
+#: the strip under the cells: where each frame comes from and which tier edited it (`x2video_app.state.frame_sources.KINDS`)
+STRIP_COLOURS = {"path-traced": QColor(225, 225, 232), "filled": QColor(120, 150, 200), "rendered": QColor(110, 110, 120),
+                 "formula": QColor(90, 210, 140), "formula+residual": QColor(255, 150, 60), "residual": QColor(255, 150, 60),
+                 "generated": QColor(220, 90, 220)}
 
 
 def level_colour(level: int, top: int) -> QColor:
@@ -35,16 +41,25 @@ class TimelineBar(QWidget):
         self.top_level = 1
         self.in_flight: list[int] = []
         self.preview: set[int] = set()  # frames showing the formula's preview
+        self.marks: set[int] = set()  # the shot's path-traced keyframes
+        self.kinds: dict[int, str] = {}  # frame -> its strip's kind (STRIP_COLOURS)
         self.setMinimumHeight(46)
         self.setMouseTracking(False)
-        self.setToolTip("Timeline: click or drag to scrub. Triangles mark keyframes; cell colour is the level a frame was rendered at "
-                        "(cyan: one pass per frame); hatched grey: the formula's preview, until the network's frame arrives.")
+        self.setToolTip("Timeline: click or drag to scrub. Gold triangles mark the render's keyframes, white diamonds the shot's "
+                        "path-traced keyframes; cell colour is the level a frame was rendered at (cyan: one pass per frame); "
+                        "hatched grey: the formula's preview, until the network's frame arrives.\nThe strip below: white "
+                        "path-traced, blue filled from the keyframes, grey rendered from the channels; edited over the base by "
+                        "green the formula, orange formula+residual, magenta generated.")
 
     def sizeHint(self) -> QSize:
         return QSize(600, 46)
 
-    def set_state(self, num_frames: int, keyframes, levels: dict[int, int], top_level: int, in_flight=(), preview=()) -> None:
+    def set_state(self, num_frames: int, keyframes, levels: dict[int, int], top_level: int, in_flight=(), preview=(),
+                  marks=(), kinds: dict[int, str] | None = None) -> None:
+        """`marks`: the shot's path-traced keyframes; `kinds`: frame -> where it comes from / which tier edited it."""
         self.num_frames = max(1, num_frames)
+        self.marks = set(marks)
+        self.kinds = dict(kinds or {})
         self.preview = set(preview)
         self.keyframes = set(keyframes)
         self.levels = dict(levels)
@@ -78,7 +93,14 @@ class TimelineBar(QWidget):
         for t, lvl in self.levels.items():
             x0, x1 = self._x(t), self._x(t + 1)
             p.fillRect(QRectF(x0, top + 3, max(1.0, x1 - x0 - (1 if x1 - x0 > 3 else 0)), bot - top - 6), level_colour(lvl, self.top_level))
+        for t, kind in self.kinds.items():
+            x0, x1 = self._x(t), self._x(t + 1)
+            p.fillRect(QRectF(x0, bot, max(1.0, x1 - x0 - (1 if x1 - x0 > 3 else 0)), 3), STRIP_COLOURS.get(kind, PREVIEW_COLOUR))
         p.setPen(Qt.PenStyle.NoPen)
+        p.setBrush(PATH_TRACED_KEY_COLOUR)
+        for t in self.marks:
+            xc = (self._x(t) + self._x(t + 1)) / 2
+            p.drawPolygon(QPolygonF([QPointF(xc, top - 9), QPointF(xc + 4, top - 5), QPointF(xc, top - 1), QPointF(xc - 4, top - 5)]))
         p.setBrush(QColor(255, 196, 0))
         for t in self.keyframes:
             xc = (self._x(t) + self._x(t + 1)) / 2

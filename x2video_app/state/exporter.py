@@ -54,9 +54,13 @@ def export_mp4(frames: dict[int, np.ndarray], path: Path, fps: float, units: Out
         raise
 
 
-def export_exr(frames: dict[int, np.ndarray], out_dir: Path, shot: Shot, edits: Any = None, units: OutputUnits | None = None) -> Iterator[int]:
+def export_exr(frames: dict[int, np.ndarray], out_dir: Path, shot: Shot, edits: Any = None, units: OutputUnits | None = None,
+               exact: dict[int, np.ndarray] | None = None) -> Iterator[int]:
     """A shot folder: `rgb/` = the render (linear, half), plus the edited intrinsic channels when `edits` is given,
-    all in the input's units (irradiance too: shot.json then says it is not normalised, as the input was not)."""
+    all in the input's units (irradiance too: shot.json then says it is not normalised, as the input was not).
+    `exact`: frames already in the input's units (`RenderState.exact`: a render over the shot's path-traced frames),
+    written as they are in place of `frames`' (float16 in the model's exposure), so that pixels no edit reached come
+    back as the input's own."""
     from x2video.conditioning.edited import apply_edits
 
     units = units if units is not None else OutputUnits.for_shot(shot)
@@ -78,7 +82,8 @@ def export_exr(frames: dict[int, np.ndarray], out_dir: Path, shot: Shot, edits: 
                 w.adopt(t, names)
                 yield t + 1
                 continue
-            chans: dict[str, np.ndarray] = {"rgb": units.scene(frames[t])}
+            rgb = exact.get(t) if exact else None
+            chans: dict[str, np.ndarray] = {"rgb": units.scene(frames[t]) if rgb is None else rgb}
             if edits is not None:
                 cond = apply_edits(shot, edits, t)
                 chans.update({c: a for c in INTRINSIC if (a := cond.channels.get(c)) is not None})

@@ -66,6 +66,16 @@ class RenderState:
     first_frame_at: float | None = None
     first_keyframe_at: float | None = None  # the render's first frame (a keyframe in the recursive scheme)
     finished_at: float | None = None
+    #: frame -> the `FramesReady.mode` it arrived with: the tier that edited it over the base ("formula",
+    #: "formula+residual"), "base" (the base unchanged), a per-frame tier's name, or a sampler window's mode
+    modes: dict[int, str] = field(default_factory=dict)
+    #: the render keeps the shot's path-traced frames as its base (`x2video.base.stage.uses_base`), and which they are
+    base: bool = False
+    path_traced: frozenset[int] = frozenset()
+    #: the frames of a render over the base in the input's units (float32), exactly as the base stage made them
+    #: (float64 events): `frames` keeps float16 for the viewer, which would round the base's pixels; export writes these
+    exact: dict[int, np.ndarray] = field(default_factory=dict)
+    irradiance_scale: float = 1.0  # the shot's (`ShotInfo.irradiance_scale`): model exposure -> input units
     #: order in which frames arrived, with their mode: [(t, level, mode)], mode "preview" for the formula's
     #: preview (level 0) — tests and the demo read it
     arrivals: list[tuple[int, int, str]] = field(default_factory=list)
@@ -74,10 +84,14 @@ class RenderState:
         self.changed = Signal("render_changed")
 
     # -- lifecycle -------------------------------------------------------------
-    def begin(self, steps_per_window: int, windows_per_level: dict[int, int] | None = None, keep_frames: bool = False) -> None:
-        """Reset for a new render (called on the GUI thread when Render is pressed)."""
+    def begin(self, steps_per_window: int, windows_per_level: dict[int, int] | None = None, keep_frames: bool = False,
+              path_traced: tuple[int, ...] | None = None, irradiance_scale: float = 1.0) -> None:
+        """Reset for a new render (called on the GUI thread when Render is pressed). `path_traced`: the shot's frames
+        the render keeps as its base (`x2video_app.state.frame_sources.path_traced_frames`); None or (): no base."""
         if not keep_frames:
             self.clear_frames()
+        self.base, self.path_traced = bool(path_traced), frozenset(path_traced or ())
+        self.irradiance_scale = float(irradiance_scale)
         self.arrivals.clear()
         self.windows.clear()
         self.windows_per_level = dict(windows_per_level or {})
@@ -98,6 +112,8 @@ class RenderState:
         self.preview.clear()
         self.levels.clear()
         self.keyframes.clear()
+        self.modes.clear()
+        self.exact.clear()
 
     def image(self, t: int) -> np.ndarray | None:
         """What the viewer shows for frame `t`: the render's frame, else its preview, else None."""
@@ -138,8 +154,13 @@ class RenderState:
             level = 0 if self.per_frame else ev.level
             for t, img in ev.frames.items():
                 self.frames[t] = np.asarray(img, dtype=np.float16)
+                if self.base and np.asarray(img).dtype == np.float64:  # the base stage's frame: kept exact for export
+                    self.exact[t] = (np.asarray(img) / self.irradiance_scale).astype(np.float32)  # as OutputUnits.scene
+                else:
+                    self.exact.pop(t, None)
                 self.preview.pop(t, None)
                 self.levels[t] = level
+                self.modes[t] = ev.mode
                 if ev.mode == "key" and level == self.top_level and not self.per_frame:
                     self.keyframes.add(t)
                 else:  # the seam pass makes keyframes again in interpolation windows

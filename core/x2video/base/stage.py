@@ -133,9 +133,8 @@ def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameCon
 def render_over_base(job: RenderJob, tier: Tier | None, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:
     """Render `job` over the shot's base: every frame the base where no edit reaches it, else base + the tiers'
     differences (per-frame tiers) or the tier's frame inside the edit's reach (a generative tier); emits the events
-    every tier emits (RenderStarted, FramesReady), coarse to fine, a few frames per event."""
+    every tier emits (RenderStarted, FramesReady) in `base_order`, a few frames per batch, one event per mode in a batch."""
     from x2video.conditioning.edited import frame_conditioning
-    from x2video.tiers.base import coarse_to_fine
 
     shot = job.shot
     bases = BaseFrames(shot)
@@ -147,7 +146,7 @@ def render_over_base(job: RenderJob, tier: Tier | None, emit: Emit, cancel: Canc
         assert tier is not None
         _generative_over_base(job, tier, bases, original, emit, cancel, done)
         return
-    order = coarse_to_fine(*job.frames)
+    order = base_order(shot, *job.frames)
     reason = job.choice.reason if job.choice.tier == BASE else f"{job.choice.reason}; over the shot's path-traced frames ({_keys_text(shot)})"
     emit(RenderStarted(num_frames=len(order), num_windows=0, levels=[0], tier=job.choice.tier, reason=reason, per_frame=True))
     for index, i in enumerate([0, *range(1, len(order), 4)]):
@@ -155,17 +154,37 @@ def render_over_base(job: RenderJob, tier: Tier | None, emit: Emit, cancel: Canc
             raise Cancelled(f"cancelled after {len(done)} frames")
         tw = time.perf_counter()
         fs = order[i:i + 4] if i else order[:1]
-        frames, modes = {}, set()
+        by_mode: dict[str, dict[int, np.ndarray]] = {}
         for t in fs:
             with job.clock.stage("base"):
                 base = bases(t)
             if changes_nothing(job.edits):
-                frames[t], mode = base, BASE
+                frame, mode = base, BASE
             else:
-                frames[t], mode = edited_frame(base, original(t), job.conditioning(t), glossy_tier=glossy, residual=residual)
-            modes.add(mode)
+                frame, mode = edited_frame(base, original(t), job.conditioning(t), glossy_tier=glossy, residual=residual)
+            by_mode.setdefault(mode, {})[t] = frame
         done.update(fs)
-        emit(FramesReady(window=index, frames=frames, level=0, mode="+".join(sorted(modes)), seconds=time.perf_counter() - tw))
+        seconds = time.perf_counter() - tw
+        for k, (mode, frames) in enumerate(by_mode.items()):  # one event per mode: `FramesReady.mode` holds for each of its frames
+            emit(FramesReady(window=index, frames=frames, level=0, mode=mode, seconds=seconds,
+                             window_done=k == len(by_mode) - 1))
+
+
+def base_order(shot: Shot, start: int, stop: int) -> list[int]:
+    """Frames of [start, stop) in the order a render over the base makes them: coarse to fine (`tiers.base.coarse_to_fine`)
+    where every frame carries rgb; on a keyframe shot its keyframes first, then the frames between nearest a keyframe
+    first (the best filled, as the fill's quality falls with the distance), coarse to fine among equals."""
+    from x2video.tiers.base import coarse_to_fine
+
+    order = coarse_to_fine(start, stop)
+    keys = np.asarray(shot.keyframes, np.int64)
+    if len(keys) == 0 or len(keys) == shot.num_frames:
+        return order
+    rank = {t: i for i, t in enumerate(order)}
+    ts = np.asarray(order, np.int64)
+    i = np.clip(np.searchsorted(keys, ts), 1, len(keys) - 1) if len(keys) > 1 else np.zeros_like(ts)
+    dist = np.minimum(np.abs(keys[i] - ts), np.abs(keys[np.maximum(i - 1, 0)] - ts))
+    return sorted(order, key=lambda t: (int(dist[rank[t]]), rank[t]))
 
 
 def _residual_fn(job: RenderJob) -> Callable[[list[FrameConditioning]], list[np.ndarray]]:
