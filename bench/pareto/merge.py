@@ -6,7 +6,6 @@ from pathlib import Path
 
 from bench.pareto.measure import summarise
 from x2video.tiers import registry as tiers
-from x2video.tiers.base import TIERS
 
 #: the keys of a section of the chart: the main section is the result's top level, the others under "sections"
 SECTION_KEYS = ("data", "split", "rooms", "frames", "ground_truth", "rows", "unavailable", "summary")
@@ -120,7 +119,8 @@ def merge_problems(old: dict, new: dict, section: str, where: str = "the result 
 
 
 def _row_order(r: dict) -> tuple:
-    kinds = [*TIERS, "cycles"]  # the tiers in cost order, then Cycles
+    # the built-in tiers in cost order, tiers registered later, then Cycles
+    kinds = [*tiers.QUALITIES[1:], *(q for q in tiers.qualities()[1:] if q not in tiers.QUALITIES), "cycles"]
     return (r["size"][0] * r["size"][1], kinds.index(r["kind"]) if r["kind"] in kinds else 9, r.get("scheme") == "sequential", r.get("sampler") or "",
             r.get("steps") or 0, r.get("samples") or 0)
 

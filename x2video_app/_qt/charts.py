@@ -30,9 +30,9 @@ _FAMILY_COLOURS = {"formula": (200, 200, 200), "residual": (80, 200, 90), "ddim-
 def pareto_key(tier: str, settings: Any) -> str:
     """The `bench.pareto` method of a render: 'formula', 'residual', or 'ddim-S' / 'lcm-S' (with '-seq' for sequential
     sampling) from the RenderSettings the sampler ran with (a preset already resolved to sampler and steps)."""
-    from x2video.tiers.base import TIERS  # the registry, with the built-in tiers (called once a render started)
+    from x2video.tiers import registry  # importing it registers the built-in tiers
 
-    if tier in TIERS and TIERS[tier].per_frame:  # a per-frame tier is its own method
+    if tier in registry.qualities() and tier != "auto" and not registry.windowed(tier):  # a per-frame tier is its own method
         return tier
     return f"{settings.sampler}-{settings.steps}" + ("-seq" if settings.scheme == "sequential" else "")
 
