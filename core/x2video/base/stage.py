@@ -22,8 +22,19 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from x2video.base.difference import (GLOSSY_CHANNELS, LIGHT_MODE, MATERIAL_MODE, SPILL_MARGIN, HowOver, changed, grow, light_only,
-                                     over_base, relit_metal, sharpened)
+from x2video.base.difference import (
+    GLOSSY_CHANNELS,
+    LIGHT_MODE,
+    MATERIAL_MODE,
+    SPILL_MARGIN,
+    HowOver,
+    changed,
+    grow,
+    light_only,
+    over_base,
+    relit_metal,
+    sharpened,
+)
 from x2video.base.fill import FillConfig, fill_frame
 from x2video.base.keyframes import only_keyframes
 from x2video.base.passes import rebuild
