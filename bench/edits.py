@@ -16,9 +16,14 @@ over rooms; and seconds per edited frame beside Cycles' re-render seconds. Metho
 - ``off``: x2video re-rendering the frames from the edited channels (RenderSettings ``base="off"``, quality auto:
   what every render did before the base existed);
 - ``base-formula``, ``base-residual``, ``base-auto``: x2video with the shot's rgb as the base (``base="auto"``) and
-  that quality: base + R(edited) - R(original) inside the edit's reach (`x2video.base.stage`);
-- ``base-ratio``: base x R(edited) / R(original) instead (`x2video.base.difference.over_base`, mode "ratio"), tier 1
-  where roughness, metallic or normal changed and the formula elsewhere, as base-auto chooses.
+  that quality: the edit's change over the base inside its reach (`x2video.base.stage`): R(edited) against
+  R(original), R tier 0's rebuild from the passes (`x2video.base.passes`) or tier 1's frame, as a ratio where only
+  the light changed and a difference elsewhere (`x2video.base.difference.LIGHT_MODE`, `MATERIAL_MODE`);
+- ``base-ratio``, ``base-difference``: base x R(edited) / R(original), or base + R(edited) - R(original), everywhere
+  (`edited_frame`'s mode), tier 1 where roughness, metallic or normal changed and the formula elsewhere, as
+  base-auto chooses: what the per-kind choice is measured against;
+- ``base-sharpen``: base-auto with tier 1's difference also where a surface was only made glossier
+  (`x2video.base.difference.sharpened` keeps the formula's there): what that rule is measured against.
 
 Where `RenderSettings` has no ``base`` field (a build before the Renderer took the base), the base rows are computed
 from the same library pieces the Renderer calls (`x2video.base.stage.edited_frame`) and say so (``via``).
@@ -34,13 +39,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import inspect
 import json
 import os
 import sys
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -51,10 +55,12 @@ from x2video.fields import parse_size
 
 #: pixels around the edited object scored as its band (the spill margin of `x2video.base.difference`)
 BAND = 6
-METHODS = ("nothing", "rebuild", "off", "base-formula", "base-residual", "base-auto", "base-ratio")
+METHODS = ("nothing", "rebuild", "off", "base-formula", "base-residual", "base-auto", "base-ratio", "base-difference", "base-sharpen")
 REGIONS = ("inside", "band", "outside", "whole")
 #: methods that need the model (tier 1 or the Renderer's choice)
-NEEDS_MODEL = ("off", "base-residual", "base-auto", "base-ratio")
+NEEDS_MODEL = ("off", "base-residual", "base-auto", "base-ratio", "base-difference", "base-sharpen")
+#: methods made from the library pieces (`library_frames`: an `edited_frame` option the Renderer does not take)
+LIBRARY = {"base-ratio": {"mode": "ratio"}, "base-difference": {"mode": "difference"}, "base-sharpen": {"sharpen": True}}
 
 
 # ---------------------------------------------------------------------------------------------- scoring
@@ -149,36 +155,15 @@ def renderer_frames(renderer: Any, shot: Any, edits: Any, method: str) -> tuple[
     return [np.asarray(f, np.float64) / scale for f in frames], secs / shot.num_frames
 
 
-def differential(base: np.ndarray, original: Any, edited: Any, residual: Callable | None, mode: str) -> np.ndarray:
-    """`x2video.base.stage.edited_frame` with over_base's `mode`: the formula's change inside the edit's reach, tier 1's
-    where roughness, metallic or normal changed (when `residual` is given)."""
-    from x2video.base import stage
-    from x2video.base.difference import GLOSSY_CHANNELS, SPILL_MARGIN, changed, grow, over_base, relit_metal
-    from x2video.formula import formula
-
-    if "mode" in inspect.signature(stage.edited_frame).parameters:
-        return stage.edited_frame(base, original, edited, glossy_tier=residual is not None, residual=residual, mode=mode)[0]
-    everything = changed(original, edited)
-    if not everything.any():
-        return base
-    reach = grow(everything, SPILL_MARGIN)
-    edited = relit_metal(original, edited)
-    out = over_base(base, formula(edited.channels, edited.size), formula(original.channels, edited.size), reach, mode)  # type: ignore[arg-type]
-    glossy = grow(changed(original, edited, GLOSSY_CHANNELS), SPILL_MARGIN) & reach
-    if residual is None or not glossy.any():
-        return out
-    r_e, r_o = residual([edited, original])
-    return np.where(glossy[..., None], over_base(base, r_e, r_o, glossy, mode), out)  # type: ignore[arg-type]
-
-
 def library_frames(model: Any, shot: Any, edits: Any, method: str) -> tuple[list[np.ndarray], float]:
-    """(frames of a base method made from the library pieces, in the shot's units; seconds per frame)."""
+    """(frames of a base method made from the library pieces (`x2video.base.stage.edited_frame` with `LIBRARY`'s
+    options, tier 1 where base-auto would run it), in the shot's units; seconds per frame)."""
     from x2video.base import stage
     from x2video.conditioning.edited import apply_edits
     from x2video.conditioning.frame import plain_conditioning
 
     residual = None
-    if method in ("base-residual", "base-auto", "base-ratio") and model is not None and model.residual_net is not None:
+    if method in NEEDS_MODEL and model is not None and model.residual_net is not None:
         from x2video.tiers.residual import residual_frames
 
         def residual(conds):  # noqa: E306
@@ -189,10 +174,7 @@ def library_frames(model: Any, shot: Any, edits: Any, method: str) -> tuple[list
     for t in range(shot.num_frames):
         base = shot.channel("rgb", t).astype(np.float64) * scale
         original, edited = plain_conditioning(shot, t), apply_edits(shot, edits, t)
-        if method == "base-ratio":
-            frame = differential(base, original, edited, residual, "ratio")
-        else:
-            frame = stage.edited_frame(base, original, edited, glossy_tier=residual is not None, residual=residual)[0]
+        frame = stage.edited_frame(base, original, edited, glossy_tier=residual is not None, residual=residual, **LIBRARY.get(method, {}))[0]
         out.append(np.asarray(frame, np.float64) / scale)
     return out, (time.perf_counter() - t0) / shot.num_frames
 
@@ -248,12 +230,12 @@ def score_room(folder: Path, kinds: tuple[str, ...], methods: tuple[str, ...], m
             elif method in NEEDS_MODEL and (model is None or (method != "off" and model.residual_net is None)):
                 row["methods"][method] = {"skipped": "needs the model's tier-1 net"}
                 continue
-            elif method == "off" or (base_field and method != "base-ratio"):
+            elif method == "off" or (base_field and method not in LIBRARY):
                 frames, spf = renderer_frames(renderer, before, edits, method)
                 via = f"Renderer ({renderer.last_tier.tier if renderer.last_tier else '?'})"
             else:
                 frames, spf = library_frames(model, before, edits, method)
-                via = "base.stage.edited_frame" if method != "base-ratio" else "base.difference.over_base (ratio)"
+                via = "base.stage.edited_frame" + (f" {LIBRARY[method]}" if method in LIBRARY else "")
             if keep is not None:
                 keep[(kind, method)] = tonemap(np.asarray(frames[mid], np.float32))
             sc = Scores()

@@ -99,7 +99,7 @@ def test_a_roughness_edit_takes_tier_1s_difference_inside_its_reach_only():
 
     shot, model = room(scale=0.5), with_net()
     e = box_edit()
-    e.ops = [ScalarOp(mask="sofa", target_channel="roughness", value=0.05)]
+    e.ops = [ScalarOp(mask="sofa", target_channel="roughness", value=0.9)]  # rougher: the reflection blurred
     events, frames = render(shot, RenderSettings(), e, Renderer(model))  # auto: tier 1 runs, its difference where gloss changed
     assert events[0].tier == "residual" and "over the shot's path-traced frames" in events[0].reason
     assert {ev.mode for ev in events if isinstance(ev, FramesReady)} == {"formula+residual"}
@@ -110,6 +110,33 @@ def test_a_roughness_edit_takes_tier_1s_difference_inside_its_reach_only():
         out, base = units.scene(frames[t]), shot.channel("rgb", t)
         np.testing.assert_array_equal(out[~reach], base[~reach])
         assert np.abs(out[BOX] - base[BOX]).max() > 1e-4  # the formula's difference is 0 here: only tier 1 changes it (a small random net)
+
+
+def test_a_surface_made_glossier_keeps_the_formulas_difference_not_tier_1s_guess():
+    """Sharper reflections show light no channel holds (`difference.sharpened`): tier 1's guess is not taken there, so
+    a roughness-only edit towards gloss leaves the base as it was (the formula has no roughness), bit for bit."""
+    from test_tiers import with_net
+
+    from x2video.base.stage import edited_frame
+    from x2video.conditioning.edited import apply_edits
+    from x2video.conditioning.frame import plain_conditioning
+    from x2video.edits.ops import ScalarOp
+
+    shot, model = room(scale=0.5), with_net()
+    e = box_edit()
+    e.ops = [ScalarOp(mask="sofa", target_channel="roughness", value=0.05)]
+    events, frames = render(shot, RenderSettings(), e, Renderer(model))
+    assert {ev.mode for ev in events if isinstance(ev, FramesReady)} == {"formula"}
+    units = OutputUnits.for_shot(shot)
+    for t in range(T):
+        np.testing.assert_array_equal(units.scene(frames[t]), shot.channel("rgb", t))
+    # measured apart: `sharpen` takes tier 1's guess there after all, and it changes the object
+    from x2video.tiers.residual import residual_frames
+
+    base = shot.channel("rgb", 0).astype(np.float64) * 0.5
+    out, mode = edited_frame(base, plain_conditioning(shot, 0), apply_edits(shot, e, 0), glossy_tier=True, sharpen=True,
+                             residual=lambda conds: residual_frames(model.residual_net, conds))
+    assert mode == "formula+residual" and np.abs(out[BOX] - base[BOX]).max() > 1e-4
 
 
 def test_base_off_renders_as_before():

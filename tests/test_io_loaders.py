@@ -97,7 +97,8 @@ def test_blender_multilayer(tmp_path):
     (tmp_path / "cameras.json").write_text(json.dumps({"convention": "opengl_cam_to_world", "frames": cameras}))
     shot = load_shot(tmp_path)
     assert type(shot).__name__ == "MultilayerShot"
-    assert shot.info.channels == ("albedo", "normal", "roughness", "metallic", "irradiance", "rgb", "ids", "depth")
+    # DiffCol is also read as it is: the diffuse colour the light passes were divided by (x2video.base.passes)
+    assert shot.info.channels == ("albedo", "normal", "roughness", "metallic", "irradiance", "rgb", "ids", "depth", "diffuse_color")
     wn, base = frames[1]
     # basecolor AOV preferred over Diffuse Color (black on metals)
     np.testing.assert_allclose(shot.channel("albedo", 1), base, atol=2e-3)

@@ -9,7 +9,15 @@ import numpy as np
 INTRINSIC = ("albedo", "normal", "roughness", "metallic", "irradiance")
 #: Channels a shot may carry besides the intrinsic ones.
 #: emission: light the surface emits itself (Blender's Emit + Env passes), linear HDR, in the shot's exposure.
-EXTRA = ("ids", "rgb", "depth", "emission")
+#: diffuse_color: the colour Cycles divided the diffuse light passes by (DiffCol: the base colour times what the BSDF
+#: keeps diffuse); glossy: the glossy and transmitted light (GlossCol x (GlossDir + GlossInd) + TransCol x (TransDir +
+#: TransInd)), linear HDR in rgb's units as emission. With irradiance they split rgb as Cycles does (`PASSES`).
+EXTRA = ("ids", "rgb", "depth", "emission", "diffuse_color", "glossy")
+#: the terms of a path-traced frame besides albedo x irradiance: rgb = diffuse_color x irradiance + glossy + emission
+#: (irradiance unnormalised), what the formula over the base rebuilds (`x2video.base.passes`)
+PASSES = ("diffuse_color", "glossy", "emission")
+#: the passes that are light (scaled with irradiance by the light operations, `x2video.edits.ops`)
+LIGHT_PASSES = ("glossy", "emission")
 ALL = INTRINSIC + EXTRA
 #: The intrinsic channels the VAE encodes (irradiance is area-downsampled to latent size instead).
 VAE_ENCODED = INTRINSIC[:4]
@@ -38,6 +46,8 @@ SPECS: dict[str, ChannelSpec] = {
     "ids": ChannelSpec("ids", 1, ("id",), 0, None, dtype="int32"),
     "depth": ChannelSpec("depth", 1, ("Z",), 0.0, None),
     "emission": ChannelSpec("emission", 3, ("R", "G", "B"), 0.0, None),
+    "diffuse_color": ChannelSpec("diffuse_color", 3, ("R", "G", "B"), 0.0, 1.0),
+    "glossy": ChannelSpec("glossy", 3, ("R", "G", "B"), 0.0, None),
 }
 
 

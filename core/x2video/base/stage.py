@@ -3,10 +3,12 @@ only what an edit changes (DESIGN.md, "Path-traced pixels first").
 
 - No edit reaches a frame: the frame is the base (the shot's rgb, or on a keyframe shot the fill from its nearest
   keyframes, `base.fill`), and no tier runs.
-- An edit reaches it: per pixel, the base plus a tier's difference (`base.difference`): tier 0's (the formula,
-  exact for albedo and light edits of diffuse surfaces, the compositor's rebuild) where only albedo or irradiance
-  changed, tier 1's where roughness, metallic or normal changed (the glossy change no rebuild from passes makes), when
-  the render runs tier 1 (auto with the tier-1 net, or forced); a forced formula renders tier 0's everywhere.
+- An edit reaches it: per pixel, the base plus a tier's difference (`base.difference`): tier 0's (the frame rebuilt
+  from its passes, `base.passes`: the compositor's rebuild, exact for albedo edits of diffuse surfaces; a ratio where
+  only the light changed, exact for a light edit of every lamp) where only albedo or the light changed, tier 1's where
+  roughness, metallic or normal changed (the glossy change no rebuild from passes makes; not where a surface was only
+  made glossier, `difference.sharpened`), when the render runs tier 1 (auto with the tier-1 net, or forced); a forced
+  formula renders tier 0's everywhere.
 - A tier that generates (windows: the diffusion sampler) renders as today; its frame replaces the base inside the
   edit's reach and the base stays everywhere else.
 
@@ -20,9 +22,22 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from x2video.base.difference import GLOSSY_CHANNELS, SPILL_MARGIN, changed, grow, over_base, relit_metal
+from x2video.base.difference import (
+    GLOSSY_CHANNELS,
+    LIGHT_MODE,
+    MATERIAL_MODE,
+    SPILL_MARGIN,
+    HowOver,
+    changed,
+    grow,
+    light_only,
+    over_base,
+    relit_metal,
+    sharpened,
+)
 from x2video.base.fill import FillConfig, fill_frame
 from x2video.base.keyframes import only_keyframes
+from x2video.base.passes import rebuild
 from x2video.render.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted
 from x2video.tiers.base import RenderPlan, TierChoice
 
@@ -110,24 +125,38 @@ class BaseFrames:
 
 
 def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameConditioning, *, glossy_tier: bool,
-                 residual: Callable[[list[FrameConditioning]], list[np.ndarray]] | None, margin: int = SPILL_MARGIN) -> tuple[np.ndarray, str]:
-    """One frame: `base` (model exposure, float64) with the edit's differences, and which tiers made them."""
-    from x2video.formula import formula
+                 residual: Callable[[list[FrameConditioning]], list[np.ndarray]] | None, margin: int = SPILL_MARGIN,
+                 mode: HowOver = "auto", sharpen: bool = False) -> tuple[np.ndarray, str]:
+    """One frame: `base` (model exposure, float64) with the edit's changes, and which tiers made them.
 
+    Tier 0's R is the frame rebuilt from its passes (`base.passes.rebuild`: the compositor's rebuild where the shot has
+    Cycles' passes, albedo x irradiance where it has not), over the base as a ratio where the edit changed only the
+    light and as a difference elsewhere (mode "auto": `difference.LIGHT_MODE`, `MATERIAL_MODE`; or one mode
+    everywhere). Tier 1's difference replaces it where roughness, metallic or normal changed (`glossy_tier` with a
+    `residual`), except where a surface was only made glossier (`difference.sharpened`; `sharpen` takes tier 1's
+    there too, for measuring)."""
     everything = changed(original, edited)
     if not everything.any():
         return base, BASE
     reach = grow(everything, margin)
+    light = light_only(original, edited) if mode == "auto" else None
     edited = relit_metal(original, edited)
-    size = edited.size
-    out = over_base(base, formula(edited.channels, size), formula(original.channels, size), reach)
+    r_e, r_o = rebuild(edited, original), rebuild(original, original)
+    if light is None:
+        out = over_base(base, r_e, r_o, reach, mode)  # type: ignore[arg-type]
+    else:
+        out = over_base(base, r_e, r_o, reach & ~light, MATERIAL_MODE)
+        out = np.where(light[..., None], over_base(base, r_e, r_o, light, LIGHT_MODE), out)
     if not (glossy_tier and residual is not None):
         return out, "formula"
-    glossy = grow(changed(original, edited, GLOSSY_CHANNELS), margin) & reach
+    glossy_changed = changed(original, edited, GLOSSY_CHANNELS)
+    if not sharpen:
+        glossy_changed &= ~sharpened(original, edited)
+    glossy = grow(glossy_changed, margin) & reach
     if not glossy.any():
         return out, "formula"
     r_e, r_o = residual([edited, original])
-    return np.where(glossy[..., None], over_base(base, r_e, r_o, glossy), out), "formula+residual"
+    return np.where(glossy[..., None], over_base(base, r_e, r_o, glossy, MATERIAL_MODE if mode == "auto" else mode), out), "formula+residual"  # type: ignore[arg-type]
 
 
 def render_over_base(job: RenderJob, tier: Tier | None, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 
 from x2video.channels import INTRINSIC
-from x2video.conditioning.frame import Conditioning, FrameConditioning, camera_view, plain_conditioning
+from x2video.conditioning.frame import Conditioning, FrameConditioning, camera_view, plain_conditioning, shot_passes
 from x2video.edits.model import Edits
 from x2video.edits.ops import MaskOut
 from x2video.shot import Shot
@@ -21,7 +21,8 @@ def apply_edits(shot: Shot, edits: Edits, t: int) -> FrameConditioning:
     Pure: reads the shot and the edits, modifies neither. Channels missing from the shot or in
     `edits.dropped` are None. Ops run in list order; `MaskOut` ops zero their channels inside
     the mask and add the region (mask > 0.5) to `amr_mask`. `local_masks` follow
-    `edits.prompts().local`.
+    `edits.prompts().local`. The shot's passes (`FrameConditioning.passes`) are edited by the light operations
+    as irradiance is (`Op.apply_passes`).
     """
     edits.validate()
     h, w = shot.size
@@ -38,14 +39,17 @@ def apply_edits(shot: Shot, edits: Edits, t: int) -> FrameConditioning:
         return cache[name]
 
     amr = np.zeros((h, w), np.float32)
+    passes = shot_passes(shot, t)
     for op in edits.ops:
         m = mask(op.mask)
         op.apply(channels, m)
+        op.apply_passes(passes, m)
         if isinstance(op, MaskOut) and m is not None:
             amr = np.maximum(amr, (m > 0.5).astype(np.float32))
     names = edits.local_prompt_masks()
     local = np.stack([mask(n) for n in names]) if names else np.zeros((0, h, w), np.float32)  # (P, H, W)
-    return FrameConditioning(channels=channels, amr_mask=amr, local_masks=local.astype(np.float32), frame_index=t, **camera_view(shot, t))
+    return FrameConditioning(channels=channels, amr_mask=amr, local_masks=local.astype(np.float32), frame_index=t,
+                             passes=passes, **camera_view(shot, t))
 
 
 def frame_conditioning(shot: Shot, edits: Edits | None) -> Conditioning:

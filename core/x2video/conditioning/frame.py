@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
-from x2video.channels import INTRINSIC
+from x2video.channels import INTRINSIC, LIGHT_PASSES, PASSES
 
 if TYPE_CHECKING:
     from x2video.shot import Shot
@@ -38,6 +38,11 @@ class FrameConditioning:
     #: residual over. Derived from the channels and the model's tier-1 net; `x2video.tiers.encoder.Encoder` fills it
     #: before encoding (None until then, and for every other model)
     prior: np.ndarray | None = field(default=None, repr=False, compare=False)
+    #: the frame's passes where the shot has them (`x2video.channels.PASSES`: diffuse_color, glossy, emission; a
+    #: Blender shot's), float32 (H, W, 3), the light ones in the model's exposure (times the shot's irradiance_scale,
+    #: as irradiance) and edited with it by the light operations; what the formula over the base rebuilds
+    #: (`x2video.base.passes`). No network reads them.
+    passes: dict[str, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
 
     def depth(self) -> np.ndarray | None:
         return None if self.depth_source is None else self.depth_source()
@@ -64,6 +69,18 @@ def camera_view(shot: Shot, t: int) -> dict:
             "fov_y_deg": None if pose is None else pose.fov_y_deg}
 
 
+def shot_passes(shot: Shot, t: int) -> dict[str, np.ndarray]:
+    """Frame `t`'s passes of `shot` (`FrameConditioning.passes`): those it has, the light ones times its
+    irradiance_scale (the model's exposure)."""
+    scale = np.float32(shot.info.irradiance_scale)
+    out = {}
+    for name in PASSES:
+        if shot.has(name):
+            v = np.asarray(shot.channel(name, t), np.float32)
+            out[name] = v * scale if name in LIGHT_PASSES and scale != 1 else v
+    return out
+
+
 def plain_conditioning(shot: Shot, t: int) -> FrameConditioning:
     """A frame's conditioning with no edits: the shot's channels, absent ones dropped, no masks."""
     h, w = shot.size
@@ -74,4 +91,5 @@ def plain_conditioning(shot: Shot, t: int) -> FrameConditioning:
         local_masks=np.zeros((0, h, w), np.float32),
         frame_index=t,
         **camera_view(shot, t),
+        passes=shot_passes(shot, t),
     )

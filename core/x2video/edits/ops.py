@@ -13,7 +13,7 @@ from typing import Any, ClassVar
 import cv2
 import numpy as np
 
-from x2video.channels import linear_to_srgb, srgb_to_linear
+from x2video.channels import LIGHT_PASSES, linear_to_srgb, srgb_to_linear
 
 
 def blend(base: np.ndarray, edited: np.ndarray, m: np.ndarray | None) -> np.ndarray:
@@ -41,6 +41,9 @@ class Op:
     kind: ClassVar[str] = ""
     #: the channel this op reads and writes
     channel: ClassVar[str] = ""
+    #: the passes (`x2video.channels.PASSES`) it edits as it edits its channel: the light operations' light
+    #: passes, so that a light edit scales every term of a path-traced frame, not only its diffuse light
+    passes: ClassVar[tuple[str, ...]] = ()
     mask: str | None = None
 
     def edit(self, x: np.ndarray) -> np.ndarray:  # pragma: no cover - abstract
@@ -52,6 +55,13 @@ class Op:
         if x is None:
             return
         channels[self.target()] = blend(x, self.edit(x), m)
+
+    def apply_passes(self, passes: dict[str, np.ndarray], m: np.ndarray | None) -> None:
+        """Edit each of `self.passes` present in `passes` (replaced, not modified in place) within mask m."""
+        for name in self.passes:
+            x = passes.get(name)
+            if x is not None:
+                passes[name] = blend(x, self.edit(x), m)
 
     def target(self) -> str:
         return self.channel
@@ -143,10 +153,11 @@ class ScalarOp(Op):
 
 @dataclass
 class Exposure(Op):
-    """Irradiance *= 2 ** stops."""
+    """Irradiance (and the light passes: glossy, emission) *= 2 ** stops."""
 
     kind: ClassVar[str] = "exposure"
     channel: ClassVar[str] = "irradiance"
+    passes: ClassVar[tuple[str, ...]] = LIGHT_PASSES
     stops: float = 0.0
 
     def validate(self, where: str) -> None:
@@ -159,10 +170,11 @@ class Exposure(Op):
 
 @dataclass
 class LightTint(Op):
-    """Irradiance *= colour (per-channel multiply, >= 0)."""
+    """Irradiance (and the light passes: glossy, emission) *= colour (per-channel multiply, >= 0)."""
 
     kind: ClassVar[str] = "light_tint"
     channel: ClassVar[str] = "irradiance"
+    passes: ClassVar[tuple[str, ...]] = LIGHT_PASSES
     color: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def validate(self, where: str) -> None:

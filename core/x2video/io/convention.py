@@ -2,7 +2,7 @@
 
 Conversions, per channel, for float (EXR) and integer (PNG/JPG/TIFF, "LDR") files:
 
-- albedo, irradiance, rgb: EXR linear as stored; LDR sRGB-decoded (``ldr_decode="srgb"``) or with
+- albedo, irradiance, rgb and the passes (emission, diffuse_color, glossy): EXR linear as stored; LDR sRGB-decoded (``ldr_decode="srgb"``) or with
   the XRGB release's plain power 2.2 (``ldr_decode="gamma2.2"``, used by the XRGB loader).
 - normal: EXR normalised; LDR ``2v-1`` then normalised (zero vectors stay zero).
 - roughness, metallic, depth: one component (from a one-channel file or the first of R/G/B).
@@ -74,7 +74,7 @@ def to_memory(name: str, img: ImageData, *, ldr_decode: str = "srgb", where: str
     assert a is not None
     a = zero_nonfinite(a, where, name)
     if ldr:
-        if name in ("albedo", "irradiance", "rgb"):
+        if name in ("albedo", "irradiance", "rgb", "emission", "diffuse_color", "glossy"):
             a = srgb_to_linear(a) if ldr_decode == "srgb" else np.power(np.clip(a, 0, 1), 2.2, dtype=np.float32)
         elif name == "normal":
             a = a * 2.0 - 1.0

@@ -13,7 +13,11 @@ Blender's (``<ViewLayer>.<Pass>.<comp>``, short or long pass names):
 - roughness / metallic: shader AOVs with those names (value ``.X`` or colour ``.R``);
 - ids: ``IndexOB`` / ``Object Index``; depth: ``Depth`` / ``Z``; rgb: ``Combined`` / ``Image``;
 - emission: ``Emit`` + ``Env`` (light the surfaces emit and the world seen directly), in the file's units as
-  rgb is (neither is scaled by the irradiance normalisation: rgb - emission is the reflected light).
+  rgb is (neither is scaled by the irradiance normalisation: rgb - emission is the reflected light);
+- diffuse_color: ``DiffCol`` (the colour the diffuse light passes were divided by);
+- glossy: ``GlossCol`` x (``GlossDir`` + ``GlossInd``), plus ``TransCol`` x (``TransDir`` + ``TransInd``) and
+  ``VolumeDir`` + ``VolumeInd`` where the file has them (`PRODUCTS`), in the file's units as emission. With these,
+  rgb = diffuse_color x (DiffDir + DiffInd) + glossy + emission: Cycles' split of Combined (`x2video.base.passes`).
 
 Keyframe shots (the add-on's keyframe export): only some frames carry Combined (the keyframes, listed in
 shot.json's ``keyframes``, else found from the frames' headers); the others hold G-buffer passes only.
@@ -53,6 +57,16 @@ BLENDER: dict[str, list[tuple[str, ...]]] = {
     "depth": [("Depth",), ("Z",)],
     "rgb": [("Combined",), ("Image",)],
     "emission": [("Emit", "Env"), ("Emission", "Environment"), ("Emit",)],
+    "diffuse_color": [("DiffCol",), ("Diffuse Color",)],
+}
+#: channels that are sums of products of passes: channel -> terms (colour pass or None, light passes summed), the
+#: first term required (short names, then long ones); later terms are added where the file has all their passes
+PRODUCTS: dict[str, list[list[tuple[str | None, tuple[str, ...]]]]] = {
+    "glossy": [
+        [("GlossCol", ("GlossDir", "GlossInd")), ("TransCol", ("TransDir", "TransInd")), (None, ("VolumeDir", "VolumeInd"))],
+        [("Glossy Color", ("Glossy Direct", "Glossy Indirect")), ("Transmission Color", ("Transmission Direct", "Transmission Indirect")),
+         (None, ("Volume Direct", "Volume Indirect"))],
+    ],
 }
 _COMPS3 = (("R", "G", "B"), ("X", "Y", "Z"), ("r", "g", "b"), ("x", "y", "z"))
 _COMPS1 = ("Y", "X", "V", "R", "Z", "id", "r", "x")
@@ -65,6 +79,12 @@ class Source:
     passes: list[list[str]]  # each pass: component channel names (summed across passes)
     blender: bool
     label: str
+    #: per pass, the component names of the colour pass it is multiplied by before the sum (`PRODUCTS`), or None
+    factors: list[list[str] | None] | None = None
+
+    def names(self) -> list[str]:
+        """Every EXR channel this source reads."""
+        return [n for names in [*self.passes, *(f for f in self.factors or () if f)] for n in names]
 
 
 def group_passes(names: tuple[str, ...]) -> dict[str, dict[str, dict[str, str]]]:
@@ -123,7 +143,40 @@ def map_channels(names: tuple[str, ...], path: str) -> dict[str, Source]:
                     raise ValueError(f"{path}: pass {layer}.{keys[0]} has components {sorted(passes[keys[0]])}, cannot take {n} for {ch}")  # type: ignore[index]
                 found[ch] = Source(comps_list, True, " + ".join(f"{layer}.{k}" for k in keys))  # type: ignore[arg-type]
                 break
+        for ch, spellings in PRODUCTS.items():
+            if ch not in found:
+                src = _product(ch, spellings, layer, passes, path)
+                if src is not None:
+                    found[ch] = src
     return found
+
+
+def _product(ch: str, spellings: list[list[tuple[str | None, tuple[str, ...]]]], layer: str, passes: dict[str, dict[str, str]],
+             path: str) -> Source | None:
+    """The `Source` of a `PRODUCTS` channel in one layer (the first spelling whose first term it has), or None."""
+    lower = {p.lower(): p for p in passes}
+    for terms in spellings:
+        parts: list[list[str]] = []
+        factors: list[list[str] | None] = []
+        labels = []
+        for i, (colour, lights) in enumerate(terms):
+            keys = [lower.get(p.lower()) for p in ((colour,) if colour else ()) + lights]
+            if any(k is None for k in keys):
+                if i == 0:
+                    break
+                continue
+            comps = [_components(passes[k], 3) for k in keys]  # type: ignore[index]
+            if any(c is None for c in comps):
+                raise ValueError(f"{path}: pass {layer}.{keys[0]} has components {sorted(passes[keys[0]])}, cannot take 3 for {ch}")  # type: ignore[index]
+            col = comps[0] if colour else None
+            for light in comps[1:] if colour else comps:
+                parts.append(light)  # type: ignore[arg-type]
+                factors.append(col)  # type: ignore[arg-type]
+            names = [f"{layer}.{k}" for k in keys]
+            labels.append(f"{names[0]} x ({' + '.join(names[1:])})" if colour else " + ".join(names))
+        else:
+            return Source(parts, True, " + ".join(labels), factors)
+    return None
 
 
 class MultilayerShot(Shot):
@@ -227,8 +280,7 @@ class MultilayerShot(Shot):
         path = self._files[t]
         want = self.info.channels if only is None else only
         sources = {ch: src for ch, src in self._per_frame[t].items() if ch in want and (ch != "rgb" or self.has_rgb(t))}
-        img = self._stamps.read(path, f"frame {t}", channels=[n for src in sources.values() for names in src.passes for n in names],
-                                 reader=read_image)
+        img = self._stamps.read(path, f"frame {t}", channels=[n for src in sources.values() for n in src.names()], reader=read_image)
         if (img.height, img.width) != (self.info.height, self.info.width):
             raise ValueError(f"{path}: size {img.width}x{img.height}, frame 0 is {self.info.width}x{self.info.height}")
         where = f"{path} (frame {t})"
@@ -248,6 +300,8 @@ class MultilayerShot(Shot):
                 return raw.astype(np.int32)[..., None]
             v = np.nan_to_num(parts[0], nan=0, posinf=0, neginf=0)
             return np.clip(np.rint(v), 0, 2**31 - 1).astype(np.int32)
+        if src.factors is not None:
+            parts = [p if f is None else p * img.stack(f, np.float32) for p, f in zip(parts, src.factors)]
         a = zero_nonfinite(np.sum(parts, axis=0).astype(np.float32), where, ch)
         if ch == "normal" and self._world_normals and self.info.poses is not None:
             r = np.asarray(self.info.poses[t].cam_to_world, np.float32)[:3, :3]
