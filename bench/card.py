@@ -203,7 +203,8 @@ def readme_keyframes() -> str:
     clips, curve, gb = d["clips"], cycles_curve(d), gbuffer_cpu(d)
     key_cpu = sum(c["keyframes"]["cpu_seconds_per_frame"] for c in clips) / len(clips)
     methods = [m for m in ("hold", "rife", "classical", "learned") if any(r["method"] == m for c in clips for r in c["rows"])]
-    lines = ["| 1 keyframe in N | " + " | ".join(LABELS[m] for m in methods) + " | CPU s a frame, all in (the slowest fill) | Cycles on every frame at that time |",
+    lines = ["| 1 keyframe in N | " + " | ".join(LABELS[m] for m in methods)
+             + " | CPU s a frame, all in (the slowest fill) | Cycles on every frame at that time |",
              "|---|" + "---|" * (len(methods) + 2)]
     for n in sorted({r["every"] for c in clips for r in c["rows"]}):
         if n < 4:
