@@ -38,7 +38,7 @@ def _render(model, shot, quality: str, **kw) -> np.ndarray:
     from x2video.render.settings import RenderSettings
 
     out: dict[int, np.ndarray] = {}
-    Renderer(model).render(shot, None, RenderSettings(quality=quality, window=3, **kw),
+    Renderer(model).render(shot, None, RenderSettings(quality=quality, window=3, base="off", **kw),
                            on_event=lambda e: out.update(e.frames) if isinstance(e, FramesReady) else None)
     return np.stack([out[t] for t in range(shot.num_frames)])
 
