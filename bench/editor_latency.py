@@ -108,6 +108,7 @@ def drag_scenario(win, quality: str, seconds: float, hz: float, pump: Callable[[
 
     i = win.render_panel.quality.findData(quality)
     win.render_panel.quality.setCurrentIndex(i)
+    win.render_panel.base_check.setChecked(False)  # time the tier itself, not the shot's own frames
     win.doc.set_view("rendered")
     pump_until(lambda: win.render_ctl.prepare_worker is None and win.live.idle, "the editor at rest before the drag")
     live, slider = win.live, win.edit_panel.exposure
@@ -328,6 +329,7 @@ def main(argv: list[str] | None = None) -> int:
     i = win.render_panel.quality.findData(args.quality)
     t_prepare = time.perf_counter()
     win.render_panel.quality.setCurrentIndex(i)
+    win.render_panel.base_check.setChecked(False)  # time the tier itself, not the shot's own frames
     win.rendering.prepare()  # as a changed setting does (also when the quality was already the chosen one)
     if not args.no_wait_prepare:
         pump_until(lambda: win.render_ctl.prepare_worker is None, "the shot's preparation")
