@@ -12,10 +12,10 @@ With `resume` (a key of what makes the frames: `resume_key`), the staging folder
 name (`.OUT.resume`) and outlives a failed, cancelled or killed render; the next sink with the
 same key takes its frames over (`kept`), so a re-run renders only what is missing
 (`missing_runs`) and ends with the files an uninterrupted render writes. A staging folder made
-with another key is removed. The same rule serves the editor's export (`x2video_app.state.exporter`), which stages
-the edited channels beside the frames (`staging`), and the farm's chunks. An existing output folder is replaced only
-when it holds a render (frame files, `channels/`): a folder of other files is refused, never emptied. A full disk stops the render with a `DiskFullError` naming the
-folder, the space the frames still to write need, and where the frames written so far are kept.
+with another key is removed. The same sink serves the editor's export (`x2video_app.state.exporter`), which
+stages the edited channels beside the frames (`staging`). An existing output folder is replaced only when it
+holds a render (frame files, `channels/`): a folder of other files is refused, never emptied. A full disk stops
+the render with a `DiskFullError` naming the folder, the space the frames still to write need, and where the frames written so far are kept.
 """
 from __future__ import annotations
 
