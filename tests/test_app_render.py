@@ -127,11 +127,14 @@ def test_render_keyframes_first_reuse_cache_reference_and_export(win, qtbot, tmp
     win.exporting.export("exr", exr, with_channels=True)
     qtbot.waitUntil(lambda: win.exporting.export_worker is None, timeout=60_000)
     from x2video.io import load_shot
+    from x2video.io.image import read_image
 
-    back = load_shot(exr)
-    assert back.num_frames == 5 and {"rgb", "albedo", "normal"} <= set(back.channels)
+    assert sorted(p.name for p in exr.iterdir()) == [*(f"{t:06d}.exr" for t in range(5)), "channels"]  # as the CLI writes
+    back = load_shot(exr / "channels")  # the edited channels: a shot folder
+    assert back.num_frames == 5 and {"albedo", "normal"} <= set(back.channels)
     for t in (0, 3):
-        assert np.allclose(back.channel("rgb", t), win.doc.render.frames[t].astype(np.float32), atol=2e-3, rtol=2e-3)
+        rgb = read_image(exr / f"{t:06d}.exr").stack("RGB")
+        assert np.allclose(rgb, win.doc.render.frames[t].astype(np.float32), atol=2e-3, rtol=2e-3)
     assert not win.errors_shown
     del wk
 

@@ -48,6 +48,15 @@ def _loop_args(p: argparse.ArgumentParser, steps: int, lr: float, ema: float = L
     g.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch's default; 1 is fastest on a busy machine)")
 
 
+def _small_net_args(p: argparse.ArgumentParser, config: type, shots: str, cache: str) -> None:
+    """The flags of a small net's training (the tier-1 residual net, the keyframe fill): data, run folder, threads and
+    the stage's `config` fields; `shots` says what the data set's shot folders hold, `cache` adds to --out's help."""
+    p.add_argument("--data", required=True, help=f"data set with train/ and val/ (or test/) {shots}")
+    p.add_argument("--out", required=True, help=f"run folder (resumes from its checkpoint.pt{cache})")
+    p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    add_fields(p, config)
+
+
 def _aug_args(p: argparse.ArgumentParser) -> None:
     """The conditioning augmentation flags (`AugmentConfig`)."""
     add_fields(p.add_argument_group("conditioning augmentation"), AugmentConfig,
@@ -341,24 +350,18 @@ def register(subparsers) -> None:
     s.set_defaults(func=cmd_encoder)
 
     s = sub.add_parser("residual", help="the tier-1 network: one pass over albedo x irradiance, fitted to path-traced shots")
-    s.add_argument("--data", required=True, help="data set with train/ and val/ (or test/) shot folders holding the five channels and rgb")
-    s.add_argument("--out", required=True, help="run folder (resumes from its checkpoint.pt)")
-    s.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     from x2video.train.residual_stage import ResidualTrainConfig
 
-    add_fields(s, ResidualTrainConfig)
+    _small_net_args(s, ResidualTrainConfig, "shot folders holding the five channels and rgb", "")
     s.set_defaults(func=cmd_residual)
 
     s = sub.add_parser("fill", help="the learned keyframe fill: a small net correcting the classical fill between path-traced keyframes",
                        description="Trains on shots with rgb on every frame (random keyframe spacing and phase, a frame "
                                    "between held out). Resumable: run the same command again to continue.")
-    s.add_argument("--data", required=True, help="data set with train/ and val/ (or test/) shot folders: rgb on every frame, "
-                                                 "G-buffers, depth and cameras.json where they have them")
-    s.add_argument("--out", required=True, help="run folder (resumes from its checkpoint.pt; the shots are cached in OUT/cache)")
-    s.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     from x2video.train.fill_stage import FillTrainConfig
 
-    add_fields(s, FillTrainConfig)
+    _small_net_args(s, FillTrainConfig, "shot folders: rgb on every frame, G-buffers, depth and cameras.json where they have them",
+                    "; the shots are cached in OUT/cache")
     s.set_defaults(func=cmd_fill)
 
     s = sub.add_parser("ship", help="write a trained model (fp16 safetensors + training.json) into resources/",

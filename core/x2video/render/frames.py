@@ -12,8 +12,10 @@ With `resume` (a key of what makes the frames: `resume_key`), the staging folder
 name (`.OUT.resume`) and outlives a failed, cancelled or killed render; the next sink with the
 same key takes its frames over (`kept`), so a re-run renders only what is missing
 (`missing_runs`) and ends with the files an uninterrupted render writes. A staging folder made
-with another key is removed. A full disk stops the render with a `DiskFullError` naming the
-folder, the space the frames still to write need, and where the frames written so far are kept.
+with another key is removed. The same sink serves the editor's export (`x2video_app.state.exporter`), which
+stages the edited channels beside the frames (`staging`). An existing output folder is replaced only when it
+holds a render (frame files, `channels/`): a folder of other files is refused, never emptied. A full disk stops
+the render with a `DiskFullError` naming the folder, the space the frames still to write need, and where the frames written so far are kept.
 """
 from __future__ import annotations
 
@@ -37,6 +39,8 @@ log = logging.getLogger(__name__)
 
 
 RESUME_FORMAT = "x2video-render-resume"
+#: the one folder an EXR render's output may hold beside its frames: the editor's edited channels (a shot folder)
+CHANNELS_FOLDER = "channels"
 
 
 def resume_key(**parts: Any) -> str:
@@ -88,12 +92,18 @@ def _readable(path: Path) -> bool:
         return False
 
 
-def write_exr_frame(path: Path, rgb: np.ndarray, units: OutputUnits) -> None:
+def _render_entry(p: Path) -> bool:
+    """Whether `p`, in an existing output folder, is what a render writes there (a frame, the editor's channels)."""
+    return (p.suffix == ".exr" and p.stem.isdigit()) or p.name == CHANNELS_FOLDER
+
+
+def write_exr_frame(path: Path, rgb: np.ndarray, units: OutputUnits, *, in_units: bool = False) -> None:
     """Rendered linear RGB (H, W, 3) as a half-float EXR with channels R, G, B, in the input's units: the one layout of a
-    rendered frame, written by `FrameSink` (the CLI, the editor's render) and the farm's chunks (`x2video.farm.chunks`)."""
+    rendered frame, written by `FrameSink` (the CLI, the editor's render) and the farm's chunks (`x2video.farm.chunks`).
+    `in_units`: `rgb` is already in the input's units (the editor's exact frames over the shot's own), written as it is."""
     from x2video.io.image import write_exr
 
-    rgb = units.scene(rgb)
+    rgb = np.asarray(rgb, np.float32) if in_units else units.scene(rgb)
     # no DateTime (OpenImageIO stamps the write's time otherwise): the same render writes the same bytes, so a resumed
     # render's files equal an uninterrupted one's
     write_exr(path, {"R": rgb[..., 0], "G": rgb[..., 1], "B": rgb[..., 2]}, "half", {**units.exr_attributes(), "DateTime": ""})
@@ -107,10 +117,12 @@ class FrameSink:
     `expected` (the frame indices of the render), when given, is checked on finish.
     `units` (`x2video.io.units.OutputUnits`) takes the frames from the model's exposure to the
     input's units (EXR) and to the MP4's exposure; the default is the identity.
+    `retry` ends a full disk's message when `resume` keeps the frames: what to do again to resume.
     """
 
     def __init__(self, out: str | Path, *, fps: float = 10.0, expected: list[int] | None = None,
-                 units: OutputUnits | None = None, resume: str | None = None) -> None:
+                 units: OutputUnits | None = None, resume: str | None = None,
+                 retry: str = "run the same command again") -> None:
         self.out = Path(out)
         self.units = units if units is not None else OutputUnits()
         if not fps > 0 or fps == float("inf"):
@@ -128,6 +140,12 @@ class FrameSink:
         if self.out.exists() and self.mp4 == self.out.is_dir():
             kind = "a folder" if self.out.is_dir() else "a file"
             raise ValueError(f"output {self.out} exists and is {kind}")
+        if not self.mp4 and self.out.is_dir():
+            foreign = sorted(p.name for p in self.out.iterdir() if not _render_entry(p))
+            if foreign:
+                raise ValueError(f"output folder {self.out} holds other files ({', '.join(foreign[:3])}"
+                                 f"{', ...' if len(foreign) > 3 else ''}); a render replaces its folder: pick an empty or new one")
+        self.retry = retry
         self.resume = resume
         #: frames a failed earlier render with the same `resume` key left staged (whole files), taken over
         self.kept: set[int] = set()
@@ -168,6 +186,14 @@ class FrameSink:
         write_json_atomic(record, {"format": RESUME_FORMAT, "key": key, "output": self.out.name})
         return staging
 
+    @property
+    def staging(self) -> Path:
+        """The hidden folder that becomes `out` on `finish` (EXR): a writer of companion files (the editor's edited
+        channels) stages them here, each atomically, so they appear and resume with the frames."""
+        if self._staging is None:
+            raise RuntimeError(f"frame sink for {self.out} is already closed")
+        return self._staging
+
     def missing_runs(self) -> list[tuple[int, int]]:
         """The [start, stop) runs of `expected` frames not kept from an earlier render (all of them when none is)."""
         if self.expected is None:
@@ -189,8 +215,11 @@ class FrameSink:
         elif isinstance(event, (RenderCancelled, RenderFailed)):
             self.abort()
 
-    def add(self, index: int, rgb: np.ndarray, *, replace: bool = False) -> None:
-        """Stage one linear RGB (H, W, 3) frame; `replace` allows (and requires) an earlier frame `index`."""
+    def add(self, index: int, rgb: np.ndarray, *, replace: bool = False, in_units: bool = False) -> None:
+        """Stage one linear RGB (H, W, 3) frame; `replace` allows (and requires) an earlier frame `index`; `in_units`:
+        the frame is already in the input's units (EXR only: an MP4 takes the model's exposure)."""
+        if in_units and self.mp4:
+            raise ValueError(f"{self.out}: frames in the input's units go to an EXR folder, not an MP4")
         if self._staging is None:
             raise RuntimeError(f"frame sink for {self.out} is already closed")
         if index in self._frames and not replace:
@@ -208,14 +237,14 @@ class FrameSink:
                     with open(tmp, "wb") as f:  # a Python write: a full disk raises ENOSPC (numpy's own write says only bytes)
                         f.write(buf.getbuffer())
                 else:
-                    write_exr_frame(tmp, rgb, self.units)
+                    write_exr_frame(tmp, rgb, self.units, in_units=in_units)
         except OSError as exc:
             if is_disk_full(exc) or looks_full(self._staging, np.asarray(rgb).size * 2):
-                raise self._disk_full(f"frame {index}", rgb) from None
+                raise self.disk_full(f"frame {index}", rgb) from None
             raise
         self._frames.add(index)
 
-    def _disk_full(self, what: str, rgb: np.ndarray | None = None) -> DiskFullError:
+    def disk_full(self, what: str, rgb: np.ndarray | None = None) -> DiskFullError:
         """The error of a full disk while staging `what`: the space the frames still to write need (the mean staged
         frame's size, or the frame's raw size before any is staged) and what is kept."""
         assert self._staging is not None
@@ -227,7 +256,7 @@ class FrameSink:
         if self.mp4:
             need += int(each * len(self.expected or staged) / 4)  # the encoded MP4: at most 8-bit 4:2:0 (1/4 of the float16 frames)
         if self.resume is not None:
-            kept = f"the {len(staged)} frame(s) written are kept in {self._staging}; free space and run the same command again to resume"
+            kept = f"the {len(staged)} frame(s) written are kept in {self._staging}; free space and {self.retry} to resume"
         else:
             kept = f"nothing was written to {self.out}"
         n = len(left) if left != [None] else 1
@@ -257,8 +286,8 @@ class FrameSink:
                     h, w = np.load(self._frame_path(order[0]), mmap_mode="r").shape[:2]
                     raise DiskFullError(self.out.parent, int(h * w * 1.5 * len(order)), at_most=True,  # 8-bit 4:2:0, uncompressed
                                         what=f"encoding {self.out.name} from {len(order)} frames",
-                                        kept=(f"the staged frames are kept in {self._staging}; free space and run the same command "
-                                              "again to encode them" if self.resume is not None else f"nothing was written to {self.out}")
+                                        kept=(f"the staged frames are kept in {self._staging}; free space and {self.retry} "
+                                              "to encode them" if self.resume is not None else f"nothing was written to {self.out}")
                                         ) from None
             else:
                 (self._staging / "resume.json").unlink(missing_ok=True)

@@ -31,6 +31,7 @@ from x2video.io.atomic import atomic_path, write_json_atomic
 from x2video.model import fill_net as FN
 from x2video.shot import Shot
 from x2video.train import fill_data as D
+from x2video.train.small_nets import optimiser_step, over_budget, warm_cosine
 
 log = logging.getLogger(__name__)
 
@@ -158,9 +159,6 @@ def train(train_shots: Sequence[Shot], val_shots: Sequence[Shot], out: Path, cfg
     pool = [sample() for _ in range(cfg.pool)]
     facts = {"trained_on": trained_on or {}, "training": asdict(cfg)}
 
-    def sched(s: int) -> float:
-        return min(1.0, (s + 1) / 100) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(s, cfg.steps) / cfg.steps)))
-
     def checkpoint() -> None:
         with atomic_path(ck) as tmp:
             torch.save({"net": net.state_dict(), "opt": opt.state_dict(), "step": step, "best": best, "history": history}, tmp)
@@ -171,15 +169,12 @@ def train(train_shots: Sequence[Shot], val_shots: Sequence[Shot], out: Path, cfg
         for _ in range(min(cfg.refresh, len(pool))):
             pool[int(rng.integers(len(pool)))] = sample()
         for g in opt.param_groups:
-            g["lr"] = cfg.lr * sched(step)
+            g["lr"] = cfg.lr * warm_cosine(step, cfg.steps)
         b = _batch(D.crops(pool, rng, cfg.batch, cfg.crop))
         loss = loss_fn(predict(net, b), b["target"], b["level"], cfg.log_weight)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
-        opt.step()
+        optimiser_step(net, opt, loss)
         step += 1
-        over = cfg.minutes > 0 and (time.perf_counter() - t0) > cfg.minutes * 60
+        over = over_budget(t0, cfg.minutes)
         if step % cfg.val_every == 0 or step == cfg.steps or over:
             v = validate(net, val) if val else {}
             v.update(step=step, loss=float(loss.detach()), seconds=round(time.perf_counter() - t0, 1))

@@ -31,6 +31,7 @@ from x2video.io.atomic import atomic_path, write_json_atomic
 from x2video.io.dataset import shot_dirs
 from x2video.model import residual as R
 from x2video.model import screen_space as SS
+from x2video.train.small_nets import optimiser_step, over_budget, warm_cosine
 
 log = logging.getLogger(__name__)
 
@@ -312,7 +313,6 @@ def train(data: Path, out: Path, cfg: ResidualTrainConfig, *, threads: int = 2, 
         step, best = int(state["step"]), float(state.get("best", -1.0))
         log.info("resuming %s at step %d", out, step)
     rng = np.random.default_rng([cfg.seed, step])
-    sched = lambda s: min(1.0, (s + 1) / 100) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * min(s, cfg.steps) / cfg.steps)))  # noqa: E731
     history: list[dict] = []
     t0, seconds = time.perf_counter(), 0.0
     summary = {"config": asdict(cfg), "train_frames": len(tr), "val_frames": len(va) if va else 0, "val_split": val_split}
@@ -324,16 +324,13 @@ def train(data: Path, out: Path, cfg: ResidualTrainConfig, *, threads: int = 2, 
     net.train()
     while step < cfg.steps:
         for g in opt.param_groups:
-            g["lr"] = cfg.lr * sched(step)
+            g["lr"] = cfg.lr * warm_cosine(step, cfg.steps)
         x, y = tr.crops(rng, cfg.batch, cfg.crop)
         pred = R.apply(net, x, torch.expm1(x[:, R.FORMULA_PLANES]))
         loss = loss_fn(pred, y, cfg.log_weight, cfg.l2_weight)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
-        opt.step()
+        optimiser_step(net, opt, loss)
         step += 1
-        over = cfg.minutes > 0 and (time.perf_counter() - t0) > cfg.minutes * 60
+        over = over_budget(t0, cfg.minutes)
         if va is not None and (step % cfg.val_every == 0 or step == cfg.steps or over):
             v = validate(net, va, without_irradiance=cfg.irradiance_dropout >= 1)
             v.update(step=step, loss=float(loss.detach()), seconds=round(time.perf_counter() - t0, 1))
