@@ -7,7 +7,6 @@ import numpy as np
 from test_base_render import BOX, H, T, W, box_edit
 
 from x2video.base.difference import SPILL_MARGIN
-from x2video.io.load import load_shot
 from x2video.render.renderer import Renderer
 from x2video.render.settings import RenderSettings
 from x2video.shot import ArrayShot
@@ -78,8 +77,8 @@ def test_a_render_records_each_frames_source_and_the_tier_that_edited_it():
 
 
 def test_export_of_an_albedo_edit_keeps_the_input_rgb_bit_for_bit_outside_it(tmp_path):
-    from x2video.io.units import OutputUnits
     from x2video.io.image import read_image
+    from x2video.io.units import OutputUnits
     from x2video_app.state.exporter import export_exr
 
     shot = room(scale=0.37)  # irradiance normalised on load: the render's frames are in another exposure than the rgb
