@@ -169,6 +169,9 @@ class PerFrameTier(Tier):
     per_frame = True
     #: frames per event after the first (which comes alone, so it shows as soon as one pass allows)
     batch: ClassVar[int] = 4
+    #: renders an edit's glossy change (roughness, metallic, normal), which no rebuild from passes makes: over the shot's
+    #: base its difference (`glossy_frames`) replaces tier 0's there (`x2video.base.stage.edited_frame`)
+    glossy: ClassVar[bool] = False
 
     def frames(self, job: RenderJob, conds: Sequence[FrameConditioning]) -> list[np.ndarray]:
         """(H, W, 3) linear RGB float32 frames of `conds` (frames' edited conditioning, in order)."""
@@ -176,6 +179,10 @@ class PerFrameTier(Tier):
 
     def base_frames(self, job: RenderJob, conds: Sequence[FrameConditioning]) -> list[np.ndarray]:
         """The frames this tier lays under a regional diffusion render (`TierChoice.base`): its own by default."""
+        return self.frames(job, conds)
+
+    def glossy_frames(self, job: RenderJob, conds: Sequence[FrameConditioning]) -> list[np.ndarray]:
+        """Frames of `conds` whose difference renders an edit's glossy change over the shot's base (`glossy` tiers)."""
         return self.frames(job, conds)
 
     def begin(self, job: RenderJob) -> None:

@@ -26,6 +26,7 @@ class ResidualTier(PerFrameTier):
     """Tier 1: `residual_frames` of every frame, with the model's tier-1 net."""
 
     name = "residual"
+    glossy = True
 
     def available(self, model: RenderModel | None) -> str | None:
         if model is None or model.residual_net is None:
@@ -48,6 +49,14 @@ class ResidualTier(PerFrameTier):
         with job.clock.stage("residual"):
             return residual_frames(job.model.residual_net, conds, job.model.device, self.batch, job.settings.guess_unseen,
                                    job.settings.residual_pixels, plausible=job.settings.quality == "auto")
+
+    def glossy_frames(self, job: RenderJob, conds: Sequence[FrameConditioning]) -> list[np.ndarray]:
+        """`residual_frames` as they are (the plausibility guard is the whole frame's; over the base the edit's difference
+        goes only where the glossy terms changed)."""
+        assert job.model is not None
+        with job.clock.stage("residual"):
+            return residual_frames(job.model.residual_net, conds, job.model.device, self.batch, job.settings.guess_unseen,
+                                   job.settings.residual_pixels)
 
 
 @torch.inference_mode()
