@@ -8,7 +8,7 @@ import pytest
 from test_base_fill import wall_shot
 
 from x2video.base.difference import SPILL_MARGIN
-from x2video.base.stage import BASE, base_caption
+from x2video.base.plan import BASE, base_caption
 from x2video.cli import main as cli
 from x2video.edits import Edits
 from x2video.edits.masks import Mask
@@ -251,7 +251,7 @@ def test_editor_document_says_its_shot_is_the_base():
 
 def test_a_keyframe_shot_fills_the_frames_nearest_a_keyframe_first():
     from x2video.base.keyframes import only_keyframes
-    from x2video.base.stage import base_order
+    from x2video.base.plan import base_order
 
     shot = wall_shot([0.05 * i for i in range(9)])
     assert base_order(shot, 0, 9) == [0, 8, 4, 2, 6, 1, 3, 5, 7]  # rgb on every frame: coarse to fine, as before

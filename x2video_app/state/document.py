@@ -79,10 +79,10 @@ class Document:
 
     @property
     def base_caption(self) -> str:
-        """What a render keeps as its base (`x2video.base.stage.base_caption`): the shot's path-traced frames, or ''."""
+        """What a render keeps as its base (`x2video.base.plan.base_caption`): the shot's path-traced frames, or ''."""
         if self.shot is None:
             return ""
-        from x2video.base.stage import base_caption
+        from x2video.base.plan import base_caption
         from x2video.render.settings import RenderSettings
 
         return base_caption(self.shot, RenderSettings())

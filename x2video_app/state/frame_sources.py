@@ -32,12 +32,13 @@ def path_traced_frames(shot: Shot | None, settings: RenderSettings) -> tuple[int
     """The frames a render of `shot` with `settings` keeps as its own path-traced frames: the shot's rgb frames, or the
     `keyframes` setting's; () when the settings turn the base off, the shot has no rgb, or the setting names no frame
     of it (the render says why)."""
-    from x2video.base.stage import keyframed, uses_base
+    from x2video.base.keyframes import keyframed
+    from x2video.base.plan import uses_base
 
     if shot is None or not uses_base(shot, settings):
         return ()
     try:
-        return tuple(keyframed(shot, settings).keyframes)
+        return tuple(keyframed(shot, settings.keyframes).keyframes)
     except ValueError:
         return ()
 
@@ -51,7 +52,7 @@ def keyframe_marks(shot: Shot | None, settings: RenderSettings) -> tuple[int, ..
 
 def edit_tier(mode: str) -> str | None:
     """The tier that edited a frame that arrived with `mode` (`FramesReady.mode`); None for the base unchanged."""
-    from x2video.base.stage import BASE
+    from x2video.base.plan import BASE
 
     if mode == BASE:
         return None

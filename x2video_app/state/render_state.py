@@ -69,7 +69,7 @@ class RenderState:
     #: frame -> the `FramesReady.mode` it arrived with: the tier that edited it over the base ("formula",
     #: "formula+residual"), "base" (the base unchanged), a per-frame tier's name, or a sampler window's mode
     modes: dict[int, str] = field(default_factory=dict)
-    #: the render keeps the shot's path-traced frames as its base (`x2video.base.stage.uses_base`), and which they are
+    #: the render keeps the shot's path-traced frames as its base (`x2video.base.plan.uses_base`), and which they are
     base: bool = False
     path_traced: frozenset[int] = frozenset()
     #: the frames of a render over the base in the input's units (float32), exactly as the base stage made them

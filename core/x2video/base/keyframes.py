@@ -74,4 +74,11 @@ def only_keyframes(shot: Shot, spec: str) -> Shot:
     """`shot` with rgb kept on the keyframes `spec` names (`parse_keyframes`); ValueError when it has no rgb."""
     if not shot.has("rgb"):
         raise ValueError(f"--keyframes: shot {shot.info.source!r} has no rgb channel to take keyframes from")
-    return KeyframeShot(shot, parse_keyframes(spec, shot.num_frames))
+    frames = parse_keyframes(spec, shot.num_frames)
+    return KeyframeShot(shot, frames)
+
+
+def keyframed(shot: Shot, spec: str | None) -> Shot:
+    """`shot` with rgb kept on the keyframes `spec` names (`RenderSettings.keyframes`: `only_keyframes`), or as it is
+    when None: the frames that are a render's base (`x2video.base.stage`)."""
+    return shot if spec is None else only_keyframes(shot, spec)

@@ -17,6 +17,7 @@ that the writers' division by the same scale gives the base's float32 values bac
 """
 from __future__ import annotations
 
+import functools
 import time
 from typing import TYPE_CHECKING, Callable
 
@@ -36,70 +37,27 @@ from x2video.base.difference import (
     sharpened,
 )
 from x2video.base.fill import FillConfig, fill_frame
-from x2video.base.keyframes import only_keyframes
 from x2video.base.passes import rebuild
+from x2video.base.plan import BASE, Plan
 from x2video.render.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted
-from x2video.tiers.base import RenderPlan, TierChoice
+from x2video.tiers.base import PerFrameTier
 
 if TYPE_CHECKING:
-    from x2video.conditioning.frame import FrameConditioning
-    from x2video.edits.model import Edits
-    from x2video.render.settings import RenderSettings
+    from x2video.conditioning.frame import Conditioning, FrameConditioning
     from x2video.shot import Shot
     from x2video.tiers.base import Emit, RenderJob, Tier
 
-#: what `RenderStarted.tier` and `FramesReady.mode` say for frames that are the base with no tier's change
-BASE = "base"
 
-
-def base_available(shot: Shot) -> bool:
-    """The shot carries path-traced rgb on at least one frame."""
-    return bool(shot.keyframes)
-
-
-def uses_base(shot: Shot, settings: RenderSettings) -> bool:
-    """A render of `shot` with `settings` renders over the shot's base (`RenderSettings.base` 'auto', rgb on some frame)."""
-    return settings.base == "auto" and base_available(shot)
-
-
-def changes_nothing(edits: Edits | None) -> bool:
-    """`edits` change no pixel of the base: none, or no operation, dropped channel, local prompt or reference (masks
-    alone change nothing; a global prompt alone changes nothing a tier would render over the base)."""
-    return edits is None or not (edits.ops or edits.dropped or edits.local_prompt_masks() or edits.reference is not None)
-
-
-def keyframed(shot: Shot, settings: RenderSettings) -> Shot:
-    """`shot` with rgb kept on `RenderSettings.keyframes` only (`base.keyframes.only_keyframes`), or as it is when unset."""
-    return shot if settings.keyframes is None else only_keyframes(shot, settings.keyframes)
-
-
-def base_choice(shot: Shot, edits: Edits | None, settings: RenderSettings) -> TierChoice | None:
-    """What a render that runs no tier says it runs (every frame is the base: `uses_base` and `changes_nothing`); None
-    when a tier must run, which the tiers decide (`x2video.tiers.registry.decide`). Needs no model."""
-    if not (uses_base(shot, settings) and changes_nothing(edits)):
-        return None
-    return TierChoice(BASE, f"no edits: the shot's path-traced frames ({_keys_text(shot)}); base 'off' re-renders them")
-
-
-def base_plan(shot: Shot, edits: Edits | None, settings: RenderSettings) -> RenderPlan | None:
-    """The plan of a render that runs no tier (`base_choice`): per frame, no model; None when a tier must run."""
-    choice = base_choice(shot, edits, settings)
-    if choice is None:
-        return None
-    from x2video.render.settings import frame_range
-
-    return RenderPlan(choice.tier, choice.reason, frame_range(shot, settings), per_frame=True)
-
-
-def render(job: RenderJob, tier: Tier | None, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:
-    """The Renderer's one call: `job` over the shot's base where it has one and the settings use it (`uses_base`), else
-    `tier` renders it as it always has. `tier` None: no tier runs (`base_choice`)."""
-    if uses_base(job.shot, job.settings):
-        render_over_base(job, tier, emit, cancel, done)
+def render(plan: Plan, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:
+    """The Renderer's one call: the plan's job over the shot's base where it has one and the settings use it
+    (`Plan.over_base`), else the plan's tier renders it as it always has. `Plan.tier` None: no tier runs
+    (`x2video.base.plan.base_choice`)."""
+    if plan.over_base:
+        render_over_base(plan, emit, cancel, done)
         return
-    if tier is None:
-        raise ValueError(f"no tier to render shot {job.shot.info.source!r}: it has no path-traced frames to be the base")
-    tier.render(job, emit, cancel, done)
+    if plan.tier is None:
+        raise ValueError(f"no tier to render shot {plan.job.shot.info.source!r}: it has no path-traced frames to be the base")
+    plan.tier.render(plan.job, emit, cancel, done)
 
 
 class BaseFrames:
@@ -159,25 +117,18 @@ def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameCon
     return np.where(glossy[..., None], over_base(base, r_e, r_o, glossy, MATERIAL_MODE if mode == "auto" else mode), out), "formula+residual"  # type: ignore[arg-type]
 
 
-def render_over_base(job: RenderJob, tier: Tier | None, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:
-    """Render `job` over the shot's base: every frame the base where no edit reaches it, else base + the tiers'
+def render_over_base(plan: Plan, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:
+    """Render the plan's job over the shot's base: every frame the base where no edit reaches it, else base + the tiers'
     differences (per-frame tiers) or the tier's frame inside the edit's reach (a generative tier); emits the events
-    every tier emits (RenderStarted, FramesReady) in `base_order`, a few frames per batch, one event per mode in a batch."""
-    from x2video.conditioning.edited import frame_conditioning
-
-    shot = job.shot
-    bases = BaseFrames(shot)
-    original = frame_conditioning(shot, None)
-    generative = tier is not None and not tier.per_frame
-    glossy = tier is not None and tier.name != "formula" and job.model is not None and getattr(job.model, "residual_net", None) is not None
-    residual = _residual_fn(job) if glossy else None
-    if generative:
-        assert tier is not None
+    every tier emits (RenderStarted, FramesReady) in `Plan.order`, a few frames per batch, one event per mode in a batch."""
+    job, tier, original, order = plan.job, plan.tier, plan.original, plan.order
+    assert original is not None
+    bases = BaseFrames(job.shot)
+    if tier is not None and not tier.per_frame:
         _generative_over_base(job, tier, bases, original, emit, cancel, done)
         return
-    order = base_order(shot, *job.frames)
-    reason = job.choice.reason if job.choice.tier == BASE else f"{job.choice.reason}; over the shot's path-traced frames ({_keys_text(shot)})"
-    emit(RenderStarted(num_frames=len(order), num_windows=0, levels=[0], tier=job.choice.tier, reason=reason, per_frame=True))
+    residual = functools.partial(tier.glossy_frames, job) if isinstance(tier, PerFrameTier) and tier.glossy else None
+    emit(RenderStarted(num_frames=len(order), num_windows=0, levels=[0], tier=job.choice.tier, reason=plan.reason, per_frame=True))
     for index, i in enumerate([0, *range(1, len(order), 4)]):
         if cancel is not None and cancel.cancelled:
             raise Cancelled(f"cancelled after {len(done)} frames")
@@ -187,10 +138,10 @@ def render_over_base(job: RenderJob, tier: Tier | None, emit: Emit, cancel: Canc
         for t in fs:
             with job.clock.stage("base"):
                 base = bases(t)
-            if changes_nothing(job.edits):
+            if tier is None:  # no edit changes a pixel (`x2video.base.plan.base_choice`)
                 frame, mode = base, BASE
             else:
-                frame, mode = edited_frame(base, original(t), job.conditioning(t), glossy_tier=glossy, residual=residual)
+                frame, mode = edited_frame(base, original(t), job.conditioning(t), glossy_tier=residual is not None, residual=residual)
             by_mode.setdefault(mode, {})[t] = frame
         done.update(fs)
         seconds = time.perf_counter() - tw
@@ -199,35 +150,7 @@ def render_over_base(job: RenderJob, tier: Tier | None, emit: Emit, cancel: Canc
                              window_done=k == len(by_mode) - 1))
 
 
-def base_order(shot: Shot, start: int, stop: int) -> list[int]:
-    """Frames of [start, stop) in the order a render over the base makes them: coarse to fine (`tiers.base.coarse_to_fine`)
-    where every frame carries rgb; on a keyframe shot its keyframes first, then the frames between nearest a keyframe
-    first (the best filled, as the fill's quality falls with the distance), coarse to fine among equals."""
-    from x2video.tiers.base import coarse_to_fine
-
-    order = coarse_to_fine(start, stop)
-    keys = np.asarray(shot.keyframes, np.int64)
-    if len(keys) == 0 or len(keys) == shot.num_frames:
-        return order
-    rank = {t: i for i, t in enumerate(order)}
-    ts = np.asarray(order, np.int64)
-    i = np.clip(np.searchsorted(keys, ts), 1, len(keys) - 1) if len(keys) > 1 else np.zeros_like(ts)
-    dist = np.minimum(np.abs(keys[i] - ts), np.abs(keys[np.maximum(i - 1, 0)] - ts))
-    return sorted(order, key=lambda t: (int(dist[rank[t]]), rank[t]))
-
-
-def _residual_fn(job: RenderJob) -> Callable[[list[FrameConditioning]], list[np.ndarray]]:
-    from x2video.tiers.residual import residual_frames
-
-    def run(conds: list[FrameConditioning]) -> list[np.ndarray]:
-        assert job.model is not None
-        with job.clock.stage("residual"):
-            return residual_frames(job.model.residual_net, conds, job.model.device, 4, job.settings.guess_unseen, job.settings.residual_pixels)
-
-    return run
-
-
-def _generative_over_base(job: RenderJob, tier: Tier, bases: BaseFrames, original: Callable[[int], FrameConditioning], emit: Emit,
+def _generative_over_base(job: RenderJob, tier: Tier, bases: BaseFrames, original: Conditioning, emit: Emit,
                           cancel: CancelToken | None, done: set[int]) -> None:
     """A tier that generates renders its frames as it would; each leaves as the base with the tier's frame inside the
     edit's reach (feathered over the spill margin), the base bit for bit everywhere else."""
@@ -245,19 +168,3 @@ def _generative_over_base(job: RenderJob, tier: Tier, bases: BaseFrames, origina
         emit(event)
 
     tier.render(job, over, cancel, done)
-
-
-def base_caption(shot: Shot, settings: RenderSettings) -> str:
-    """What a render of `shot` with `settings` keeps as its base, in a line for the editor ('' without rgb)."""
-    if not base_available(shot):
-        return ""
-    if settings.base == "off":
-        return "Base off: every frame re-rendered from the channels (the shot's path-traced frames unused)"
-    return f"Base: the shot's path-traced frames ({_keys_text(keyframed(shot, settings))})"
-
-
-def _keys_text(shot: Shot) -> str:
-    keys = shot.keyframes
-    if len(keys) == shot.num_frames:
-        return "rgb on every frame"
-    return f"{len(keys)} keyframes of {shot.num_frames} frames, the rest filled"

@@ -107,7 +107,7 @@ def _resume_key(args: argparse.Namespace, shot: Any, settings: RenderSettings, o
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from x2video.base.stage import BASE, base_choice
+    from x2video.base.plan import BASE, base_choice
     from x2video.render.frames import FrameSink
     from x2video.render.renderer import Renderer
     from x2video.sampling.planner import plan

@@ -82,7 +82,7 @@ def plan_job(job: Job, settings: RenderSettings, options: ModelOptions, threads:
     Tiers 0 and 1 ('formula', 'residual') are per frame: the farm splits them into frame chunks (`render_chunk`); a
     diffusion render into its windows (`render_window`), or one task (`render_job`)."""
 
-    from x2video.base.stage import uses_base
+    from x2video.base.plan import uses_base
 
     _threads(threads)
     shot, edits, base_dir = load_job(job)

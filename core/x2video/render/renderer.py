@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING, Callable, Sequence
 import torch
 
 from x2video.base import stage as base_stage
+from x2video.base.keyframes import keyframed
+from x2video.base.plan import base_plan, make_plan
 from x2video.conditioning.cache import CacheStats, ConditioningCache, conditioning_key
 from x2video.conditioning.edited import frame_conditioning, resolve_reference
 from x2video.conditioning.network import NetworkConditioning
@@ -147,7 +149,7 @@ class Renderer:
 
     def plan_render(self, shot: Shot, edits: Edits | None, settings: RenderSettings) -> RenderPlan:
         """What a render of `shot` with `edits` and `settings` runs with this model (`tiers.plan_render`, pure)."""
-        return base_stage.base_plan(shot, edits, settings) or registry.plan_render(shot, edits, settings, self.model)
+        return base_plan(shot, edits, settings) or registry.plan_render(shot, edits, settings, self.model)
 
     def choose_tier(self, shot: Shot, edits: Edits | None, settings: RenderSettings) -> TierChoice:
         """The tier a render of `shot` with `edits` (or None) and `settings` runs with this model, and why
@@ -172,10 +174,11 @@ class Renderer:
                          conditioning=self.clock.wrap("read", frame_conditioning(shot, edits)), frames=frame_range(shot, settings),
                          cache=self.cache, retain=self.retain, clock=self.clock, base_dir=base_dir, reference=reference)
 
-    def _report(self, job: RenderJob) -> None:
-        self.encode_seconds = job.stats.get("encode_seconds", 0.0)
-        self.peak_latents = job.stats.get("peak_latents", self.peak_latents)
-        self.engine = job.stats.get("engine", self.engine)
+    def _report(self, stats: dict) -> None:
+        """Keep what the tier reported of the render (`RenderJob.stats`)."""
+        self.encode_seconds = stats.get("encode_seconds", 0.0)
+        self.peak_latents = stats.get("peak_latents", self.peak_latents)
+        self.engine = stats.get("engine", self.engine)
 
     # -- the render ------------------------------------------------------------------
     def render(
@@ -209,16 +212,16 @@ class Renderer:
         try:
             try:
                 settings.validate()  # every field, before any tier is chosen (a field changed in place since it was made, too)
-                shot = base_stage.keyframed(shot, settings)  # the shot's path-traced frames: the base (x2video.base.stage)
-                choice = base_stage.base_choice(shot, edits, settings) or self.choose_tier(shot, edits, settings)
-                self.last_tier = choice
+                shot = keyframed(shot, settings.keyframes)  # the shot's path-traced frames: the base (x2video.base.stage)
+                stats: dict = {}  # what the tier reports back
+                plan = make_plan(shot, edits, settings, self.model, frame_range(shot, settings), cache=self.cache,
+                                 retain=self.retain, clock=self.clock, stats=stats, base_dir=base_dir)
+                choice = self.last_tier = plan.job.choice
                 log.info("quality %s: tier %s (%s)", settings.quality, choice.tier, choice.reason)
-                tier = None if choice.tier == base_stage.BASE else registry.get(choice.tier)
-                job = self._job(shot, edits, settings, choice, tier is not None and tier.reads_reference, base_dir)
                 try:
-                    base_stage.render(job, tier, emit, cancel, done)
+                    base_stage.render(plan, emit, cancel, done)
                 finally:
-                    self._report(job)
+                    self._report(stats)
                 emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))
             except Cancelled:
                 log.info("render cancelled after %d frames", len(done))
@@ -263,7 +266,7 @@ class Renderer:
         try:
             return tier.render_windows(job, indices, refs, emit, cancel)
         finally:
-            self._report(job)
+            self._report(job.stats)
 
 
 def warm_engine(renderer: Renderer, windows: Sequence[Window], settings: RenderSettings, latent_size: tuple[int, int],

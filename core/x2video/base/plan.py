@@ -1,0 +1,136 @@
+"""The plan of a render, settled once before any pixel is read (`make_plan`): whether the frames go over the shot's own
+path-traced rgb (the base, `x2video.base.stage`), whether a tier must run at all and which (`base_choice`, else
+`x2video.tiers.registry.decide`), the order the frames are made in (`base_order`), and the frames' conditioning,
+edited and unedited, with the user's reference for a tier that reads one.
+
+The Renderer keyframes the shot (`x2video.base.keyframes.keyframed`), takes its frame range, makes the plan, and
+hands it to `x2video.base.stage.render`, which hands `Plan.job` to the tier: the shot goes forward through the
+stages, each visited once.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from x2video.base.keyframes import keyframed
+from x2video.conditioning.edited import frame_conditioning, resolve_reference
+from x2video.tiers import registry
+from x2video.tiers.base import RenderJob, RenderPlan, TierChoice, coarse_to_fine
+
+if TYPE_CHECKING:
+    from pathlib import Path
+
+    from x2video.conditioning.cache import ConditioningCache
+    from x2video.conditioning.frame import Conditioning
+    from x2video.edits.model import Edits
+    from x2video.model.api import RenderModel
+    from x2video.render.settings import RenderSettings
+    from x2video.render.timing import NoTimes, StageTimes
+    from x2video.shot import Shot
+    from x2video.tiers.base import Tier
+
+#: what `RenderStarted.tier` and `FramesReady.mode` say for frames that are the base with no tier's change
+BASE = "base"
+
+
+@dataclass(frozen=True)
+class Plan:
+    """One render, decided: `job` is what the tier reads (`RenderJob`), `tier` the tier that runs (None: no tier, every
+    frame is the base). Over the base (`over_base`), the frames are made in `order`, each edited frame against its
+    unedited conditioning `original`, and `RenderStarted` says `reason`."""
+
+    job: RenderJob
+    tier: Tier | None
+    over_base: bool
+    order: list[int]
+    original: Conditioning | None
+    reason: str
+
+
+def make_plan(shot: Shot, edits: Edits | None, settings: RenderSettings, model: RenderModel | None, frames: tuple[int, int], *,
+              cache: ConditioningCache, retain: bool, clock: StageTimes | NoTimes, stats: dict,
+              base_dir: str | Path | None = None) -> Plan:
+    """The plan of a render of frames `frames` of `shot` (keyframed already) with `edits` and `settings` (validated) on
+    `model`, with the Renderer's `cache`, `retain` and `clock`; the tier reports into `stats`. Raises ValueError when the
+    tier cannot run (`registry.decide`) or the reference cannot be read."""
+    choice = base_choice(shot, edits, settings)
+    over_base = uses_base(shot, settings)
+    reason = "" if choice is not None or not over_base else f"; over the shot's path-traced frames ({keys_text(shot)})"
+    order = base_order(shot, *frames) if over_base else []
+    if choice is None:
+        choice = registry.decide(settings.quality, shot, edits, model)
+    tier = None if choice.tier == BASE else registry.get(choice.tier)
+    reference = resolve_reference(shot, edits, base_dir) if edits is not None and tier is not None and tier.reads_reference else None
+    conditioning = frame_conditioning(shot, edits)
+    original = frame_conditioning(shot, None) if over_base else None
+    job = RenderJob(shot=shot, edits=edits, settings=settings, choice=choice, model=model, conditioning=clock.wrap("read", conditioning),
+                    frames=frames, cache=cache, retain=retain, clock=clock, base_dir=base_dir, reference=reference, stats=stats)
+    return Plan(job, tier, over_base, order, original, choice.reason + reason)
+
+
+def base_available(shot: Shot) -> bool:
+    """The shot carries path-traced rgb on at least one frame."""
+    return bool(shot.keyframes)
+
+
+def uses_base(shot: Shot, settings: RenderSettings) -> bool:
+    """A render of `shot` with `settings` renders over the shot's base (`RenderSettings.base` 'auto', rgb on some frame)."""
+    return settings.base == "auto" and base_available(shot)
+
+
+def changes_nothing(edits: Edits | None) -> bool:
+    """`edits` change no pixel of the base: none, or no operation, dropped channel, local prompt or reference (masks
+    alone change nothing; a global prompt alone changes nothing a tier would render over the base)."""
+    return edits is None or not (edits.ops or edits.dropped or edits.local_prompt_masks() or edits.reference is not None)
+
+
+def base_choice(shot: Shot, edits: Edits | None, settings: RenderSettings) -> TierChoice | None:
+    """What a render that runs no tier says it runs (every frame is the base: `uses_base` and `changes_nothing`); None
+    when a tier must run, which the tiers decide (`x2video.tiers.registry.decide`). Needs no model."""
+    if not (uses_base(shot, settings) and changes_nothing(edits)):
+        return None
+    return TierChoice(BASE, f"no edits: the shot's path-traced frames ({keys_text(shot)}); base 'off' re-renders them")
+
+
+def base_plan(shot: Shot, edits: Edits | None, settings: RenderSettings) -> RenderPlan | None:
+    """The plan of a render that runs no tier (`base_choice`): per frame, no model; None when a tier must run."""
+    choice = base_choice(shot, edits, settings)
+    if choice is None:
+        return None
+    from x2video.render.settings import frame_range
+
+    return RenderPlan(choice.tier, choice.reason, frame_range(shot, settings), per_frame=True)
+
+
+def base_order(shot: Shot, start: int, stop: int) -> list[int]:
+    """Frames of [start, stop) in the order a render over the base makes them: coarse to fine (`tiers.base.coarse_to_fine`)
+    where every frame carries rgb; on a keyframe shot its keyframes first, then the frames between nearest a keyframe
+    first (the best filled, as the fill's quality falls with the distance), coarse to fine among equals."""
+    order = coarse_to_fine(start, stop)
+    keys = np.asarray(shot.keyframes, np.int64)
+    if len(keys) == 0 or len(keys) == shot.num_frames:
+        return order
+    rank = {t: i for i, t in enumerate(order)}
+    ts = np.asarray(order, np.int64)
+    i = np.clip(np.searchsorted(keys, ts), 1, len(keys) - 1) if len(keys) > 1 else np.zeros_like(ts)
+    dist = np.minimum(np.abs(keys[i] - ts), np.abs(keys[np.maximum(i - 1, 0)] - ts))
+    return sorted(order, key=lambda t: (int(dist[rank[t]]), rank[t]))
+
+
+def base_caption(shot: Shot, settings: RenderSettings) -> str:
+    """What a render of `shot` with `settings` keeps as its base, in a line for the editor ('' without rgb)."""
+    if not base_available(shot):
+        return ""
+    if settings.base == "off":
+        return "Base off: every frame re-rendered from the channels (the shot's path-traced frames unused)"
+    return f"Base: the shot's path-traced frames ({keys_text(keyframed(shot, settings.keyframes))})"
+
+
+def keys_text(shot: Shot) -> str:
+    """Which frames of `shot` carry its rgb, in words: every frame, or how many keyframes of how many frames."""
+    keys = shot.keyframes
+    if len(keys) == shot.num_frames:
+        return "rgb on every frame"
+    return f"{len(keys)} keyframes of {shot.num_frames} frames, the rest filled"
