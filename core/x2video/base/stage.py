@@ -12,6 +12,9 @@ only what an edit changes (DESIGN.md, "Path-traced pixels first").
 - A tier that generates (windows: the diffusion sampler) renders as today; its frame replaces the base inside the
   edit's reach and the base stays everywhere else.
 
+What runs is settled before, once (`x2video.base.plan.Plan`: whether the frames go over the base, the tier, the
+order, the conditioning); `render` takes that plan.
+
 Frames leave in the model's exposure, as every tier's (the base times the shot's irradiance_scale), as float64 so
 that the writers' division by the same scale gives the base's float32 values back exactly.
 """
