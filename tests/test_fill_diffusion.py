@@ -126,3 +126,20 @@ def test_the_cli_flag_reaches_the_settings():
     add_fields(p, RenderSettings)
     s = from_args(RenderSettings, p.parse_args(["--fill", "diffusion", "--keyframes", "every:4"]))
     assert s.fill == "diffusion" and "--fill" in to_flags(RenderSettings, s)
+
+
+def test_the_keyframe_bench_method_renders_the_clip_once_in_the_rgbs_units():
+    from bench.keyframes import methods
+
+    shot, model = lit_shot(), FakeModel()
+    fill = methods(model=model, preset="quality")["diffusion"]
+    cache: dict = {}
+    got = fill(shot, [0, 4, 8], 2, cache)
+    calls = model.predict_calls
+    assert got.shape == (16, 24, 3) and np.isfinite(got).all()
+    fill(shot, [0, 4, 8], 3, cache)
+    assert model.predict_calls == calls  # the other frames come from the one render
+    np.testing.assert_array_equal(cache["diffusion"][4], shot.channel("rgb", 4))  # a keyframe: its rgb, in its units
+    _, frames = render(FakeModel(), shot, RenderSettings(fill="diffusion", keyframes="0,4,8", preset="quality"))
+    np.testing.assert_allclose(got * SCALE, frames[2], rtol=1e-6)
+    assert "diffusion" not in methods()
