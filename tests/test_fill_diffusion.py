@@ -143,3 +143,23 @@ def test_the_keyframe_bench_method_renders_the_clip_once_in_the_rgbs_units():
     _, frames = render(FakeModel(), shot, RenderSettings(fill="diffusion", keyframes="0,4,8", preset="quality"))
     np.testing.assert_allclose(got * SCALE, frames[2], rtol=1e-6)
     assert "diffusion" not in methods()
+
+
+def test_the_cli_renders_a_keyframe_shot_with_fill_diffusion(tmp_path):
+    from test_base_render import read_exr, room, write_shot
+
+    from x2video.cli import main as cli
+    from x2video.io.load import load_shot
+    from x2video.io.sequence import find_frames
+
+    write_shot(tmp_path / "shot", room(), frames_without_rgb=(1, 2, 3))
+    shot = load_shot(tmp_path / "shot")
+    assert shot.keyframes == (0, 4) and shot.info.irradiance_scale != 1.0
+    args = ["render", str(tmp_path / "shot"), "--out", str(tmp_path / "out"), "--fill", "diffusion", "--untrained", "--steps", "1",
+            "--engine", "torch"]
+    assert cli(args) == 0
+    files = find_frames(tmp_path / "out")
+    assert len(files) == 5
+    for t in (0, 4):
+        np.testing.assert_array_equal(read_exr(files[t])[..., :3], shot.channel("rgb", t))
+    assert all(np.isfinite(read_exr(files[t])).all() for t in (1, 2, 3))
