@@ -8,10 +8,14 @@ from __future__ import annotations
 
 import sys
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from x2video.shot import Shot
+
+if TYPE_CHECKING:
+    from x2video.render.settings import RenderSettings
 
 
 def parse_keyframes(text: str, num_frames: int) -> tuple[int, ...]:
@@ -75,3 +79,13 @@ def only_keyframes(shot: Shot, spec: str) -> Shot:
     if not shot.has("rgb"):
         raise ValueError(f"--keyframes: shot {shot.info.source!r} has no rgb channel to take keyframes from")
     return KeyframeShot(shot, parse_keyframes(spec, shot.num_frames))
+
+
+def reference_keyframes(shot: Shot, settings: RenderSettings) -> tuple[int, ...]:
+    """The keyframes a render of `shot` with `settings` gives the diffusion tier as references (`RenderSettings.fill`
+    'diffusion', base 'auto'): the shot's rgb frames, or the `keyframes` setting's; () when the fill is classical, the
+    base is off, or no frame is left to fill (no rgb, or rgb on every frame)."""
+    if settings.fill != "diffusion" or settings.base != "auto":
+        return ()
+    keys = tuple(shot.keyframes) if settings.keyframes is None else parse_keyframes(settings.keyframes, shot.num_frames)
+    return keys if 0 < len(keys) < shot.num_frames else ()

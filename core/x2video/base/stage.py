@@ -36,7 +36,7 @@ from x2video.base.difference import (
     sharpened,
 )
 from x2video.base.fill import FillConfig, fill_frame
-from x2video.base.keyframes import only_keyframes
+from x2video.base.keyframes import only_keyframes, reference_keyframes
 from x2video.base.passes import rebuild
 from x2video.render.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted
 from x2video.tiers.base import RenderPlan, TierChoice
@@ -76,9 +76,26 @@ def keyframed(shot: Shot, settings: RenderSettings) -> Shot:
 def base_choice(shot: Shot, edits: Edits | None, settings: RenderSettings) -> TierChoice | None:
     """What a render that runs no tier says it runs (every frame is the base: `uses_base` and `changes_nothing`); None
     when a tier must run, which the tiers decide (`x2video.tiers.registry.decide`). Needs no model."""
-    if not (uses_base(shot, settings) and changes_nothing(edits)):
+    if not (uses_base(shot, settings) and changes_nothing(edits)) or reference_keyframes(shot, settings):
         return None
     return TierChoice(BASE, f"no edits: the shot's path-traced frames ({_keys_text(shot)}); base 'off' re-renders them")
+
+
+def fill_choice(shot: Shot, edits: Edits | None, settings: RenderSettings) -> TierChoice | None:
+    """The diffusion tier where it fills a keyframe shot's frames between with every keyframe as a reference
+    (`RenderSettings.fill` 'diffusion': `keyframes.reference_keyframes`), else None. ValueError, naming the setting,
+    where it cannot: a quality other than 'auto' or 'diffusion', or edits that change pixels. Needs no model."""
+    keys = reference_keyframes(shot, settings)
+    if not keys:
+        return None
+    if settings.quality not in ("auto", "diffusion"):
+        raise ValueError(f"fill 'diffusion' renders with the diffusion tier, not quality {settings.quality!r}"
+                         " (use quality 'auto' or 'diffusion', or fill 'classical')")
+    if not changes_nothing(edits):
+        raise ValueError("fill 'diffusion' renders a keyframe shot as its keyframes show it, without edits (they would change"
+                         " what the keyframes show); render edits with fill 'classical'")
+    return TierChoice("diffusion", f"fill 'diffusion': the frames between {len(keys)} keyframes of {shot.num_frames} made by the"
+                                   " diffusion tier, every keyframe's path-traced frame a reference (Ref-Keyframe)")
 
 
 def base_plan(shot: Shot, edits: Edits | None, settings: RenderSettings) -> RenderPlan | None:
@@ -93,7 +110,14 @@ def base_plan(shot: Shot, edits: Edits | None, settings: RenderSettings) -> Rend
 
 def render(job: RenderJob, tier: Tier | None, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:
     """The Renderer's one call: `job` over the shot's base where it has one and the settings use it (`uses_base`), else
-    `tier` renders it as it always has. `tier` None: no tier runs (`base_choice`)."""
+    `tier` renders it as it always has. `tier` None: no tier runs (`base_choice`). With fill 'diffusion' (`fill_choice`)
+    the tier renders it, its keyframes read as references and delivered as they are."""
+    if tier is not None and reference_keyframes(job.shot, job.settings):
+        why_not = tier.available(job.model)
+        if why_not is not None:
+            raise ValueError(why_not)
+        tier.render(job, emit, cancel, done)
+        return
     if uses_base(job.shot, job.settings):
         render_over_base(job, tier, emit, cancel, done)
         return

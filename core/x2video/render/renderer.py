@@ -39,7 +39,7 @@ from x2video.sampling.samplers import alphas_cumprod
 from x2video.shot import Shot
 from x2video.tiers import registry
 from x2video.tiers.base import RenderJob, RenderPlan, TierChoice
-from x2video.tiers.diffusion import DiffusionTier, diffusion_windows, reference_frame
+from x2video.tiers.diffusion import DiffusionTier, diffusion_windows, given_keyframes, reference_frame
 from x2video.tiers.encoder import Encoder
 
 if TYPE_CHECKING:
@@ -108,13 +108,14 @@ class Renderer:
         (`NetworkConditioning`: padded, or at the working size for large frames)."""
         model = self.model
         choice = self.choose_tier(shot, edits, settings)
-        if model is None or choice.tier != DiffusionTier.name:
+        given = given_keyframes(shot, settings, frame_range(shot, settings))
+        if model is None or (choice.tier != DiffusionTier.name and not given):
             return 0
         t0 = time.perf_counter()
         net = NetworkConditioning.for_model(shot.size, frame_conditioning(shot, edits), model.downsample, settings.working_pixels)
         settings = resolve(settings, model)
         self.engine = model.set_engine(settings.engine)
-        windows = diffusion_windows(frame_range(shot, settings), settings, reference_frame(edits))
+        windows = diffusion_windows(frame_range(shot, settings), settings, None if given else reference_frame(edits), given)
         text = model.encode_prompts([""]) if model.text_encoder is not None else None  # loads the text encoder
         encoder = Encoder(model, self.cache, self.clock)
         model_key = model.content_key()
@@ -142,11 +143,16 @@ class Renderer:
         return self.cache.stats()
 
     def plan(self, shot: Shot, settings: RenderSettings, ref_frame: int | None = None) -> list[Window]:
-        """The windows a diffusion render of `shot` with `settings` runs (shot frame indices), anchored at `ref_frame`."""
-        return diffusion_windows(frame_range(shot, settings), settings, ref_frame)
+        """The windows a diffusion render of `shot` with `settings` runs (shot frame indices), anchored at `ref_frame`, or
+        around the keyframes fill 'diffusion' gives it (`given_keyframes`)."""
+        frames = frame_range(shot, settings)
+        return diffusion_windows(frames, settings, ref_frame, given_keyframes(shot, settings, frames))
 
     def plan_render(self, shot: Shot, edits: Edits | None, settings: RenderSettings) -> RenderPlan:
         """What a render of `shot` with `edits` and `settings` runs with this model (`tiers.plan_render`, pure)."""
+        fill = base_stage.fill_choice(shot, edits, settings)
+        if fill is not None:
+            return registry.get(fill.tier).plan(shot, edits, settings, self.model, fill, frame_range(shot, settings))
         return base_stage.base_plan(shot, edits, settings) or registry.plan_render(shot, edits, settings, self.model)
 
     def choose_tier(self, shot: Shot, edits: Edits | None, settings: RenderSettings) -> TierChoice:
@@ -210,7 +216,8 @@ class Renderer:
             try:
                 settings.validate()  # every field, before any tier is chosen (a field changed in place since it was made, too)
                 shot = base_stage.keyframed(shot, settings)  # the shot's path-traced frames: the base (x2video.base.stage)
-                choice = base_stage.base_choice(shot, edits, settings) or self.choose_tier(shot, edits, settings)
+                choice = (base_stage.base_choice(shot, edits, settings) or base_stage.fill_choice(shot, edits, settings)
+                          or self.choose_tier(shot, edits, settings))
                 self.last_tier = choice
                 log.info("quality %s: tier %s (%s)", settings.quality, choice.tier, choice.reason)
                 tier = None if choice.tier == base_stage.BASE else registry.get(choice.tier)
@@ -255,7 +262,8 @@ class Renderer:
         (`x2video.farm`). `render` runs each window through the same steps (the noise is seeded per frame or per
         window, the conditioning per frame), so the frames equal a single `render`'s."""
         emit: Callable[[RenderEvent], None] = on_event if on_event is not None else (lambda e: None)
-        choice = self.choose_tier(shot, edits, settings)
+        shot = base_stage.keyframed(shot, settings)
+        choice = base_stage.fill_choice(shot, edits, settings) or self.choose_tier(shot, edits, settings)
         tier = registry.get(choice.tier)
         if not isinstance(tier, DiffusionTier):
             raise ValueError(f"this render runs tier {choice.tier!r} ({choice.reason}), which has no windows")
