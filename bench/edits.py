@@ -202,7 +202,8 @@ def edit_pair(folder: Path, kind: str) -> tuple[Path, Path, dict] | None:
     look = {"kind": "metal_off", "id": int(target["id"]), "value": value}
     secs = frame_seconds(folder / "before")  # Cycles' seconds of the truth: its picture alone where timed, else with passes
     spf = float(np.mean(secs["beauty"] or secs["frames"])) if secs["beauty"] or secs["frames"] else None
-    rec = {"kind": "metal_off", "target": target, "look": look, "edits": x2video_edits(look), "cycles": {**doc["cycles"], "seconds_per_frame": spf, "passes_seconds_per_frame": None},
+    rec = {"kind": "metal_off", "target": target, "look": look, "edits": x2video_edits(look),
+           "cycles": {**doc["cycles"], "seconds_per_frame": spf, "passes_seconds_per_frame": None},
            "reversed": "the metal_on pair reversed: after_metal_on is the shot, before/ the truth",
            "source": str(on)}
     return folder / "after_metal_on", folder / "before", rec
