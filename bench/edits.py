@@ -354,7 +354,9 @@ NOTES = ["rebuild: roughness and metallic edits have no pass to rebuild from, so
          "frames 1 to 3, after the first has built the scene): what a person waits for to see the change. The render with every pass "
          "that made the truth took cycles_passes_seconds_per_frame",
          "timings are wall seconds on a machine shared with other jobs (load_average_before_after): ratios are rough",
-         "PSNR of a region is that of the squared error pooled over a room's frames, then averaged over rooms"]
+         "PSNR of a region is that of the squared error pooled over a room's frames, then averaged over rooms",
+         "metal_off in a room with no metal (the rooms' 'skipped'): the metal_on pair reversed (`edit_pair`): the Cycles render "
+         "with the object made metal is the shot, the before render the truth, the edit sets metallic back"]
 
 
 def picture(keep: dict, row: dict, method: str, path: Path) -> dict:
