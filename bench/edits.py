@@ -180,6 +180,35 @@ def library_frames(model: Any, shot: Any, edits: Any, method: str) -> tuple[list
 
 
 # ---------------------------------------------------------------------------------------------- one room
+def edit_pair(folder: Path, kind: str) -> tuple[Path, Path, dict] | None:
+    """(the shot edited, Cycles' render of the edit, the edit's record) of `kind` in a room, or None where the room has
+    none. A room with no metal to make non-metal scores ``metal_off`` on the ``metal_on`` pair reversed: the object
+    Cycles rendered as metal is the shot, made non-metal again (metallic set to its value in the before render), and the
+    before render, made with the same seed and samples, is the truth."""
+    after_dir = folder / f"after_{kind}"
+    if (after_dir / "edits.json").is_file():
+        return folder / "before", after_dir, json.loads((after_dir / "edits.json").read_text())
+    on = folder / "after_metal_on" / "edits.json"
+    if kind != "metal_off" or not on.is_file():
+        return None
+    from bench.edits_data import frame_seconds, x2video_edits
+    from x2video.io.load import load_shot
+
+    doc = json.loads(on.read_text())
+    target = doc["target"]
+    before = load_shot(folder / "before")
+    obj = np.isin(before.channel("ids", 0)[..., 0], [int(target["id"])])
+    value = float(np.median(before.channel("metallic", 0)[..., 0][obj])) if obj.any() else 0.0
+    look = {"kind": "metal_off", "id": int(target["id"]), "value": value}
+    secs = frame_seconds(folder / "before")  # Cycles' seconds of the truth: its picture alone where timed, else with passes
+    spf = float(np.mean(secs["beauty"] or secs["frames"])) if secs["beauty"] or secs["frames"] else None
+    rec = {"kind": "metal_off", "target": target, "look": look, "edits": x2video_edits(look),
+           "cycles": {**doc["cycles"], "seconds_per_frame": spf, "passes_seconds_per_frame": None},
+           "reversed": "the metal_on pair reversed: after_metal_on is the shot, before/ the truth",
+           "source": str(on)}
+    return folder / "after_metal_on", folder / "before", rec
+
+
 def score_room(folder: Path, kinds: tuple[str, ...], methods: tuple[str, ...], model: Any, log=print,
                keep: dict | None = None) -> list[dict]:
     """Rows {kind, seed, target, cycles_seconds_per_frame, methods: {m: {regions..., seconds_per_frame, via}}} of one room;
@@ -190,19 +219,18 @@ def score_room(folder: Path, kinds: tuple[str, ...], methods: tuple[str, ...], m
     from x2video.io.load import load_shot
     from x2video.render.renderer import Renderer
 
-    before = load_shot(folder / "before")
     renderer = Renderer(model) if model is not None else Renderer(None)
     base_field = has_base_field()
     rows = []
     for kind in kinds:
-        after_dir = folder / f"after_{kind}"
-        if not (after_dir / "edits.json").is_file():
+        pair = edit_pair(folder, kind)
+        if pair is None:
             continue
-        doc = json.loads((after_dir / "edits.json").read_text())
-        after = load_shot(after_dir)
+        before_dir, after_dir, doc = pair
+        before, after = load_shot(before_dir), load_shot(after_dir)
         if after.num_frames != before.num_frames:
             raise ValueError(f"{after_dir}: {after.num_frames} frames, the before render has {before.num_frames}")
-        edits = Edits.from_dict(doc["edits"], where=f"{after_dir / 'edits.json'}: edits")
+        edits = Edits.from_dict(doc["edits"], where=f"{doc.get('source', after_dir / 'edits.json')}: edits")
         target = doc.get("target")
         ids = [int(target["id"])] if target else None
         masks = []
@@ -216,6 +244,8 @@ def score_room(folder: Path, kinds: tuple[str, ...], methods: tuple[str, ...], m
         row: dict[str, Any] = {"kind": kind, "seed": int(json.loads((folder / "before" / "shot.json").read_text())["extra"]["room_seed"]),
                                "target": target, "look": doc["look"], "cycles_seconds_per_frame": doc["cycles"]["seconds_per_frame"],
                                "cycles_passes_seconds_per_frame": doc["cycles"].get("passes_seconds_per_frame"), "methods": {}}
+        if doc.get("reversed"):
+            row["reversed"] = doc["reversed"]
         for method in methods:
             via = "bench"
             if method == "nothing":
@@ -324,7 +354,9 @@ NOTES = ["rebuild: roughness and metallic edits have no pass to rebuild from, so
          "frames 1 to 3, after the first has built the scene): what a person waits for to see the change. The render with every pass "
          "that made the truth took cycles_passes_seconds_per_frame",
          "timings are wall seconds on a machine shared with other jobs (load_average_before_after): ratios are rough",
-         "PSNR of a region is that of the squared error pooled over a room's frames, then averaged over rooms"]
+         "PSNR of a region is that of the squared error pooled over a room's frames, then averaged over rooms",
+         "metal_off in a room with no metal (the rooms' 'skipped'): the metal_on pair reversed (`edit_pair`): the Cycles render "
+         "with the object made metal is the shot, the before render the truth, the edit sets metallic back"]
 
 
 def picture(keep: dict, row: dict, method: str, path: Path) -> dict:

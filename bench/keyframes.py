@@ -6,12 +6,14 @@ and a truth rendered apart at more samples with another seed), for N in `--every
 - methods on the frames between: hold (the nearest keyframe), RIFE (colour only: `bench.rife`), the classical
   fill by reprojection (`x2video.base.fill`, by depth and camera), the same by G-buffer flow (as on a shot without
   depth or camera), the learned fill (`x2video.base.learned`: the classical fill corrected by the fill network, from
-  `--fill` or beside the shipped weights; skipped, saying why, where there are none), each scored by PSNR and SSIM
-  on the frames between and TC over the whole clip (keyframes included), against the truth;
+  `--fill` or beside the shipped weights; skipped, saying why, where there are none), the diffusion tier with every
+  keyframe as a reference (`RenderSettings.fill` 'diffusion', the paper's Ref-Keyframe: the shipped weights, or
+  `--weights`, at `--preset`; the whole clip rendered once per N, its time shared by the frames between), each scored
+  by PSNR and SSIM on the frames between and TC over the whole clip (keyframes included), against the truth;
 - cost per frame = keyframe cost / N + G-buffer frame cost + the method's own seconds, beside Cycles at the
   keyframes' samples and at 1, 2, 4 samples + OIDN on every frame (their PSNR against the same truth).
 
-    python -m bench.keyframes [--clips DIR] [--every 2,4,8,16] [--validation] [--fill DIR]
+    python -m bench.keyframes [--clips DIR] [--every 2,4,8,16] [--validation] [--fill DIR] [--methods hold,diffusion]
 
 `--validation` scores the validation clip only (where the fill's settings are chosen); without it, the test clips
 (`bench.clips.TEST_SEEDS`) are scored and written to bench/results/keyframes/keyframes.json.
@@ -78,6 +80,28 @@ def classical(shot: Any, keys: list[int], t: int, cache: dict) -> np.ndarray:
     return fill_frame(shot, t, keyframes=keys, shading=cache).rgb
 
 
+def diffusion(shot: Any, keys: list[int], t: int, cache: dict, model: Any, preset: str) -> np.ndarray:
+    """Tier 2 with the keyframes as references (fill 'diffusion'): the whole clip rendered on the first call (its frames
+    kept in `cache`, in the rgb's units), frame t after."""
+    if "diffusion" not in cache:
+        from x2video.io.units import OutputUnits
+        from x2video.render.events import FramesReady
+        from x2video.render.renderer import Renderer
+        from x2video.render.settings import RenderSettings
+
+        frames: dict[int, np.ndarray] = {}
+
+        def on_event(e: Any) -> None:
+            if isinstance(e, FramesReady):
+                frames.update(e.frames)
+
+        settings = RenderSettings(fill="diffusion", keyframes=",".join(map(str, keys)), preset=preset)  # type: ignore[arg-type]
+        Renderer(model, retain=False).render(shot, None, settings, on_event)
+        units = OutputUnits.for_shot(shot)
+        cache["diffusion"] = {f: units.scene(v) for f, v in frames.items()}
+    return cache["diffusion"][t]
+
+
 class NoDepth:
     """The shot as one without depth and camera (the fill falls back to G-buffer flow)."""
 
@@ -102,8 +126,8 @@ class NoDepth:
         return self._shot.size
 
 
-def methods(fill: Any = None) -> dict[str, Callable[..., np.ndarray]]:
-    """The methods by name; "learned" only with `fill` (a `LearnedFill`)."""
+def methods(fill: Any = None, model: Any = None, preset: str = "fast") -> dict[str, Callable[..., np.ndarray]]:
+    """The methods by name; "learned" only with `fill` (a `LearnedFill`), "diffusion" only with `model` (a `RenderModel`)."""
     out = {
         "hold": lambda shot, keys, t, cache: hold(shot, keys, t),
         "rife": lambda shot, keys, t, cache: rife(shot, keys, t),
@@ -114,6 +138,8 @@ def methods(fill: Any = None) -> dict[str, Callable[..., np.ndarray]]:
         from x2video.base.fill import fill_frame
 
         out["learned"] = lambda shot, keys, t, cache: fill_frame(shot, t, keyframes=keys, shading=cache, learned=fill).rgb
+    if model is not None:
+        out["diffusion"] = lambda shot, keys, t, cache: diffusion(shot, keys, t, cache, model, preset)
     return out
 
 
@@ -135,7 +161,7 @@ def learned_fill(folder: str | None) -> Any:
         return None
 
 
-def score_clip(folder: Path, every: list[int], names: list[str], fill: Any = None) -> dict:
+def score_clip(folder: Path, every: list[int], names: list[str], fill: Any = None, model: Any = None, preset: str = "fast") -> dict:
     shot, truth, meta = load_clip(folder)
     n = shot.num_frames
     gts = [tonemap(f) for f in truth]
@@ -147,7 +173,7 @@ def score_clip(folder: Path, every: list[int], names: list[str], fill: Any = Non
             keys.append(n - 1)
         between = [t for t in range(n) if t not in keys]
         for name in names:
-            fn, cache, secs = methods(fill)[name], {}, []
+            fn, cache, secs = methods(fill, model, preset)[name], {}, []
             disp = {}
             for t in range(n):
                 if t in keys:
@@ -191,6 +217,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--methods", default="hold,rife,classical,classical_flow,learned")
     ap.add_argument("--fill", default=None, help="folder with fill.safetensors + fill.json (default: beside the shipped weights)")
     ap.add_argument("--validation", action="store_true", help="score the validation clip (deciding settings), not the test clips")
+    ap.add_argument("--weights", default=None, help="the diffusion method's model folder (default: the shipped weights)")
+    ap.add_argument("--preset", default="fast", choices=["fast", "quality"], help="the diffusion method's render preset")
     args = ap.parse_args(argv)
     w, h = parse_size(args.size)
     root = Path(args.clips) if args.clips else default_root(w, h)
@@ -204,11 +232,17 @@ def main(argv: list[str] | None = None) -> int:
     fill = learned_fill(args.fill) if "learned" in names else None
     if fill is None and "learned" in names:
         names.remove("learned")
-    out = {"bench": "keyframes", "description": "keyframe fills (hold, RIFE, classical, learned) on the frames between 1 path-traced"
+    model = None
+    if "diffusion" in names:
+        from x2video.weights import load_model
+
+        model = load_model(args.weights, device="cpu")
+    out = {"bench": "keyframes", "description": "keyframe fills (hold, RIFE, classical, learned, diffusion) on the frames between 1 path-traced"
            " keyframe in N, against a truth rendered apart, beside Cycles on every frame",
            "command": command("keyframes", argv), "split": "validation" if args.validation else "test", "size": args.size,
            "machine": machine_info(), "fill_weights": None if fill is None else fill_sha(fill),
-           "clips": [score_clip(f, every, names, fill) for f in folders]}
+           "diffusion": None if model is None else {"weights": model.content_key(), "preset": args.preset},
+           "clips": [score_clip(f, every, names, fill, model, args.preset) for f in folders]}
     if GBUFFER_COST.is_file():
         out["gbuffer_cost"] = json.loads(GBUFFER_COST.read_text())
     path = results_path("keyframes", "keyframes_validation" if args.validation else "keyframes")

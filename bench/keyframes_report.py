@@ -22,7 +22,8 @@ import numpy as np
 
 RESULTS = Path(__file__).parent / "results" / "keyframes"
 LABELS = {"hold": "hold the nearest keyframe", "rife": "RIFE (colour only)", "classical": "classical fill (depth + camera)",
-          "classical_flow": "classical fill by G-buffer flow (no depth)", "learned": "learned fill (tier 1)"}
+          "classical_flow": "classical fill by G-buffer flow (no depth)", "learned": "learned fill (tier 1)",
+          "diffusion": "diffusion (tier 2), keyframes as references"}
 
 
 def _mean(vals: list[float]) -> float:

@@ -77,6 +77,8 @@ def test_timeline_marks_the_keyframes_and_the_strip_says_where_each_frame_comes_
     assert "not rendered yet" in win.info_label.text()
     render(win, qtbot)  # no edit: the keyframes as they are, the frames between filled
     assert bar.kinds == {0: "path-traced", 1: "filled", 2: "filled", 3: "filled", 4: "path-traced"} and bar.marks == {0, 4}
+    arrived = [t for t, _, mode in win.doc.render.arrivals if mode != "preview"]
+    assert arrived == [0, 4, 1, 3, 2]  # the keyframes, then the frames between nearest a keyframe first
     assert "filled from its nearest keyframes" in win.info_label.text()
     albedo_edit(win, qtbot)
     render(win, qtbot)

@@ -8,7 +8,8 @@ import pytest
 from test_base_fill import wall_shot
 
 from x2video.base.difference import SPILL_MARGIN
-from x2video.base.plan import BASE, base_caption
+from x2video.base.plan import base_caption
+from x2video.base.stage import BASE
 from x2video.cli import main as cli
 from x2video.edits import Edits
 from x2video.edits.masks import Mask

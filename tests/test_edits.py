@@ -146,6 +146,17 @@ def test_reference(shot, tmp_path):
     t, img = resolve_reference(shot, Edits(reference=Reference(path="ref.png")), base_dir=tmp_path)
     assert t == 0 and img.shape == (H, W, 3)
     np.testing.assert_allclose(img, 1.0, atol=1e-6)
+    # a shot whose irradiance was normalised on load: its frame reference is in the model's exposure, as in training
+    from x2video.io.image import write_exr
+
+    scaled = ArrayShot({c: np.stack([shot.channel(c, k) for k in range(T)]) for c in shot.channels}, irradiance_scale=0.25)
+    t, img = resolve_reference(scaled, Edits(reference=Reference(frame=2)))
+    np.testing.assert_array_equal(img, shot.channel("rgb", 2) * np.float32(0.25))
+    write_exr(tmp_path / "ref.exr", {c: np.full((H, W), 2.0, np.float32) for c in "RGB"}, "float")  # linear, the shot's units
+    t, img = resolve_reference(scaled, Edits(reference=Reference(path="ref.exr")), base_dir=tmp_path)
+    np.testing.assert_allclose(img, 0.5)
+    t, img = resolve_reference(scaled, Edits(reference=Reference(path="ref.png")), base_dir=tmp_path)
+    np.testing.assert_allclose(img, 1.0, atol=1e-6)  # a display picture: taken as it is
     with pytest.raises(ValueError, match="exactly one"):
         Reference()
     with pytest.raises(ValueError, match="missing.png: file does not exist"):

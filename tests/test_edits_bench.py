@@ -49,6 +49,33 @@ def test_the_edit_in_x2video_terms_loads_and_selects_the_object():
     assert isinstance(e.ops[0], LightTint) and e.ops[0].mask is None and e.ops[0].color == pytest.approx((0.5, 0.4, 0.3))
 
 
+def test_a_room_without_metal_scores_metal_off_on_the_metal_on_pair_reversed(tmp_path):
+    from bench.edits import edit_pair
+    from bench.edits_data import x2video_edits
+    from x2video.edits.model import Edits
+    from x2video.edits.ops import ScalarOp
+    from x2video.io import write_shot_folder
+    from x2video.shot import ArrayShot
+
+    ids = np.zeros((1, 8, 10, 1), np.float32)
+    ids[:, 2:6, 3:7] = 6
+    metallic = np.zeros((1, 8, 10, 1), np.float32)
+    write_shot_folder(ArrayShot({"albedo": np.full((1, 8, 10, 3), 0.5, np.float32), "ids": ids, "metallic": metallic}),
+                      tmp_path / "before")
+    (tmp_path / "before" / "cycles.json").write_text(json.dumps({"frames": {"0": 9.0}, "beauty": {"0": [7.0, 7.5]}}))
+    assert edit_pair(tmp_path, "metal_off") is None  # neither pair rendered
+    on = {"kind": "metal_on", "target": {"id": 6, "caption": "a sofa"}, "look": {"kind": "metal_on", "id": 6, "value": 1.0},
+          "edits": x2video_edits({"kind": "metal_on", "id": 6, "value": 1.0}), "cycles": {"seconds_per_frame": 8.0}}
+    (tmp_path / "after_metal_on").mkdir()
+    (tmp_path / "after_metal_on" / "edits.json").write_text(json.dumps(on))
+    shot, truth, doc = edit_pair(tmp_path, "metal_off")
+    assert (shot, truth) == (tmp_path / "after_metal_on", tmp_path / "before") and doc["reversed"]
+    e = Edits.from_dict(doc["edits"])
+    assert isinstance(e.ops[0], ScalarOp) and (e.ops[0].target_channel, e.ops[0].value) == ("metallic", 0.0)
+    assert doc["cycles"]["seconds_per_frame"] == 7.0  # the truth's picture alone, as Cycles rendered it
+    assert edit_pair(tmp_path, "metal_on")[:2] == (tmp_path / "before", tmp_path / "after_metal_on")
+
+
 def test_region_scores_pool_the_squared_error_over_frames():
     from bench.edits import Scores, regions
 

@@ -38,7 +38,7 @@ def path_traced_frames(shot: Shot | None, settings: RenderSettings) -> tuple[int
     if shot is None or not uses_base(shot, settings):
         return ()
     try:
-        return tuple(keyframed(shot, settings.keyframes).keyframes)
+        return tuple(keyframed(shot, settings).keyframes)
     except ValueError:
         return ()
 
@@ -52,7 +52,7 @@ def keyframe_marks(shot: Shot | None, settings: RenderSettings) -> tuple[int, ..
 
 def edit_tier(mode: str) -> str | None:
     """The tier that edited a frame that arrived with `mode` (`FramesReady.mode`); None for the base unchanged."""
-    from x2video.base.plan import BASE
+    from x2video.base.stage import BASE
 
     if mode == BASE:
         return None

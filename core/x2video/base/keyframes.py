@@ -8,10 +8,14 @@ from __future__ import annotations
 
 import sys
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from x2video.shot import Shot
+
+if TYPE_CHECKING:
+    from x2video.render.settings import RenderSettings
 
 
 def parse_keyframes(text: str, num_frames: int) -> tuple[int, ...]:
@@ -78,7 +82,17 @@ def only_keyframes(shot: Shot, spec: str) -> Shot:
     return KeyframeShot(shot, frames)
 
 
-def keyframed(shot: Shot, spec: str | None) -> Shot:
-    """`shot` with rgb kept on the keyframes `spec` names (`RenderSettings.keyframes`: `only_keyframes`), or as it is
-    when None: the frames that are a render's base (`x2video.base.stage`)."""
-    return shot if spec is None else only_keyframes(shot, spec)
+def keyframed(shot: Shot, settings: RenderSettings) -> Shot:
+    """`shot` with rgb kept on `RenderSettings.keyframes` only (`only_keyframes`), or as it is when unset: the frames
+    that are a render's base (`x2video.base.stage`)."""
+    return shot if settings.keyframes is None else only_keyframes(shot, settings.keyframes)
+
+
+def reference_keyframes(shot: Shot, settings: RenderSettings) -> tuple[int, ...]:
+    """The keyframes a render of `shot` with `settings` gives the diffusion tier as references (`RenderSettings.fill`
+    'diffusion', base 'auto'): the shot's rgb frames, or the `keyframes` setting's; () when the fill is classical, the
+    base is off, or no frame is left to fill (no rgb, or rgb on every frame)."""
+    if settings.fill != "diffusion" or settings.base != "auto":
+        return ()
+    keys = tuple(shot.keyframes) if settings.keyframes is None else parse_keyframes(settings.keyframes, shot.num_frames)
+    return keys if 0 < len(keys) < shot.num_frames else ()

@@ -9,12 +9,12 @@ stages, each visited once.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from x2video.base.keyframes import keyframed
+from x2video.base.keyframes import keyframed, reference_keyframes
+from x2video.base.stage import BASE, Plan
 from x2video.conditioning.edited import frame_conditioning, resolve_reference
 from x2video.tiers import registry
 from x2video.tiers.base import RenderJob, RenderPlan, TierChoice, coarse_to_fine
@@ -23,45 +23,31 @@ if TYPE_CHECKING:
     from pathlib import Path
 
     from x2video.conditioning.cache import ConditioningCache
-    from x2video.conditioning.frame import Conditioning
     from x2video.edits.model import Edits
     from x2video.model.api import RenderModel
     from x2video.render.settings import RenderSettings
     from x2video.render.timing import NoTimes, StageTimes
     from x2video.shot import Shot
-    from x2video.tiers.base import Tier
-
-#: what `RenderStarted.tier` and `FramesReady.mode` say for frames that are the base with no tier's change
-BASE = "base"
 
 
-@dataclass(frozen=True)
-class Plan:
-    """One render, decided: `job` is what the tier reads (`RenderJob`), `tier` the tier that runs (None: no tier, every
-    frame is the base). Over the base (`over_base`), the frames are made in `order`, each edited frame against its
-    unedited conditioning `original`, and `RenderStarted` says `reason`."""
-
-    job: RenderJob
-    tier: Tier | None
-    over_base: bool
-    order: list[int]
-    original: Conditioning | None
-    reason: str
-
-
-def make_plan(shot: Shot, edits: Edits | None, settings: RenderSettings, model: RenderModel | None, frames: tuple[int, int], *,
-              cache: ConditioningCache, retain: bool, clock: StageTimes | NoTimes, stats: dict,
+def make_plan(shot: Shot, edits: Edits | None, settings: RenderSettings, model: RenderModel | None, frames: tuple[int, int],
+              keys: tuple[int, ...], *, cache: ConditioningCache, retain: bool, clock: StageTimes | NoTimes, stats: dict,
               base_dir: str | Path | None = None) -> Plan:
     """The plan of a render of frames `frames` of `shot` (keyframed already) with `edits` and `settings` (validated) on
-    `model`, with the Renderer's `cache`, `retain` and `clock`; the tier reports into `stats`. Raises ValueError when the
-    tier cannot run (`registry.decide`) or the reference cannot be read."""
-    choice = base_choice(shot, edits, settings)
-    over_base = uses_base(shot, settings)
+    `model`, `keys` the keyframes fill 'diffusion' reads as references (`keyframes.reference_keyframes`), with the
+    Renderer's `cache`, `retain` and `clock`; the tier reports into `stats`. Raises ValueError when the tier cannot run
+    (`registry.decide`, `fill_choice`) or the reference cannot be read."""
+    choice = _base_choice(shot, edits, settings, keys) or _fill_choice(shot, edits, settings, keys)
+    filled = choice is not None and choice.tier != BASE  # fill 'diffusion': the tier renders every frame, keyframes as references
+    over_base = uses_base(shot, settings) and not filled
     reason = "" if choice is not None or not over_base else f"; over the shot's path-traced frames ({keys_text(shot)})"
     order = base_order(shot, *frames) if over_base else []
     if choice is None:
         choice = registry.decide(settings.quality, shot, edits, model)
     tier = None if choice.tier == BASE else registry.get(choice.tier)
+    why_not = tier.available(model) if filled and tier is not None else None  # (`registry.decide` asks the tiers it decides)
+    if why_not is not None:
+        raise ValueError(why_not)
     reference = resolve_reference(shot, edits, base_dir) if edits is not None and tier is not None and tier.reads_reference else None
     conditioning = frame_conditioning(shot, edits)
     original = frame_conditioning(shot, None) if over_base else None
@@ -87,11 +73,35 @@ def changes_nothing(edits: Edits | None) -> bool:
 
 
 def base_choice(shot: Shot, edits: Edits | None, settings: RenderSettings) -> TierChoice | None:
-    """What a render that runs no tier says it runs (every frame is the base: `uses_base` and `changes_nothing`); None
-    when a tier must run, which the tiers decide (`x2video.tiers.registry.decide`). Needs no model."""
-    if not (uses_base(shot, settings) and changes_nothing(edits)):
+    """What a render that runs no tier says it runs (every frame is the base: `uses_base` and `changes_nothing`, and no
+    fill 'diffusion'); None when a tier must run, which the tiers decide (`x2video.tiers.registry.decide`). Needs no model."""
+    return _base_choice(shot, edits, settings, reference_keyframes(shot, settings))
+
+
+def _base_choice(shot: Shot, edits: Edits | None, settings: RenderSettings, keys: tuple[int, ...]) -> TierChoice | None:
+    if not (uses_base(shot, settings) and changes_nothing(edits)) or keys:
         return None
     return TierChoice(BASE, f"no edits: the shot's path-traced frames ({keys_text(shot)}); base 'off' re-renders them")
+
+
+def fill_choice(shot: Shot, edits: Edits | None, settings: RenderSettings) -> TierChoice | None:
+    """The diffusion tier where it fills a keyframe shot's frames between with every keyframe as a reference
+    (`RenderSettings.fill` 'diffusion': `keyframes.reference_keyframes`), else None. ValueError, naming the setting,
+    where it cannot: a quality other than 'auto' or 'diffusion', or edits that change pixels. Needs no model."""
+    return _fill_choice(shot, edits, settings, reference_keyframes(shot, settings))
+
+
+def _fill_choice(shot: Shot, edits: Edits | None, settings: RenderSettings, keys: tuple[int, ...]) -> TierChoice | None:
+    if not keys:
+        return None
+    if settings.quality not in ("auto", "diffusion"):
+        raise ValueError(f"fill 'diffusion' renders with the diffusion tier, not quality {settings.quality!r}"
+                         " (use quality 'auto' or 'diffusion', or fill 'classical')")
+    if not changes_nothing(edits):
+        raise ValueError("fill 'diffusion' renders a keyframe shot as its keyframes show it, without edits (they would change"
+                         " what the keyframes show); render edits with fill 'classical'")
+    return TierChoice("diffusion", f"fill 'diffusion': the frames between {len(keys)} keyframes of {shot.num_frames} made by the"
+                                   " diffusion tier, every keyframe's path-traced frame a reference (Ref-Keyframe)")
 
 
 def base_plan(shot: Shot, edits: Edits | None, settings: RenderSettings) -> RenderPlan | None:
@@ -125,7 +135,7 @@ def base_caption(shot: Shot, settings: RenderSettings) -> str:
         return ""
     if settings.base == "off":
         return "Base off: every frame re-rendered from the channels (the shot's path-traced frames unused)"
-    return f"Base: the shot's path-traced frames ({keys_text(keyframed(shot, settings.keyframes))})"
+    return f"Base: the shot's path-traced frames ({keys_text(keyframed(shot, settings))})"
 
 
 def keys_text(shot: Shot) -> str:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import functools
 import time
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
@@ -41,7 +42,6 @@ from x2video.base.difference import (
 )
 from x2video.base.fill import FillConfig, fill_frame
 from x2video.base.passes import rebuild
-from x2video.base.plan import BASE, Plan
 from x2video.render.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted
 from x2video.tiers.base import PerFrameTier
 
@@ -49,6 +49,25 @@ if TYPE_CHECKING:
     from x2video.conditioning.frame import Conditioning, FrameConditioning
     from x2video.shot import Shot
     from x2video.tiers.base import Emit, RenderJob, Tier
+
+
+#: what `RenderStarted.tier` and `FramesReady.mode` say for frames that are the base with no tier's change
+BASE = "base"
+
+
+@dataclass(frozen=True)
+class Plan:
+    """One render, decided before any pixel is read (`x2video.base.plan.make_plan`): `job` is what the tier reads
+    (`RenderJob`), `tier` the tier that runs (None: no tier, every frame is the base). Over the base (`over_base`), the
+    frames are made in `order`, each edited frame against its unedited conditioning `original`, and `RenderStarted`
+    says `reason`."""
+
+    job: RenderJob
+    tier: Tier | None
+    over_base: bool
+    order: list[int]
+    original: Conditioning | None
+    reason: str
 
 
 def render(plan: Plan, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:

@@ -60,12 +60,16 @@ def frame_conditioning(shot: Shot, edits: Edits | None) -> Conditioning:
 
 
 def resolve_reference(shot: Shot, edits: Edits, base_dir: str | Path | None = None) -> tuple[int, np.ndarray] | None:
-    """(frame index where the reference sits, linear RGB float32 (H, W, 3) at the shot's size), or None.
+    """(frame index where the reference sits, linear RGB float32 (H, W, 3) at the shot's size, in the model's
+    exposure), or None.
 
-    An image file sits at `reference.at` (default 0); PNG/JPG are sRGB-decoded, EXR taken as linear (negatives and
-    NaN zeroed). A different aspect ratio is centre-cropped to the shot's before resizing. A shot
-    frame reference is `rgb/` of that frame.
+    An image file sits at `reference.at` (default 0); PNG/JPG are sRGB-decoded (a display picture: taken as it is),
+    EXR taken as linear in the shot's units (negatives and NaN zeroed). A different aspect ratio is centre-cropped to
+    the shot's before resizing. A shot frame reference is `rgb/` of that frame. Frames in the shot's units are scaled by
+    its `irradiance_scale`, as the model's training frames are (`x2video.train.cache`), so a reference of a shot whose
+    irradiance was normalised on load has the brightness the model saw.
     """
+    scale = np.float32(shot.info.irradiance_scale)
     ref = edits.reference
     if ref is None:
         return None
@@ -74,7 +78,7 @@ def resolve_reference(shot: Shot, edits: Edits, base_dir: str | Path | None = No
             raise ValueError(f"reference frame {ref.frame}: shot {shot.info.source!r} has no rgb channel")
         if not 0 <= ref.frame < shot.num_frames:
             raise ValueError(f"reference frame {ref.frame} outside the shot's {shot.num_frames} frames")
-        return ref.frame, shot.channel("rgb", ref.frame).astype(np.float32)
+        return ref.frame, shot.channel("rgb", ref.frame).astype(np.float32) * scale
     from x2video.channels import srgb_to_linear
     from x2video.io.convention import zero_nonfinite
     from x2video.io.image import read_image
@@ -91,7 +95,7 @@ def resolve_reference(shot: Shot, edits: Edits, base_dir: str | Path | None = No
     names = [c for c in ("R", "G", "B") if c in img.planes] if all(c in img.planes for c in "RGB") else colour[:3]
     rgb = img.stack(names)
     rgb = zero_nonfinite(rgb, str(path), "reference")
-    rgb = srgb_to_linear(rgb) if img.max_int is not None else np.maximum(rgb, 0)
+    rgb = srgb_to_linear(rgb) if img.max_int is not None else np.maximum(rgb, 0) * scale
     return ref.position, fit_image(rgb, shot.size)
 
 

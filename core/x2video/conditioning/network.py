@@ -216,14 +216,18 @@ class NetworkConditioning:
         if work is not None:
             log.info("shot size %dx%d: the diffusion network runs at %dx%d (working_pixels %d), its residual over the formula"
                      " brought back on the full-resolution formula", width, height, work[1], work[0], working_pixels)
-            if reference is not None:
-                reference = (reference[0], resize_area(reference[1], work))
         elif ph or pw:
             log.info("shot size %dx%d: reflect-padded to %dx%d (the model's factor %d), frames cropped back",
                      width, height, width + pw, height + ph, factor)
-            if reference is not None:
-                reference = (reference[0], pad_image(reference[1], ph, pw))
-        return cls(full, (height, width), work, (ph, pw), reference)
+        net = cls(full, (height, width), work, (ph, pw))
+        return net if reference is None else dataclasses.replace(net, reference=(reference[0], net.image(reference[1])))
+
+    def image(self, rgb: np.ndarray) -> np.ndarray:
+        """An (H, W, 3) image at the shot's size (a reference: the user's, or a path-traced keyframe) as the network
+        reads it: area-averaged to the working size, or reflect-padded to the model's factor."""
+        if self.work is not None:
+            return resize_area(rgb, self.work)
+        return pad_image(rgb, *self.pad)
 
     def frame(self, t: int) -> FrameConditioning:
         """Frame `t`'s conditioning at the size the network runs at."""

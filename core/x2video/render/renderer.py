@@ -18,8 +18,8 @@ from typing import TYPE_CHECKING, Callable, Sequence
 import torch
 
 from x2video.base import stage as base_stage
-from x2video.base.keyframes import keyframed
-from x2video.base.plan import base_plan, make_plan
+from x2video.base.keyframes import keyframed, reference_keyframes
+from x2video.base.plan import base_plan, fill_choice, make_plan
 from x2video.conditioning.cache import CacheStats, ConditioningCache, conditioning_key
 from x2video.conditioning.edited import frame_conditioning, resolve_reference
 from x2video.conditioning.network import NetworkConditioning
@@ -41,7 +41,7 @@ from x2video.sampling.samplers import alphas_cumprod
 from x2video.shot import Shot
 from x2video.tiers import registry
 from x2video.tiers.base import RenderJob, RenderPlan, TierChoice
-from x2video.tiers.diffusion import DiffusionTier, diffusion_windows, reference_frame
+from x2video.tiers.diffusion import DiffusionTier, diffusion_windows, given_keyframes, reference_frame
 from x2video.tiers.encoder import Encoder
 
 if TYPE_CHECKING:
@@ -110,13 +110,14 @@ class Renderer:
         (`NetworkConditioning`: padded, or at the working size for large frames)."""
         model = self.model
         choice = self.choose_tier(shot, edits, settings)
-        if model is None or choice.tier != DiffusionTier.name:
+        given = given_keyframes(shot, settings, frame_range(shot, settings))
+        if model is None or (choice.tier != DiffusionTier.name and not given):
             return 0
         t0 = time.perf_counter()
         net = NetworkConditioning.for_model(shot.size, frame_conditioning(shot, edits), model.downsample, settings.working_pixels)
         settings = resolve(settings, model)
         self.engine = model.set_engine(settings.engine)
-        windows = diffusion_windows(frame_range(shot, settings), settings, reference_frame(edits))
+        windows = diffusion_windows(frame_range(shot, settings), settings, None if given else reference_frame(edits), given)
         text = model.encode_prompts([""]) if model.text_encoder is not None else None  # loads the text encoder
         encoder = Encoder(model, self.cache, self.clock)
         model_key = model.content_key()
@@ -144,11 +145,16 @@ class Renderer:
         return self.cache.stats()
 
     def plan(self, shot: Shot, settings: RenderSettings, ref_frame: int | None = None) -> list[Window]:
-        """The windows a diffusion render of `shot` with `settings` runs (shot frame indices), anchored at `ref_frame`."""
-        return diffusion_windows(frame_range(shot, settings), settings, ref_frame)
+        """The windows a diffusion render of `shot` with `settings` runs (shot frame indices), anchored at `ref_frame`, or
+        around the keyframes fill 'diffusion' gives it (`given_keyframes`)."""
+        frames = frame_range(shot, settings)
+        return diffusion_windows(frames, settings, ref_frame, given_keyframes(shot, settings, frames))
 
     def plan_render(self, shot: Shot, edits: Edits | None, settings: RenderSettings) -> RenderPlan:
         """What a render of `shot` with `edits` and `settings` runs with this model (`tiers.plan_render`, pure)."""
+        fill = fill_choice(shot, edits, settings)
+        if fill is not None:
+            return registry.get(fill.tier).plan(shot, edits, settings, self.model, fill, frame_range(shot, settings))
         return base_plan(shot, edits, settings) or registry.plan_render(shot, edits, settings, self.model)
 
     def choose_tier(self, shot: Shot, edits: Edits | None, settings: RenderSettings) -> TierChoice:
@@ -212,9 +218,10 @@ class Renderer:
         try:
             try:
                 settings.validate()  # every field, before any tier is chosen (a field changed in place since it was made, too)
-                shot = keyframed(shot, settings.keyframes)  # the shot's path-traced frames: the base (x2video.base.stage)
+                keys = reference_keyframes(shot, settings)  # fill 'diffusion': the keyframes the tier reads as references
+                shot = keyframed(shot, settings)  # the shot's path-traced frames: the base (x2video.base.stage)
                 stats: dict = {}  # what the tier reports back
-                plan = make_plan(shot, edits, settings, self.model, frame_range(shot, settings), cache=self.cache,
+                plan = make_plan(shot, edits, settings, self.model, frame_range(shot, settings), keys, cache=self.cache,
                                  retain=self.retain, clock=self.clock, stats=stats, base_dir=base_dir)
                 choice = self.last_tier = plan.job.choice
                 log.info("quality %s: tier %s (%s)", settings.quality, choice.tier, choice.reason)
@@ -258,7 +265,8 @@ class Renderer:
         (`x2video.farm`). `render` runs each window through the same steps (the noise is seeded per frame or per
         window, the conditioning per frame), so the frames equal a single `render`'s."""
         emit: Callable[[RenderEvent], None] = on_event if on_event is not None else (lambda e: None)
-        choice = self.choose_tier(shot, edits, settings)
+        shot = keyframed(shot, settings)
+        choice = fill_choice(shot, edits, settings) or self.choose_tier(shot, edits, settings)
         tier = registry.get(choice.tier)
         if not isinstance(tier, DiffusionTier):
             raise ValueError(f"this render runs tier {choice.tier!r} ({choice.reason}), which has no windows")

@@ -83,6 +83,12 @@ class RenderSettings:
     difference over it, base + R(edited) - R(original), inside the edit's reach only; no tier runs, and no model is
     needed, without edits. 'off': every frame re-rendered from the channels by the tier, as before the base existed
     (what scoring a tier against the shot's own rgb needs)."""
+    fill: Literal["classical", "diffusion"] = "classical"
+    """With base 'auto', how a keyframe shot's frames between its keyframes are made: 'classical' fills them from their
+    nearest keyframes by reprojection (`x2video.base.fill`); 'diffusion' renders them with the diffusion tier, every
+    keyframe's path-traced frame a reference at the ends of its interpolation windows (the paper's Ref-Keyframe:
+    `x2video.sampling.planner.plan_keyframed`), the keyframes kept bit for bit. 'diffusion' needs a model, quality
+    'auto' or 'diffusion', and no edits (they would change what the keyframes show)."""
     keyframes: str | None = None
     """Keep the shot's rgb on these frames only: 'every:N' (frames 0, N, 2N, ... and the last) or a list '0,8,20';
     with base 'auto' the frames between are filled from them (`x2video.base.keyframes`), so a fully rendered shot

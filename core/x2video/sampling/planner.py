@@ -35,7 +35,7 @@ shorter. With a reference frame the chain runs forwards and backwards from it.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, Sequence
 
 Mode = Literal["key", "interp", "seq"]
 
@@ -199,16 +199,77 @@ def plan_recursive(length: int, window: int, ref_frame: int | None = None, seams
     keys = list(produced)
     for level in range(levels - 1, 0, -1):
         s = (window - 1) ** (level - 1)
-        new: list[int] = []
-        for a, b in zip(produced, produced[1:]):
-            if b - a <= s:
-                continue
-            inner = tuple(range(a + s, b, s))
-            plan.append(Window((a, *inner, b), inner, (a, b), "interp", level))
-            new.extend(inner)
-        produced = sorted(produced + new)
+        made = _interpolation_level(produced, s, level)
+        plan += made
+        produced = sorted(produced + [f for w in made for f in w.generate])
         if seams and levels >= 3 and level == levels - 1:
             plan += seam_windows(keys, produced, length, window, s, level, None if ref_frame is None else anchor)
+    return plan
+
+
+def _interpolation_level(produced: list[int], stride: int, level: int) -> list[Window]:
+    """One interpolation level: a window [a, a+s, ..., b] between each pair of adjacent frames of `produced` (sorted)
+    further apart than the stride s, conditioned on its two ends."""
+    out: list[Window] = []
+    for a, b in zip(produced, produced[1:]):
+        if b - a > stride:
+            inner = tuple(range(a + stride, b, stride))
+            out.append(Window((a, *inner, b), inner, (a, b), "interp", level))
+    return out
+
+
+def plan_keyframed(length: int, window: int, keyframes: Sequence[int], scheme: str = "recursive",
+                   max_levels: int | None = None) -> list[Window]:
+    """Ref-Keyframe (paper Sec. Acceleration, table "Acceleration"): the keyframes are given (path-traced frames, read
+    as references and never generated), which bypasses the keyframe stage; the plan makes every other frame.
+
+    Recursive: the level count K is the fewest that let the first interpolation level (stride (N-1)^(K-2)) bridge
+    every gap between adjacent keyframes in one window, and one keyframe-mode window (stride (N-1)^(K-1)) span the
+    frames before the first keyframe and after the last. Those frames come first, from keyframe-mode windows that
+    start at the first keyframe (running backwards in time) and at the last; then the interpolation levels K-1 .. 1
+    run as in `plan_recursive`, so every top-level interpolation window between two keyframes has them as its two
+    ends. `max_levels` below K: a gap wider than the keyframe stride first gets keyframe-mode windows chained from
+    its first keyframe at that stride (stopping before the next keyframe), then the interpolation levels.
+    Sequential: windows of consecutive frames chained from each keyframe towards the next (and from the first
+    keyframe back to frame 0), each window's first frame its reference. No seam pass: the keyframes are exact.
+
+    Frame numbers are 0..length-1; keyframes outside that range are refused (ValueError naming the first)."""
+    _validate(length, window, None)
+    check_max_levels(max_levels)
+    keys = sorted(set(keyframes))
+    if not keys:
+        raise ValueError("a keyframed plan needs at least one keyframe")
+    bad = [k for k in keys if not 0 <= k < length]
+    if bad:
+        raise ValueError(f"keyframe {bad[0]} outside the {length} frames being rendered")
+    head, tail = keys[0], length - 1 - keys[-1]
+    if scheme == "sequential":
+        mode: Mode = "seq"
+        levels = 1
+    elif scheme == "recursive":
+        mode = "key"
+        need = [num_levels(b - a, window) + 1 for a, b in zip(keys, keys[1:]) if b - a > 1]
+        need += [num_levels(span, window) for span in (head, tail) if span > 0]
+        levels = 1 if window == 2 else max(need, default=1)
+        if max_levels is not None:
+            levels = min(levels, max_levels)
+    else:
+        raise ValueError(f"unknown sampling scheme {scheme!r} (use 'recursive' or 'sequential')")
+    stride = (window - 1) ** (levels - 1)
+    plan: list[Window] = []
+    if tail > 0:
+        plan += _chain(_grid(keys[-1], length - 1, stride), window, mode, levels, True, False)
+    if head > 0:
+        plan += _chain(_grid(keys[0], 0, stride), window, mode, levels, True, False)
+    for a, b in zip(keys, keys[1:]):
+        grid = list(range(a, b, stride))  # a, a+S, ... before b: made from a when the gap is wider than the stride
+        if len(grid) > 1:
+            plan += _chain(grid, window, mode, levels, True, False)
+    produced = sorted(set(keys) | {f for w in plan for f in w.generate})
+    for level in range(levels - 1, 0, -1):
+        made = _interpolation_level(produced, (window - 1) ** (level - 1), level)
+        plan += made
+        produced = sorted(produced + [f for w in made for f in w.generate])
     return plan
 
 

@@ -23,7 +23,7 @@ from x2video.edits.model import Prompts
 from x2video.model.api import RenderModel, WindowInputs
 from x2video.render.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted, StepDone, WindowStarted
 from x2video.render.settings import RenderSettings, resolve, select_steps
-from x2video.sampling.planner import Window, last_use, plan, shift
+from x2video.sampling.planner import Window, last_use, plan, plan_keyframed, shift
 from x2video.sampling.samplers import Known, frame_noise, inferred_region, mean_anchor, sample_ddim, sample_lcm, window_seed
 from x2video.tiers.base import TIERS, Emit, PerFrameTier, RenderJob, RenderPlan, Tier
 from x2video.tiers.encoder import Encoder
@@ -31,6 +31,7 @@ from x2video.tiers.regions import composite_weight, generated_region
 
 if TYPE_CHECKING:
     from x2video.edits.model import Edits
+    from x2video.shot import Shot
 
 
 def reference_frame(edits: Edits | None) -> int | None:
@@ -42,12 +43,28 @@ def reference_frame(edits: Edits | None) -> int | None:
     return ref.frame if ref.frame is not None else ref.position
 
 
-def diffusion_windows(frames: tuple[int, int], settings: RenderSettings, ref_frame: int | None = None) -> list[Window]:
-    """The windows a diffusion render of shot frames [start, stop) runs (shot frame indices), anchored at `ref_frame`."""
+def diffusion_windows(frames: tuple[int, int], settings: RenderSettings, ref_frame: int | None = None,
+                      keyframes: Sequence[int] = ()) -> list[Window]:
+    """The windows a diffusion render of shot frames [start, stop) runs (shot frame indices), anchored at `ref_frame`; or,
+    given path-traced `keyframes` (`given_keyframes`), around those of them inside the range (`plan_keyframed`)."""
     start, stop = frames
+    keys = [k - start for k in keyframes if start <= k < stop]
+    if keys:
+        if ref_frame is not None:
+            raise ValueError("a reference frame and keyframes as references exclude each other (fill 'diffusion' renders no edits)")
+        return shift(plan_keyframed(stop - start, settings.window, keys, settings.scheme, settings.max_levels), start)
     if ref_frame is not None:
         ref_frame = min(max(ref_frame, start), stop - 1) - start
     return shift(plan(settings.scheme, stop - start, settings.window, ref_frame, settings.seams, settings.max_levels), start)
+
+
+def given_keyframes(shot: Shot, settings: RenderSettings, frames: tuple[int, int]) -> tuple[int, ...]:
+    """The shot's path-traced keyframes inside `frames` that a render with `settings` reads as references instead of
+    making them (`RenderSettings.fill` 'diffusion': `x2video.base.keyframes.reference_keyframes`)."""
+    from x2video.base.keyframes import reference_keyframes
+
+    start, stop = frames
+    return tuple(k for k in reference_keyframes(shot, settings) if start <= k < stop)
 
 
 class DiffusionTier(Tier):
@@ -68,8 +85,8 @@ class DiffusionTier(Tier):
 
     def plan(self, shot, edits, settings, model, choice, frames) -> RenderPlan:
         resolved = resolve(settings, model)
-        return RenderPlan(choice.tier, choice.reason, frames, per_frame=False,
-                          windows=tuple(diffusion_windows(frames, resolved, reference_frame(edits))), sampler=resolved.sampler,
+        windows = diffusion_windows(frames, resolved, reference_frame(edits), given_keyframes(shot, settings, frames))
+        return RenderPlan(choice.tier, choice.reason, frames, per_frame=False, windows=tuple(windows), sampler=resolved.sampler,
                           steps=resolved.steps)
 
     def render(self, job: RenderJob, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:
@@ -78,9 +95,10 @@ class DiffusionTier(Tier):
         keep_until = last_use(windows)
         with torch.inference_mode():
             levels = sorted({w.level for w in windows}, reverse=True)
-            emit(RenderStarted(num_frames=len({f for w in windows for f in w.generate}), num_windows=len(windows), levels=levels,
-                               tier=job.choice.tier, reason=job.choice.reason))
-            latents: dict[int, torch.Tensor] = {}  # frame -> (4, h, w), only while a later window reads it
+            emit(RenderStarted(num_frames=len({f for w in windows for f in w.generate} | set(run.given)), num_windows=len(windows),
+                               levels=levels, tier=job.choice.tier, reason=job.choice.reason))
+            run.deliver_given(done)
+            latents = run.given_latents(keep_until)  # frame -> (4, h, w), only while a later window reads it
             job.stats["peak_latents"] = 0
             cond_until = {f: i for i, w in enumerate(windows) for f in w.frames}  # frame -> last window encoding it
             for index, window in enumerate(windows):
@@ -102,8 +120,9 @@ class DiffusionTier(Tier):
         if list(indices) != sorted(set(indices)):
             raise ValueError(f"window indices must ascend without repeats (plan order), got {list(indices)}")
         ref_frame = None if job.reference is None else job.reference[0]
-        windows = diffusion_windows(job.frames, resolve(job.settings, job.model), ref_frame)
-        made_here: set[int] = set()
+        given = given_keyframes(job.shot, job.settings, job.frames)
+        windows = diffusion_windows(job.frames, resolve(job.settings, job.model), ref_frame, given)
+        made_here: set[int] = set(given)  # path-traced keyframes: encoded here, never passed in
         for i in indices:  # checked before the engine is built
             if not 0 <= i < len(windows):
                 raise ValueError(f"window {i} is not in the plan ({len(windows)} windows)")
@@ -113,7 +132,9 @@ class DiffusionTier(Tier):
             made_here.update(windows[i].generate)
         run = DiffusionRun(job, emit)
         model = run.model
-        latents = {f: v.to(model.device, model.dtype) for f, v in refs.items()}
+        with torch.inference_mode():
+            latents = run.given_latents({f: 0 for i in indices for f in run.windows[i].refs})
+        latents.update({f: v.to(model.device, model.dtype) for f, v in refs.items()})
         out: dict[int, dict[int, torch.Tensor]] = {}
         done: set[int] = set()
         cond_until = {f: i for i in indices for f in run.windows[i].frames}
@@ -171,7 +192,9 @@ class DiffusionRun:
         self.emit = emit
         self.encoder = Encoder(model, job.cache, job.clock)
         reference = self.net.reference
-        self.windows = diffusion_windows(job.frames, self.settings, None if reference is None else reference[0])
+        #: path-traced keyframes read as references and delivered as they are (`RenderSettings.fill` 'diffusion')
+        self.given = given_keyframes(job.shot, job.settings, job.frames)
+        self.windows = diffusion_windows(job.frames, self.settings, None if reference is None else reference[0], self.given)
         prompts = Prompts() if job.edits is None else job.edits.prompts()
         with torch.inference_mode():
             self.text_global = model.encode_prompts([prompts.global_prompt])  # (1, L, D)
@@ -182,6 +205,33 @@ class DiffusionRun:
         self.keys: list[str] = []
         self.cond: torch.Tensor | None = None
         self.started = 0.0
+
+    def given_image(self, t: int) -> np.ndarray:
+        """Keyframe t's path-traced frame in the model's exposure, float64 (`x2video.base.stage.BaseFrames`)."""
+        from x2video.base.stage import BaseFrames
+
+        return BaseFrames(self.job.shot)(t)
+
+    def given_latents(self, read: dict[int, int]) -> dict[int, torch.Tensor]:
+        """frame -> (4, h, w) RGB latent of each given keyframe some window reads (`read`: frame -> a window reading it)."""
+        model = self.model
+        out = {}
+        for t in self.given:
+            if t in read:
+                with self.job.clock.stage("encode"):
+                    out[t] = model.encode_image(self.net.image(self.given_image(t).astype(np.float32))).to(model.device, model.dtype)
+        return out
+
+    def deliver_given(self, done: set[int]) -> None:
+        """Emit the given keyframes as they are (the base stage's exact frames, mode 'base'), a few per event, before any
+        window runs."""
+        from x2video.base.stage import BASE
+
+        for i in range(0, len(self.given), 4):
+            t0 = time.perf_counter()
+            frames = {t: self.given_image(t) for t in self.given[i:i + 4]}
+            done.update(frames)
+            self.emit(FramesReady(window=-1, frames=frames, level=0, mode=BASE, seconds=time.perf_counter() - t0, window_done=False))
 
     def release(self, cond_until: dict[int, int], index: int) -> None:
         """`retain=False`: drop from the cache what window `index` (just decoded) was the last to read: every detail (read
