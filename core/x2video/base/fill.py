@@ -52,6 +52,9 @@ class FillResult:
     holes: float
     #: how pixels were carried: "depth" (reprojection by depth and camera) or "flow" (optical flow on G-buffers)
     method: str
+    #: (H, W, 3) the demodulated shading it modulated by the frame's albedo (rgb = shading x albedo + emission), in
+    #: rgb's units; None on a keyframe (its rgb is its own)
+    shading: np.ndarray | None = None
 
 
 def nearest_keyframes(t: int, keyframes: Sequence[int]) -> tuple[int, ...]:
@@ -196,13 +199,13 @@ def fill_frame(shot: Shot, t: int, cfg: FillConfig = FillConfig(), keyframes: Se
         return FillResult(shot.channel("rgb", t), 0.0, "keyframe")
     inputs = fill_inputs(shot, t, cfg, keys, shading)
     out = inputs.shading if learned is None else learned.shading(shot, t, inputs, cfg)
-    return FillResult(modulated(shot, t, out, cfg), float(inputs.holes.mean()), inputs.method)
+    return FillResult(modulated(shot, t, out, cfg), float(inputs.holes.mean()), inputs.method, out)
 
 
 def _fill_holes(shot: Shot, t: int, shading: np.ndarray, holes: np.ndarray) -> np.ndarray:
-    """Shading where no keyframe saw the surface: the frame's irradiance in the rgb's units, else spread in from the
-    shading around (`base.difference.spread_into`)."""
-    if shot.has("irradiance"):
+    """Shading where no keyframe saw the surface: the frame's irradiance in the rgb's units where it carries it, else
+    spread in from the shading around (`base.difference.spread_into`)."""
+    if shot.has("irradiance", t):
         irr = shot.channel("irradiance", t) / max(shot.info.irradiance_scale, 1e-12)
         return np.where(holes[..., None], irr, shading).astype(np.float32)
     from x2video.base.difference import spread_into

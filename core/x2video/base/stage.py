@@ -4,7 +4,8 @@ only what an edit changes (DESIGN.md, "Path-traced pixels first").
 - No edit reaches a frame: the frame is the base (the shot's rgb, or on a keyframe shot the fill from its nearest
   keyframes, `base.fill`), and no tier runs.
 - An edit reaches it: per pixel, the base plus a tier's difference (`base.difference`): tier 0's (the frame rebuilt
-  from its passes, `base.passes`: the compositor's rebuild, exact for albedo edits of diffuse surfaces; a ratio where
+  from its passes, `base.passes`: the compositor's rebuild, exact for albedo edits of diffuse surfaces; on a keyframe
+  shot's frames without the light passes, from the base's own shading, `base.shading`; a ratio where
   only the light changed, exact for a light edit of every lamp) where only albedo or the light changed, tier 1's where
   roughness, metallic or normal changed (the glossy change no rebuild from passes makes; not where a surface was only
   made glossier, `difference.sharpened`), when the render runs tier 1 (auto with the tier-1 net, or forced); a forced
@@ -17,6 +18,7 @@ that the writers' division by the same scale gives the base's float32 values bac
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import TYPE_CHECKING, Callable
 
@@ -35,9 +37,11 @@ from x2video.base.difference import (
     relit_metal,
     sharpened,
 )
-from x2video.base.fill import FillConfig, fill_frame
+from x2video.base.fill import FillConfig, FillResult, demodulated, fill_frame
 from x2video.base.keyframes import only_keyframes, reference_keyframes
 from x2video.base.passes import rebuild
+from x2video.base.shading import ShadedShot, supplies_irradiance
+from x2video.io.cache import LRU
 from x2video.render.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted
 from x2video.tiers.base import RenderPlan, TierChoice
 
@@ -132,20 +136,35 @@ class BaseFrames:
     def __init__(self, shot: Shot, cfg: FillConfig = FillConfig()) -> None:
         self.shot, self.cfg = shot, cfg
         self.scale = float(shot.info.irradiance_scale)
-        self._shading: dict[int, np.ndarray] = {}
+        self._shading: dict[int, np.ndarray] = {}  # keyframe -> its demodulated shading (the fill's cache)
+        self._fills = LRU(4)  # the last frames filled: a frame's base and its irradiance (`irradiance`) fill it once
         #: frame -> fraction of its pixels that no keyframe saw (filled frames only)
         self.holes: dict[int, float] = {}
+
+    def _fill(self, t: int) -> FillResult:
+        res = self._fills.get_or(t, lambda: fill_frame(self.shot, t, self.cfg, shading=self._shading))
+        self.holes[t] = res.holes
+        return res
 
     def input_units(self, t: int) -> np.ndarray:
         """(H, W, 3) float32 base of frame t in the shot's rgb units."""
         if self.shot.has_rgb(t):
             return self.shot.channel("rgb", t)
-        res = fill_frame(self.shot, t, self.cfg, shading=self._shading)
-        self.holes[t] = res.holes
-        return res.rgb
+        return self._fill(t).rgb
 
     def __call__(self, t: int) -> np.ndarray:
         return self.input_units(t).astype(np.float64) * self.scale
+
+    def irradiance(self, t: int) -> np.ndarray:
+        """(H, W, 3) float32 the base's shading of frame t as irradiance (times the shot's irradiance_scale): the fill's
+        demodulated shading between keyframes, a keyframe's own (rgb - emission) / albedo (`base.shading`)."""
+        if self.shot.has_rgb(t):
+            if t not in self._shading:
+                self._shading[t] = demodulated(self.shot, t, self.cfg)
+            shading = self._shading[t]
+        else:
+            shading = self._fill(t).shading
+        return (shading * np.float32(self.scale)).astype(np.float32)
 
 
 def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameConditioning, *, glossy_tier: bool,
@@ -191,7 +210,10 @@ def render_over_base(job: RenderJob, tier: Tier | None, emit: Emit, cancel: Canc
 
     shot = job.shot
     bases = BaseFrames(shot)
-    original = frame_conditioning(shot, None)
+    if supplies_irradiance(shot):  # a keyframe shot's frames without irradiance take the base's shading (base.shading)
+        shaded = ShadedShot(shot, bases.irradiance)
+        job = dataclasses.replace(job, shot=shaded, conditioning=job.clock.wrap("read", frame_conditioning(shaded, job.edits)))
+    original = frame_conditioning(job.shot, None)
     generative = tier is not None and not tier.per_frame
     glossy = tier is not None and tier.name != "formula" and job.model is not None and getattr(job.model, "residual_net", None) is not None
     residual = _residual_fn(job) if glossy else None
