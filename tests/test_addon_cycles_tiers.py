@@ -5,7 +5,9 @@
   Combined bit for bit outside the edit's reach;
 - issue 51: a keyframe clip is filled under every quality the registry offers (keyframes the shot's rgb, frames
   between filled from them, nearer the path-traced truth than either keyframe), every tier runs over that base with an
-  edit, and the learned fill (fill tier 1) trains one step on the same clip rendered in full and fills the clip.
+  edit, and the learned fill (fill tier 1) trains one step on the same clip rendered in full and fills the clip;
+- both: an albedo edit of that clip under tier 0 is the compositor's rebuild on its keyframes (their light passes,
+  read there) and the fill + (new albedo - old albedo) x the filled shading on the frames between.
 """
 from __future__ import annotations
 
@@ -143,7 +145,9 @@ def test_keyframe_clip_is_filled_under_every_quality_and_every_tier_renders_over
     edits, slab = slab_edit(keyed_dir), object_id(keyed_dir, "slab")
     for quality in qualities():
         started, modes, frames = render(keyed, RenderSettings(quality=quality, steps=2, engine="torch"), edits, model)
-        assert started.tier == quality or quality == "auto", (quality, started.tier)  # auto: diffusion today (no irradiance, below)
+        assert started.tier == quality or quality == "auto", (quality, started.tier)
+        if quality == "auto":  # irradiance is on the keyframes only; the base supplies it between: nothing to generate
+            assert started.tier != "diffusion" and "irradiance missing" not in started.reason, started
         for t in range(5):
             assert np.isfinite(frames[t]).all(), (quality, t)
             reach = grow(keyed.channel("ids", t)[..., 0] == slab, SPILL_MARGIN)
@@ -152,17 +156,46 @@ def test_keyframe_clip_is_filled_under_every_quality_and_every_tier_renders_over
                 assert np.abs(frames[t][reach] - fill[t][reach]).max() > 1e-3, (quality, t)
 
 
-@pytest.mark.xfail(strict=True, reason="a keyframe shot's light passes (DiffDir, DiffInd, DiffCol) are keyframe-only, so the"
-                   " loader offers them on no frame and tier 0's rebuild has no irradiance: a forced formula (or residual) render"
-                   " leaves an albedo edit out, on the keyframes too")
 def test_tier_0_recolours_the_slab_on_a_keyframe_shots_keyframes(clip):
+    """The keyframes carry their light passes (DiffDir, DiffInd, DiffCol): the compositor's rebuild there, as on a shot
+    rendered in full."""
     keyed_dir, _ = clip
     keyed = load_shot(keyed_dir)
-    started, _, frames = render(keyed, RenderSettings(quality="formula"), slab_edit(keyed_dir))
+    started, modes, frames = render(keyed, RenderSettings(quality="formula"), slab_edit(keyed_dir))
+    assert started.tier == "formula" and modes == {"formula"}, (started, modes)
     slab = object_id(keyed_dir, "slab")
     for t in KEYS:
         on = keyed.channel("ids", t)[..., 0] == slab
         assert np.abs(frames[t][on] - keyed.channel("rgb", t)[on]).max() > 1e-3, f"keyframe {t}: the edit changed nothing"
+        exr = keyed_dir / f"frame_{t:04d}.exr"
+        combined, diffcol = planes(exr, "Combined"), planes(exr, "DiffCol")
+        light = planes(exr, "DiffDir") + planes(exr, "DiffInd")
+        want = np.maximum(combined - diffcol * light + np.asarray(RED) * light, 0.0)
+        np.testing.assert_allclose(frames[t][on].astype(np.float64), want[on], rtol=1e-5, atol=1e-5, err_msg=f"keyframe {t}")
+
+
+def test_tier_0_recolours_the_slab_on_the_filled_frames(clip):
+    """Between keyframes no light pass exists: the fill's shading is the light, so the slab moves by (new albedo - old
+    albedo) x the filled shading, and pixels outside the edit's reach stay the fill bit for bit."""
+    from x2video.base.fill import fill_frame
+
+    keyed_dir, _ = clip
+    keyed = load_shot(keyed_dir)
+    started, modes, frames = render(keyed, RenderSettings(quality="formula"), slab_edit(keyed_dir))
+    assert "the base's shading" in started.reason, started.reason
+    slab = object_id(keyed_dir, "slab")
+    for t in BETWEEN:
+        fill = fill_frame(keyed, t)
+        assert fill.shading is not None
+        on = keyed.channel("ids", t)[..., 0] == slab
+        reach = grow(on, SPILL_MARGIN)
+        assert on.sum() >= 50 and (~reach).sum() > on.size // 2, (t, on.sum())
+        np.testing.assert_array_equal(frames[t][~reach], fill.rgb[~reach], err_msg=f"frame {t} outside the edit")
+        albedo = np.clip(keyed.channel("albedo", t).astype(np.float64), 0, 1)
+        want = np.maximum(fill.rgb + (np.asarray(RED) - albedo) * fill.shading, 0.0)
+        np.testing.assert_allclose(frames[t][on].astype(np.float64), want[on], rtol=1e-5, atol=1e-5, err_msg=f"frame {t} inside")
+        r, b = frames[t][on].mean(0)[[0, 2]], fill.rgb[on].mean(0)[[0, 2]]
+        assert r[0] > b[0] + 0.05 and r[1] < b[1] - 0.05, (t, r, b)  # redder, less blue than the filled slab
 
 
 def test_learned_fill_trains_a_step_on_the_clip_and_fills_it(clip, tmp_path, capsys):

@@ -255,10 +255,14 @@ def test_addon_keyframe_shot_loads_with_rgb_on_keyframes_only(tmp_path, runner):
     assert shot.keyframes == (0, 2, 4) and [shot.has_rgb(t) for t in range(5)] == [True, False, True, False, True]
     assert {"albedo", "normal", "roughness", "metallic", "ids", "depth", "emission", "rgb"} <= set(shot.channels)
     # the light passes (irradiance, and the Cycles colour/glossy passes the base stage's differences use) are
-    # rendered on keyframes only, so the loader offers them on no frame
+    # rendered on keyframes only: not the shot's channels, offered on the keyframes
     keyframe_only = set(shot.info.extra["keyframe_only"])
     assert keyframe_only == {"irradiance", "diffuse_color", "glossy"}, keyframe_only
     assert not keyframe_only & set(shot.channels)
+    assert shot.info.channel_frames == {c: (0, 2, 4) for c in keyframe_only}
+    assert shot.has("irradiance", 2) and not shot.has("irradiance", 1) and shot.channel("irradiance", 2).max() > 0
+    with pytest.raises(KeyError, match="frame 1 has no glossy"):
+        shot.channel("glossy", 1)
     with pytest.raises(KeyError, match="frame 1 has no rgb"):
         shot.channel("rgb", 1)
     lamp, slab = object_id(out, "lamp"), object_id(out, "slab")

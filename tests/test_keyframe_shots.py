@@ -65,6 +65,25 @@ def test_keyframes_found_from_the_frames_that_carry_combined(tmp_path):
         shot.channel("rgb", 3)
 
 
+def test_light_passes_of_the_keyframes_are_read_on_the_keyframes(tmp_path):
+    """DiffDir + DiffInd exist on the keyframes only: irradiance is offered there (`has(name, t)`, `channel_frames`),
+    exposure-normalised once per shot from those frames, and reading it between them is a KeyError naming the frame."""
+    write_keyframe_shot(tmp_path / "shot")
+    shot = load_shot(tmp_path / "shot")
+    assert shot.info.channel_frames == {"irradiance": (0, 2, 4)} and shot.frames_with("irradiance") == (0, 2, 4)
+    assert [shot.has("irradiance", t) for t in range(5)] == [True, False, True, False, True]
+    assert not shot.has("irradiance") and shot.has("albedo", 3) and not shot.has("rgb", 3) and shot.has("rgb", 4)
+    scale = shot.info.irradiance_scale
+    assert scale != pytest.approx(1.0)  # measured on the keyframes' light
+    for t in (0, 2, 4):
+        np.testing.assert_allclose(shot.channel("irradiance", t), (40.0 + t) * 1.25 * scale, rtol=1e-5)
+        assert set(shot.frame(t, ("irradiance", "rgb", "albedo"))) == {"irradiance", "rgb", "albedo"}
+    with pytest.raises(KeyError, match=r"frame 3 has no irradiance \(only frames 0, 2, 4 carry it\)"):
+        shot.channel("irradiance", 3)
+    assert set(shot.frame(3, ("irradiance", "rgb", "albedo"))) == {"albedo"}
+    assert "irradiance" not in shot.frame(2)  # a frame's default channels are those every frame carries (and its rgb)
+
+
 def test_emission_keeps_rgb_units_when_irradiance_is_normalised(tmp_path):
     """Every frame a keyframe: irradiance is normalised once per shot, rgb and emission stay in the file's units, so
     that rgb - emission is the reflected light."""
@@ -95,6 +114,8 @@ def test_info_names_the_keyframes(tmp_path, capsys):
     assert cli(["info", str(tmp_path / "shot")]) == 0
     out = capsys.readouterr().out
     assert "keyframes: 0, 2, 4 (3 of 5 frames carry rgb)" in out
-    assert "irradiance is on the keyframes only" in out
+    assert "irradiance is on the keyframes only: read there" in out
     assert cli(["info", str(tmp_path / "shot"), "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["keyframes"] == [0, 2, 4]
+    report = json.loads(capsys.readouterr().out)
+    assert report["keyframes"] == [0, 2, 4] and report["channel_frames"] == {"irradiance": [0, 2, 4]}
+    assert report["ranges"]["irradiance"][0] > 0  # scanned on the keyframes

@@ -2,7 +2,9 @@
 
 A shot never holds all its frames: `frame(t)` / `channel(name, t)` read from the source
 each time (loaders may keep a small LRU cache). Missing channels are simply absent from
-`channels`; the model treats them as dropped.
+`channels`; the model treats them as dropped. A channel that only some frames carry (a keyframe shot's light passes,
+path-traced with its rgb on the keyframes only) is not in `channels` but in `ShotInfo.channel_frames`: read on those
+frames, a KeyError naming channel and frame elsewhere (`has(name, t)` says which).
 """
 from __future__ import annotations
 
@@ -46,6 +48,10 @@ class ShotInfo:
     #: the frames that carry path-traced rgb (keyframes: Cycles rendered 1 frame in N, the rest are G-buffers
     #: only), sorted; None when every frame of a shot with an rgb channel carries it
     rgb_frames: tuple[int, ...] | None = None
+    #: channels that only some frames carry, each with those frames (sorted): a keyframe shot's light passes
+    #: (irradiance, diffuse_color, glossy), rendered with its rgb. Not in `channels`, which every frame carries (rgb
+    #: aside: `rgb_frames`)
+    channel_frames: dict[str, tuple[int, ...]] = field(default_factory=dict)
 
 
 class Shot(ABC):
@@ -70,8 +76,22 @@ class Shot(ABC):
     def channels(self) -> tuple[str, ...]:
         return self.info.channels
 
-    def has(self, name: str) -> bool:
-        return name in self.info.channels
+    def has(self, name: str, t: int | None = None) -> bool:
+        """The shot has channel `name` (on every frame, rgb on some: `has_rgb`); with `t`, frame t carries it (a channel
+        of `ShotInfo.channel_frames` on its frames too)."""
+        if t is None:
+            return name in self.info.channels
+        if name == "rgb":
+            return self.has_rgb(t)
+        return name in self.info.channels or t in self.info.channel_frames.get(name, ())
+
+    def frames_with(self, name: str) -> tuple[int, ...]:
+        """The frames that carry channel `name`, in order (every frame, the keyframes for rgb, none for a channel it lacks)."""
+        if name == "rgb":
+            return self.keyframes
+        if name in self.info.channels:
+            return tuple(range(self.num_frames))
+        return tuple(self.info.channel_frames.get(name, ()))
 
     def has_rgb(self, t: int) -> bool:
         """Frame t carries the shot's own path-traced rgb (every frame of a shot with rgb, or a keyframe)."""
@@ -88,19 +108,22 @@ class Shot(ABC):
 
     def channel(self, name: str, t: int) -> np.ndarray:
         """One channel of frame t: float32 (H, W, C) (int32 for ids), in the convention of docs/ARCHITECTURE.md."""
-        if name not in self.info.channels:
+        some = self.info.channel_frames.get(name)
+        if name not in self.info.channels and some is None:
             raise KeyError(f"shot {self.info.source!r} has no channel {name!r} (has {', '.join(self.info.channels)})")
         if not 0 <= t < self.info.num_frames:
             raise IndexError(f"frame {t} outside shot {self.info.source!r} of {self.info.num_frames} frames")
         if name == "rgb" and not self.has_rgb(t):
             raise KeyError(f"shot {self.info.source!r}: frame {t} has no rgb (keyframes: {_frames_text(self.keyframes)})")
+        if some is not None and name not in self.info.channels and t not in some:
+            raise KeyError(f"shot {self.info.source!r}: frame {t} has no {name} (only frames {_frames_text(some)} carry it)")
         return self._read(name, t)
 
     def frame(self, t: int, names: tuple[str, ...] | None = None) -> dict[str, np.ndarray]:
-        """All (or the named, present) channels of frame t; rgb only where frame t carries it (`has_rgb`)."""
-        names = self.info.channels if names is None else tuple(n for n in names if n in self.info.channels)
-        names = tuple(n for n in names if n != "rgb" or self.has_rgb(t))
-        return {n: self.channel(n, t) for n in names}
+        """The shot's channels of frame t (`channels`; rgb only where frame t carries it, `has_rgb`), or those of `names`
+        that frame t carries (a channel of `ShotInfo.channel_frames` on its frames)."""
+        names = self.info.channels if names is None else names
+        return {n: self.channel(n, t) for n in names if self.has(n, t)}
 
     def __iter__(self) -> Iterator[dict[str, np.ndarray]]:
         for t in range(self.info.num_frames):

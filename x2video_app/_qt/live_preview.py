@@ -131,7 +131,7 @@ class LivePreview(QObject):
             return None
         from x2video.render.live import preview_choice
 
-        return preview_choice(settings.quality, self.doc.shot, self.doc.edits, model)
+        return preview_choice(settings.quality, self.doc.shot, self.doc.edits, model, settings.base)
 
     def ask(self, final: bool) -> bool:
         """Submit frame on screen under the current edits (a preview, or `final`: its full quality); False when it waits."""

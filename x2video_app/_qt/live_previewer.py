@@ -119,7 +119,7 @@ class LivePreviewer(QObject):
     def _run(self, req: LiveRequest, newest: int, token: CancelToken | None) -> LiveResult:
         from x2video.render.live import preview_choice, render_frame  # torch: loaded by the model build already
 
-        choice = req.choice if req.choice is not None else preview_choice(req.settings.quality, req.shot, req.edits, req.model)
+        choice = req.choice if req.choice is not None else preview_choice(req.settings.quality, req.shot, req.edits, req.model, req.settings.base)
         full = req.final and choice.full is not None and not choice.same
         settings = req.settings if full else dataclasses.replace(req.settings, quality=choice.preview.tier)
         _QUIET.local.on = True

@@ -9,6 +9,9 @@ distance in time and their validity. A pixel that no keyframe sees (a surface un
 frame's own irradiance where the shot has it (the diffuse light, in the rgb's units), else the shading spread in
 from the pixels around it (normalised convolution): `FillResult.holes` says how many pixels that was.
 
+`BaseFrames` is a render's base frame by frame in the model's exposure: the shot's rgb where a frame carries it, else
+its fill, and the shading under either (`irradiance`, for `base.shading`).
+
 `fill_inputs` gives what the fill of a frame is made of as arrays (the warped keyframes, their validity, the time
 weights, the blended shading); the learned fill (`base.learned`, tier 1) corrects that shading with a network.
 
@@ -23,6 +26,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from x2video.base.camera import View, project, unproject, world_normals
+from x2video.io.cache import LRU
 from x2video.shot import Shot
 
 if TYPE_CHECKING:
@@ -52,6 +56,9 @@ class FillResult:
     holes: float
     #: how pixels were carried: "depth" (reprojection by depth and camera) or "flow" (optical flow on G-buffers)
     method: str
+    #: (H, W, 3) the demodulated shading it modulated by the frame's albedo (rgb = shading x albedo + emission), in
+    #: rgb's units; None on a keyframe (its rgb is its own)
+    shading: np.ndarray | None = None
 
 
 def nearest_keyframes(t: int, keyframes: Sequence[int]) -> tuple[int, ...]:
@@ -196,15 +203,52 @@ def fill_frame(shot: Shot, t: int, cfg: FillConfig = FillConfig(), keyframes: Se
         return FillResult(shot.channel("rgb", t), 0.0, "keyframe")
     inputs = fill_inputs(shot, t, cfg, keys, shading)
     out = inputs.shading if learned is None else learned.shading(shot, t, inputs, cfg)
-    return FillResult(modulated(shot, t, out, cfg), float(inputs.holes.mean()), inputs.method)
+    return FillResult(modulated(shot, t, out, cfg), float(inputs.holes.mean()), inputs.method, out)
 
 
 def _fill_holes(shot: Shot, t: int, shading: np.ndarray, holes: np.ndarray) -> np.ndarray:
-    """Shading where no keyframe saw the surface: the frame's irradiance in the rgb's units, else spread in from the
-    shading around (`base.difference.spread_into`)."""
-    if shot.has("irradiance"):
+    """Shading where no keyframe saw the surface: the frame's irradiance in the rgb's units where it carries it, else
+    spread in from the shading around (`base.difference.spread_into`)."""
+    if shot.has("irradiance", t):
         irr = shot.channel("irradiance", t) / max(shot.info.irradiance_scale, 1e-12)
         return np.where(holes[..., None], irr, shading).astype(np.float32)
     from x2video.base.difference import spread_into
 
     return spread_into(shading, holes)
+
+
+class BaseFrames:
+    """Frame t's base in the model's exposure (float64): the shot's rgb, or the fill between its keyframes."""
+
+    def __init__(self, shot: Shot, cfg: FillConfig = FillConfig()) -> None:
+        self.shot, self.cfg = shot, cfg
+        self.scale = float(shot.info.irradiance_scale)
+        self._shading: dict[int, np.ndarray] = {}  # keyframe -> its demodulated shading (the fill's cache)
+        self._fills = LRU(4)  # the last frames filled: a frame's base and its irradiance (`irradiance`) fill it once
+        #: frame -> fraction of its pixels that no keyframe saw (filled frames only)
+        self.holes: dict[int, float] = {}
+
+    def _fill(self, t: int) -> FillResult:
+        res = self._fills.get_or(t, lambda: fill_frame(self.shot, t, self.cfg, shading=self._shading))
+        self.holes[t] = res.holes
+        return res
+
+    def input_units(self, t: int) -> np.ndarray:
+        """(H, W, 3) float32 base of frame t in the shot's rgb units."""
+        if self.shot.has_rgb(t):
+            return self.shot.channel("rgb", t)
+        return self._fill(t).rgb
+
+    def __call__(self, t: int) -> np.ndarray:
+        return self.input_units(t).astype(np.float64) * self.scale
+
+    def irradiance(self, t: int) -> np.ndarray:
+        """(H, W, 3) float32 the base's shading of frame t as irradiance (times the shot's irradiance_scale): the fill's
+        demodulated shading between keyframes, a keyframe's own (rgb - emission) / albedo (`base.shading`)."""
+        if self.shot.has_rgb(t):
+            if t not in self._shading:
+                self._shading[t] = demodulated(self.shot, t, self.cfg)
+            shading = self._shading[t]
+        else:
+            shading = self._fill(t).shading
+        return (shading * np.float32(self.scale)).astype(np.float32)

@@ -1,7 +1,9 @@
-"""The plan of a render, settled once before any pixel is read (`make_plan`): whether the frames go over the shot's own
-path-traced rgb (the base, `x2video.base.stage`), whether a tier must run at all and which (`base_choice`, else
-`x2video.tiers.registry.decide`), the order the frames are made in (`base_order`), and the frames' conditioning,
-edited and unedited, with the user's reference for a tier that reads one.
+"""The plan of a render, settled once before any frame is made (`make_plan`): whether the frames go over the shot's own
+path-traced rgb (the base, `x2video.base.stage`: its frames `base.fill.BaseFrames`), whether a tier must run at all
+and which (`base_choice`, `fill_choice`, else `x2video.tiers.registry.decide`), the order the frames are made in
+(`base_order`), the shot as the tiers read it (over the base, a keyframe shot's irradiance supplied by the base's
+shading: `base.shading`), and the frames' conditioning, edited and unedited, with the user's reference for a tier
+that reads one.
 
 The Renderer keyframes the shot (`x2video.base.keyframes.keyframed`), takes its frame range, makes the plan, and
 hands it to `x2video.base.stage.render`, which hands `Plan.job` to the tier: the shot goes forward through the
@@ -13,7 +15,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from x2video.base.fill import BaseFrames
 from x2video.base.keyframes import keyframed, reference_keyframes
+from x2video.base.shading import ShadedShot, supplies_irradiance
 from x2video.base.stage import BASE, Plan
 from x2video.conditioning.edited import frame_conditioning, resolve_reference
 from x2video.tiers import registry
@@ -42,18 +46,21 @@ def make_plan(shot: Shot, edits: Edits | None, settings: RenderSettings, model: 
     over_base = uses_base(shot, settings) and not filled
     reason = "" if choice is not None or not over_base else f"; over the shot's path-traced frames ({keys_text(shot)})"
     order = base_order(shot, *frames) if over_base else []
+    bases = BaseFrames(shot) if over_base else None
+    supplied = bases is not None and supplies_irradiance(shot)  # over the base, irradiance where the shot lacks it
+    rendered = ShadedShot(shot, bases.irradiance) if bases is not None and supplied else shot  # the shot as the tiers read it
     if choice is None:
-        choice = registry.decide(settings.quality, shot, edits, model)
+        choice = registry.decide_supplied(settings.quality, shot, edits, model, ("irradiance",) if supplied else ())
     tier = None if choice.tier == BASE else registry.get(choice.tier)
     why_not = tier.available(model) if filled and tier is not None else None  # (`registry.decide` asks the tiers it decides)
     if why_not is not None:
         raise ValueError(why_not)
+    conditioning = frame_conditioning(rendered, edits)
+    original = frame_conditioning(rendered, None) if over_base else None
     reference = resolve_reference(shot, edits, base_dir) if edits is not None and tier is not None and tier.reads_reference else None
-    conditioning = frame_conditioning(shot, edits)
-    original = frame_conditioning(shot, None) if over_base else None
-    job = RenderJob(shot=shot, edits=edits, settings=settings, choice=choice, model=model, conditioning=clock.wrap("read", conditioning),
+    job = RenderJob(shot=rendered, edits=edits, settings=settings, choice=choice, model=model, conditioning=clock.wrap("read", conditioning),
                     frames=frames, cache=cache, retain=retain, clock=clock, base_dir=base_dir, reference=reference, stats=stats)
-    return Plan(job, tier, over_base, order, original, choice.reason + reason)
+    return Plan(job, tier, over_base, order, bases, original, choice.reason + reason)
 
 
 def base_available(shot: Shot) -> bool:

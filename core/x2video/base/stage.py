@@ -4,7 +4,8 @@ only what an edit changes (DESIGN.md, "Path-traced pixels first").
 - No edit reaches a frame: the frame is the base (the shot's rgb, or on a keyframe shot the fill from its nearest
   keyframes, `base.fill`), and no tier runs.
 - An edit reaches it: per pixel, the base plus a tier's difference (`base.difference`): tier 0's (the frame rebuilt
-  from its passes, `base.passes`: the compositor's rebuild, exact for albedo edits of diffuse surfaces; a ratio where
+  from its passes, `base.passes`: the compositor's rebuild, exact for albedo edits of diffuse surfaces; on a keyframe
+  shot's frames without the light passes, from the base's own shading, `base.shading`; a ratio where
   only the light changed, exact for a light edit of every lamp) where only albedo or the light changed, tier 1's where
   roughness, metallic or normal changed (the glossy change no rebuild from passes makes; not where a surface was only
   made glossier, `difference.sharpened`), when the render runs tier 1 (auto with the tier-1 net, or forced); a forced
@@ -40,14 +41,13 @@ from x2video.base.difference import (
     relit_metal,
     sharpened,
 )
-from x2video.base.fill import FillConfig, fill_frame
+from x2video.base.fill import BaseFrames
 from x2video.base.passes import rebuild
 from x2video.render.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted
 from x2video.tiers.base import PerFrameTier
 
 if TYPE_CHECKING:
     from x2video.conditioning.frame import Conditioning, FrameConditioning
-    from x2video.shot import Shot
     from x2video.tiers.base import Emit, RenderJob, Tier
 
 
@@ -57,15 +57,16 @@ BASE = "base"
 
 @dataclass(frozen=True)
 class Plan:
-    """One render, decided before any pixel is read (`x2video.base.plan.make_plan`): `job` is what the tier reads
+    """One render, decided before any frame is made (`x2video.base.plan.make_plan`): `job` is what the tier reads
     (`RenderJob`), `tier` the tier that runs (None: no tier, every frame is the base). Over the base (`over_base`), the
-    frames are made in `order`, each edited frame against its unedited conditioning `original`, and `RenderStarted`
-    says `reason`."""
+    frames are made in `order`, each the base frame `bases(t)`, or with an edit against its unedited conditioning
+    `original`, and `RenderStarted` says `reason`."""
 
     job: RenderJob
     tier: Tier | None
     over_base: bool
     order: list[int]
+    bases: BaseFrames | None
     original: Conditioning | None
     reason: str
 
@@ -80,28 +81,6 @@ def render(plan: Plan, emit: Emit, cancel: CancelToken | None, done: set[int]) -
     if plan.tier is None:
         raise ValueError(f"no tier to render shot {plan.job.shot.info.source!r}: it has no path-traced frames to be the base")
     plan.tier.render(plan.job, emit, cancel, done)
-
-
-class BaseFrames:
-    """Frame t's base in the model's exposure (float64): the shot's rgb, or the fill between its keyframes."""
-
-    def __init__(self, shot: Shot, cfg: FillConfig = FillConfig()) -> None:
-        self.shot, self.cfg = shot, cfg
-        self.scale = float(shot.info.irradiance_scale)
-        self._shading: dict[int, np.ndarray] = {}
-        #: frame -> fraction of its pixels that no keyframe saw (filled frames only)
-        self.holes: dict[int, float] = {}
-
-    def input_units(self, t: int) -> np.ndarray:
-        """(H, W, 3) float32 base of frame t in the shot's rgb units."""
-        if self.shot.has_rgb(t):
-            return self.shot.channel("rgb", t)
-        res = fill_frame(self.shot, t, self.cfg, shading=self._shading)
-        self.holes[t] = res.holes
-        return res.rgb
-
-    def __call__(self, t: int) -> np.ndarray:
-        return self.input_units(t).astype(np.float64) * self.scale
 
 
 def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameConditioning, *, glossy_tier: bool,
@@ -143,9 +122,8 @@ def render_over_base(plan: Plan, emit: Emit, cancel: CancelToken | None, done: s
     """Render the plan's job over the shot's base: every frame the base where no edit reaches it, else base + the tiers'
     differences (per-frame tiers) or the tier's frame inside the edit's reach (a generative tier); emits the events
     every tier emits (RenderStarted, FramesReady) in `Plan.order`, a few frames per batch, one event per mode in a batch."""
-    job, tier, original, order = plan.job, plan.tier, plan.original, plan.order
-    assert original is not None
-    bases = BaseFrames(job.shot)
+    job, tier, bases, original, order = plan.job, plan.tier, plan.bases, plan.original, plan.order
+    assert bases is not None and original is not None
     if tier is not None and not tier.per_frame:
         _generative_over_base(job, tier, bases, original, emit, cancel, done)
         return

@@ -39,8 +39,8 @@ def inspect(path: Path, frames: int = 8, progress: Any = None) -> dict[str, Any]
         ts = list(range(n)) if frames <= 0 or frames >= n else sorted({int(round(v)) for v in np.linspace(0, n - 1, frames)})
         ranges: dict[str, list[float]] = {}
         for i, t in enumerate(ts):
-            for c in shot.channels:
-                if c == "rgb" and not shot.has_rgb(t):  # a keyframe shot's G-buffer frame
+            for c in (*shot.channels, *shot.info.channel_frames):
+                if not shot.has(c, t):  # a keyframe shot's G-buffer frame: no rgb, no light passes
                     continue
                 try:
                     a = shot.channel(c, t)
@@ -60,7 +60,7 @@ def inspect(path: Path, frames: int = 8, progress: Any = None) -> dict[str, Any]
         problems += [str(w.message) for w in caught]
     missing = [c for c in INTRINSIC if c not in shot.channels]
     info = shot.info
-    notes += [f"{c} is on the keyframes only: left out (the frames between hold G-buffer passes)" for c in info.extra.get("keyframe_only", [])]
+    notes += [partial_note(c, frames, shot.keyframes) for c, frames in info.channel_frames.items()]
     return {
         "path": str(path),
         "format": fmt,
@@ -73,6 +73,7 @@ def inspect(path: Path, frames: int = 8, progress: Any = None) -> dict[str, Any]
         "motion": bool(getattr(shot, "_motion", None)),
         "poses": info.poses is not None,
         "keyframes": None if info.rgb_frames is None else list(info.rgb_frames),
+        "channel_frames": {c: list(frames) for c, frames in info.channel_frames.items()},
         "irradiance_scale": info.irradiance_scale,
         "caption": info.caption,
         "objects": {str(k): v for k, v in info.object_captions.items()},
@@ -81,6 +82,15 @@ def inspect(path: Path, frames: int = 8, progress: Any = None) -> dict[str, Any]
         "problems": problems,
         "notes": notes,
     }
+
+
+def partial_note(channel: str, frames: tuple[int, ...], keyframes: tuple[int, ...], most: int = 12) -> str:
+    """'irradiance is on the keyframes only: read there (the frames between hold G-buffer passes)', for a channel that
+    only `frames` carry (`ShotInfo.channel_frames`)."""
+    if tuple(frames) == tuple(keyframes):
+        return f"{channel} is on the keyframes only: read there (the frames between hold G-buffer passes)"
+    listed = ", ".join(str(f) for f in frames[:most]) + (f", ... ({len(frames) - most} more)" if len(frames) > most else "")
+    return f"{channel} is on frames {listed} only ({len(frames)} frames): read there, missing on the others"
 
 
 def keyframes_line(keys: list[int], frames: int, most: int = 32) -> str:

@@ -70,12 +70,12 @@ def camera_view(shot: Shot, t: int) -> dict:
 
 
 def shot_passes(shot: Shot, t: int) -> dict[str, np.ndarray]:
-    """Frame `t`'s passes of `shot` (`FrameConditioning.passes`): those it has, the light ones times its
-    irradiance_scale (the model's exposure)."""
+    """Frame `t`'s passes of `shot` (`FrameConditioning.passes`): those frame `t` carries (a keyframe shot's
+    diffuse_color and glossy on its keyframes only), the light ones times its irradiance_scale (the model's exposure)."""
     scale = np.float32(shot.info.irradiance_scale)
     out = {}
     for name in PASSES:
-        if shot.has(name):
+        if shot.has(name, t):
             v = np.asarray(shot.channel(name, t), np.float32)
             out[name] = v * scale if name in LIGHT_PASSES and scale != 1 else v
     return out

@@ -39,6 +39,9 @@ ALIASES: dict[str, tuple[str, ...]] = {
 PACKED = {"material": {"roughness": 0, "metallic": 1}}
 #: at most this many frames (evenly spaced) are read to measure a shot's irradiance exposure
 EXPOSURE_SAMPLES = 16
+#: the path-traced light passes, which a keyframe shot (rgb/ with gaps) may hold on some frames only (its keyframes):
+#: their folders may have gaps there, and the frames that carry them are `ShotInfo.channel_frames`
+KEYFRAME_PASSES = ("irradiance", "diffuse_color", "glossy")
 
 
 #: DiffusionRenderer's G-buffer frames, all in one folder: ``<chunk>.<index>.<pass>.<ext>`` (its
@@ -127,8 +130,21 @@ class FolderShot(Shot):
                 f"{self.root}: no channel folders (expected some of {', '.join((*SPECS, 'motion'))}/ with numbered frames)"
             )
         keyed = folders.get("rgb") if len(folders) > 1 and not passes else None
-        self._frames: dict[str, list[Path]] = passes or {name: find_frames(d) for name, d in folders.items() if d is not keyed}
+        # the light passes may have gaps where rgb/ has (a keyframe shot), when another channel numbers the frames
+        light = [n for n in KEYFRAME_PASSES if keyed is not None and n in folders
+                 and any(m not in (*KEYFRAME_PASSES, "rgb", "motion") for m in folders)]
+        self._frames: dict[str, list[Path]] = passes or {name: find_frames(d) for name, d in folders.items()
+                                                         if d is not keyed and name not in light}
         rgb_frames = self._keyframes(keyed, meta) if keyed is not None else None
+        some: dict[str, tuple[int, ...]] = {}
+        for name in light:
+            if rgb_frames is not None and None in rgb_frames:
+                files = self._keyframes(folders[name], meta)
+                if None in files:
+                    some[name] = tuple(t for t, f in enumerate(files) if f is not None)
+                self._frames[name] = files  # type: ignore[assignment]  (None on frames without the pass)
+            else:  # rgb on every frame: so must the light be
+                self._frames[name] = find_frames(folders[name])
         #: channel -> component index, for channels read from a packed material folder
         self._packed = {name: PACKED[d.name.lower()][name] for name, d in folders.items() if d.name.lower() in PACKED}
         motion = self._frames.pop("motion", None)
@@ -152,7 +168,7 @@ class FolderShot(Shot):
         self._stamps = FileStamps([f for files in (*self._frames.values(), motion or []) for f in files if f is not None])
         h, w = self._check_headers(meta)
         poses = find_poses(self.root, n, (h, w))
-        order = tuple(c for c in SPECS if c in self._frames)
+        order = tuple(c for c in SPECS if c in self._frames and c not in some)
         self._cache = LRU(cache_size)
         self.info = ShotInfo(
             num_frames=n,
@@ -166,15 +182,19 @@ class FolderShot(Shot):
             source=str(self.root),
             extra=dict(meta.get("extra", {})),
             rgb_frames=None if rgb_frames is None else tuple(t for t, f in enumerate(rgb_frames) if f is not None),
+            channel_frames=some,
         )
+        if some:
+            self.info.extra["keyframe_only"] = sorted(some)
         if normalize_irradiance is None:
             normalize_irradiance = not meta.get("irradiance_normalized", False)
         if normalize_irradiance and "irradiance" in self._frames:
             self.info.irradiance_scale = self._measure_exposure()
 
     def _keyframes(self, folder: Path, meta: dict[str, Any]) -> list[Path | None]:
-        """rgb/'s files per frame, None where a frame has none (a keyframe shot): frame numbers line up with the first
-        other channel's (its first file is frame 0); a frame number outside the shot is an error naming the file."""
+        """The files of rgb/ (or a light pass's folder: `KEYFRAME_PASSES`) per frame, None where a frame has none (a
+        keyframe shot): frame numbers line up with the first other channel's (its first file is frame 0); a frame number
+        outside the shot is an error naming the file."""
         numbered = numbered_frames(folder)
         ref = next(iter(self._frames.values()))
         m = FRAME_RE.match(ref[0].name)
@@ -202,8 +222,9 @@ class FolderShot(Shot):
         return want
 
     def _measure_exposure(self) -> float:
-        n = self.info.num_frames
-        ts = sorted({int(round(i)) for i in np.linspace(0, n - 1, min(n, EXPOSURE_SAMPLES))})
+        lit = self.frames_with("irradiance")
+        n = len(lit)
+        ts = sorted({lit[int(round(i))] for i in np.linspace(0, n - 1, min(n, EXPOSURE_SAMPLES))})
         total, count = 0.0, 0
         for t in ts:
             s, c = log_luminance_sum(self._decode("irradiance", t, scale=1.0))

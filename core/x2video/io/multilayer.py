@@ -21,8 +21,10 @@ Blender's (``<ViewLayer>.<Pass>.<comp>``, short or long pass names):
 
 Keyframe shots (the add-on's keyframe export): only some frames carry Combined (the keyframes, listed in
 shot.json's ``keyframes``, else found from the frames' headers); the others hold G-buffer passes only.
-`ShotInfo.rgb_frames` names the keyframes, and a channel is the shot's only when every frame has it (a pass
-of the keyframes only, such as the light passes, is left out and named in ``extra["keyframe_only"]``).
+`ShotInfo.rgb_frames` names the keyframes, and a channel is in the shot's `channels` only when every frame has it; a
+pass that some frames lack, such as the keyframes' light passes, is offered on the frames that carry it
+(`ShotInfo.channel_frames`, `Shot.has(name, t)`) and named in ``extra["keyframe_only"]``. Irradiance on some frames
+only is exposure-normalised once per shot as on every frame, measured on the frames that carry it.
 """
 from __future__ import annotations
 
@@ -208,6 +210,7 @@ class MultilayerShot(Shot):
         self._sources = self._per_frame[rgb_frames[0] if rgb_frames else 0]
         self._motion_src = self._sources.get("motion")
         channels = tuple(c for c in SPECS if c in self._sources and c not in only_keys)
+        some = {c: tuple(t for t, m in enumerate(self._per_frame) if c in m) for c in SPECS if c in only_keys}
         if not channels:
             raise ValueError(f"{self._files[0]}: no known passes among channels {', '.join(tuple(spec.channelnames)[:12])}")
         poses = find_poses(folder, n, (spec.height, spec.width))
@@ -236,12 +239,14 @@ class MultilayerShot(Shot):
             source=str(p),
             extra=extra,
             rgb_frames=None if rgb_frames is None or len(rgb_frames) == n else tuple(rgb_frames),
+            channel_frames=some,
         )
         already = bool(spec.getattribute("x2video:irradiance_normalized") or meta.get("irradiance_normalized", False))
         if normalize_irradiance is None:
             normalize_irradiance = not already
-        if normalize_irradiance and "irradiance" in channels:
-            ts = sorted({int(round(i)) for i in np.linspace(0, n - 1, min(n, 16))})
+        lit = self.frames_with("irradiance")
+        if normalize_irradiance and lit:
+            ts = sorted({lit[int(round(i))] for i in np.linspace(0, len(lit) - 1, min(len(lit), 16))})
             total, count = 0.0, 0
             for t in ts:
                 s, c = log_luminance_sum(self._frame(t, scale=1.0, only=("irradiance",))["irradiance"])
@@ -278,7 +283,7 @@ class MultilayerShot(Shot):
         """Our channels of frame t (those in `only`, default all), reading only the EXR channels they come from
         (a Blender frame holds every light pass: `x2video.io.image.read_image`)."""
         path = self._files[t]
-        want = self.info.channels if only is None else only
+        want = (*self.info.channels, *self.info.channel_frames) if only is None else only
         sources = {ch: src for ch, src in self._per_frame[t].items() if ch in want and (ch != "rgb" or self.has_rgb(t))}
         img = self._stamps.read(path, f"frame {t}", channels=[n for src in sources.values() for n in src.names()], reader=read_image)
         if (img.height, img.width) != (self.info.height, self.info.width):

@@ -43,10 +43,11 @@ class LiveChoice:
         return self.full is not None and self.full.tier == self.preview.tier and not self.full.regions
 
 
-def preview_choice(quality: str, shot: Shot, edits: Edits | None, model: RenderModel | None) -> LiveChoice:
-    """The tiers of a live preview of `shot` under `edits` at `quality` on `model` (None: not built; the formula)."""
+def preview_choice(quality: str, shot: Shot, edits: Edits | None, model: RenderModel | None, base: str = "auto") -> LiveChoice:
+    """The tiers of a live preview of `shot` under `edits` at `quality` on `model` (None: not built; the formula);
+    `base`: the render's `RenderSettings.base`."""
     try:
-        full = tiers.decide(quality, shot, edits, model)
+        full = tiers.decide(quality, shot, edits, model, base)
     except ValueError as e:  # the render could not run this (no model, no tier-1 net): the formula needs neither
         return LiveChoice(TierChoice(tiers.FORMULA, f"the formula ({e})"), None)
     if tiers.get(full.tier).per_frame:

@@ -160,7 +160,7 @@ class Renderer:
     def choose_tier(self, shot: Shot, edits: Edits | None, settings: RenderSettings) -> TierChoice:
         """The tier a render of `shot` with `edits` (or None) and `settings` runs with this model, and why
         (`x2video.tiers.registry.decide`); read from the edits' structure, so it costs nothing."""
-        return registry.decide(settings.quality, shot, edits, self.model)
+        return registry.decide(settings.quality, shot, edits, self.model, settings.base)
 
     def render_plan(self, shot: Shot, edits: Edits | None, settings: RenderSettings, *, base_dir: str | Path | None = None) -> list[Window]:
         """The windows a windowed (diffusion) render of `shot` with `edits` and `settings` runs (anchored at the user's

@@ -207,8 +207,8 @@ class DiffusionRun:
         self.started = 0.0
 
     def given_image(self, t: int) -> np.ndarray:
-        """Keyframe t's path-traced frame in the model's exposure, float64 (`x2video.base.stage.BaseFrames`)."""
-        from x2video.base.stage import BaseFrames
+        """Keyframe t's path-traced frame in the model's exposure, float64 (`x2video.base.fill.BaseFrames`)."""
+        from x2video.base.fill import BaseFrames
 
         return BaseFrames(self.job.shot)(t)
 

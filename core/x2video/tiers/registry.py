@@ -14,9 +14,11 @@ force any tier. `plan_render` is the pure plan of a render: the editor and the f
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 from typing import TYPE_CHECKING, Sequence
 
+from x2video.base.shading import SUPPLIED_NOTE, supplies_irradiance
 from x2video.channels import INTRINSIC
 from x2video.render.settings import RenderSettings, check_pixel_bounds, frame_range
 from x2video.tiers.base import TIERS, RenderPlan, Tier, TierChoice
@@ -74,22 +76,40 @@ def needs_model(quality: str) -> bool:
     return quality == "auto" or get(quality).needs_model
 
 
-def dropped_channels(shot, edits) -> list[str]:
-    """The intrinsic channels the shot lacks or the edits drop, in `INTRINSIC` order."""
-    return [n for n in INTRINSIC if not shot.has(n) or (edits is not None and n in edits.dropped)]
+def dropped_channels(shot, edits, supplied: Sequence[str] = ()) -> list[str]:
+    """The intrinsic channels the shot lacks (on some frame) or the edits drop, in `INTRINSIC` order; `supplied`: channels
+    a render supplies where the shot lacks them (`supplied_channels`), which count as present unless dropped."""
+    return [n for n in INTRINSIC if (not shot.has(n) and n not in supplied) or (edits is not None and n in edits.dropped)]
 
 
-def decide(quality: str, shot: Shot, edits: Edits | None, model: RenderModel | None) -> TierChoice:
+def supplied_channels(shot, base: str = "auto") -> tuple[str, ...]:
+    """The channels a render of `shot` with `RenderSettings.base` = `base` supplies where the shot lacks them: irradiance
+    on a keyframe shot's frames without it, from the base's shading, when the render goes over the base
+    (`x2video.base.shading`)."""
+    return ("irradiance",) if base == "auto" and supplies_irradiance(shot) else ()
+
+
+def decide(quality: str, shot: Shot, edits: Edits | None, model: RenderModel | None, base: str = "auto") -> TierChoice:
     """The tier a render of `shot` with `edits` (or None) runs on `model` (None: no model) at `quality`: `choose_tier`
     given `generation_reasons`, the channels missing, the model's tier-1 net and its record; ValueError when the tier
-    cannot run with `model` (`Tier.available`). The Renderer, its `prepare` and `plan_render` all ask here."""
-    reasons, only_regions = generation_reasons(shot, edits)
+    cannot run with `model` (`Tier.available`). `base`: the render's `RenderSettings.base` (over the base, a keyframe
+    shot's irradiance is supplied where it lacks it: `supplied_channels`). The Renderer, its `prepare` and
+    `plan_render` all ask here."""
+    return decide_supplied(quality, shot, edits, model, supplied_channels(shot, base))
+
+
+def decide_supplied(quality: str, shot: Shot, edits: Edits | None, model: RenderModel | None, supplied: Sequence[str] = ()) -> TierChoice:
+    """`decide`, told which channels the render supplies where the shot lacks them (`supplied_channels`): what a render's
+    plan asks, which knows whether the render goes over the base (`x2video.base.plan`)."""
+    reasons, only_regions = generation_reasons(shot, edits, supplied)
     choice = choose_tier(quality, reasons, only_regions, model is not None and model.residual_net is not None,
                          "" if edits is None else edits.global_prompt, residual_trusted=model is None or bool(model.residual_auto),
-                         dropped=dropped_channels(shot, edits))
+                         dropped=dropped_channels(shot, edits, supplied))
     why_not = get(choice.tier).available(model)
     if why_not is not None:
         raise ValueError(why_not)
+    if supplied and (edits is None or "irradiance" not in edits.dropped):
+        choice = dataclasses.replace(choice, reason=f"{choice.reason}; {SUPPLIED_NOTE}")
     return choice
 
 
@@ -98,7 +118,7 @@ def plan_render(shot: Shot, edits: Edits | None, settings: RenderSettings, model
     windowed tier its windows and steps. Pure: read from the edits' structure and the settings, nothing encoded."""
     frames = frame_range(shot, settings)
     check_pixel_bounds(settings)
-    choice = decide(settings.quality, shot, edits, model)
+    choice = decide(settings.quality, shot, edits, model, settings.base)
     return get(choice.tier).plan(shot, edits, settings, model, choice, frames)
 
 
@@ -111,14 +131,14 @@ def estimate_plan(shot: Shot, edits: Edits | None, settings: RenderSettings) -> 
     return DiffusionTier().plan(shot, edits, settings, None, TierChoice(DIFFUSION, "estimated before the model is built"), frames)
 
 
-def generation_reasons(shot, edits) -> tuple[list[str], bool]:
+def generation_reasons(shot, edits, supplied: Sequence[str] = ()) -> tuple[list[str], bool]:
     """(why a render of `shot` with `edits` (or None) needs the diffusion sampler, whether that is only
     inside masked regions of frames that otherwise have every channel). Read from the edits'
-    structure, not the pixels, so deciding costs nothing on a 1,000-frame shot."""
+    structure, not the pixels, so deciding costs nothing on a 1,000-frame shot. `supplied`: as `dropped_channels`."""
     from x2video.edits.ops import MaskOut
 
     why: list[str] = []
-    dropped = dropped_channels(shot, edits)
+    dropped = dropped_channels(shot, edits, supplied)
     if dropped:
         why.append(f"channel(s) {', '.join(dropped)} missing or dropped")
     if edits is None:
