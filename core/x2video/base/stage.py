@@ -124,8 +124,13 @@ class BaseFrames:
         return self.input_units(t).astype(np.float64) * self.scale
 
 
+#: tier 1's frames of (edited, original) that `edited_frame` needs inside a (H, W) bool mask: (H, W, 3) each, anything
+#: outside it (`x2video.base.tier1.residual_difference`: the net on the box around it)
+Residual = Callable[["FrameConditioning", "FrameConditioning", np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
 def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameConditioning, *, glossy_tier: bool,
-                 residual: Callable[[list[FrameConditioning]], list[np.ndarray]] | None, margin: int = SPILL_MARGIN,
+                 residual: Residual | None, margin: int = SPILL_MARGIN,
                  mode: HowOver = "auto", sharpen: bool = False) -> tuple[np.ndarray, str]:
     """One frame: `base` (model exposure, float64) with the edit's changes, and which tiers made them.
 
@@ -139,24 +144,38 @@ def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameCon
     if not everything.any():
         return base, BASE
     reach = grow(everything, margin)
-    light = light_only(original, edited) if mode == "auto" else None
-    edited = relit_metal(original, edited)
-    r_e, r_o = rebuild(edited, original), rebuild(original, original)
+    relit = relit_metal(original, edited)  # on the whole frame: it spreads the light in from around the hole
+    rows, cols = _box(reach)  # from here on the work is per pixel: only the box around the reach is computed
+    o, e, e_relit, reach_box = original.cropped(rows, cols), edited.cropped(rows, cols), relit.cropped(rows, cols), reach[rows, cols]
+    b = base[rows, cols]
+    light = light_only(o, e) if mode == "auto" else None
+    r_e, r_o = rebuild(e_relit, o), rebuild(o, o)
     if light is None:
-        out = over_base(base, r_e, r_o, reach, mode)  # type: ignore[arg-type]
+        out = over_base(b, r_e, r_o, reach_box, mode)  # type: ignore[arg-type]
     else:
-        out = over_base(base, r_e, r_o, reach & ~light, MATERIAL_MODE)
-        out = np.where(light[..., None], over_base(base, r_e, r_o, light, LIGHT_MODE), out)
-    if not (glossy_tier and residual is not None):
-        return out, "formula"
-    glossy_changed = changed(original, edited, GLOSSY_CHANNELS)
-    if not sharpen:
-        glossy_changed &= ~sharpened(original, edited)
-    glossy = grow(glossy_changed, margin) & reach
-    if not glossy.any():
-        return out, "formula"
-    r_e, r_o = residual([edited, original])
-    return np.where(glossy[..., None], over_base(base, r_e, r_o, glossy, MATERIAL_MODE if mode == "auto" else mode), out), "formula+residual"  # type: ignore[arg-type]
+        out = over_base(b, r_e, r_o, reach_box & ~light, MATERIAL_MODE)
+        out = np.where(light[..., None], over_base(b, r_e, r_o, light, LIGHT_MODE), out)
+    made = "formula"
+    if glossy_tier and residual is not None:
+        glossy_changed = changed(o, e_relit, GLOSSY_CHANNELS)
+        if not sharpen:
+            glossy_changed &= ~sharpened(o, e_relit)
+        glossy = grow(glossy_changed, margin) & reach_box
+        if glossy.any():
+            wanted = np.zeros(reach.shape, bool)
+            wanted[rows, cols] = glossy
+            r_e, r_o = (r[rows, cols] for r in residual(relit, original, wanted))
+            out = np.where(glossy[..., None], over_base(b, r_e, r_o, glossy, MATERIAL_MODE if mode == "auto" else mode), out)  # type: ignore[arg-type]
+            made = "formula+residual"
+    frame = base.copy()
+    frame[rows, cols] = out
+    return frame, made
+
+
+def _box(mask: np.ndarray) -> tuple[slice, slice]:
+    """The rows and columns of the bounding box of `mask` (H, W) bool, which holds at least one pixel."""
+    ys, xs = np.flatnonzero(mask.any(1)), np.flatnonzero(mask.any(0))
+    return slice(int(ys[0]), int(ys[-1]) + 1), slice(int(xs[0]), int(xs[-1]) + 1)
 
 
 def render_over_base(job: RenderJob, tier: Tier | None, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:
@@ -216,13 +235,18 @@ def base_order(shot: Shot, start: int, stop: int) -> list[int]:
     return sorted(order, key=lambda t: (int(dist[rank[t]]), rank[t]))
 
 
-def _residual_fn(job: RenderJob) -> Callable[[list[FrameConditioning]], list[np.ndarray]]:
-    from x2video.tiers.residual import residual_frames
+def _residual_fn(job: RenderJob) -> Residual:
+    """Tier 1's difference for `edited_frame`: the net on the box around the edit (`base.tier1`), the original
+    frame's part kept in the Renderer's cache where it keeps what it made (`Renderer.retain`: the editor's live preview
+    runs the net once per frame of a slider drag)."""
+    from x2video.base.tier1 import residual_difference
 
-    def run(conds: list[FrameConditioning]) -> list[np.ndarray]:
+    def run(edited: FrameConditioning, original: FrameConditioning, wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         assert job.model is not None
         with job.clock.stage("residual"):
-            return residual_frames(job.model.residual_net, conds, job.model.device, 4, job.settings.guess_unseen, job.settings.residual_pixels)
+            return residual_difference(job.model.residual_net, original, edited, wanted, cache=job.cache if job.retain else None,
+                                       device=job.model.device, guess_unseen=job.settings.guess_unseen,
+                                       max_pixels=job.settings.residual_pixels)
 
     return run
 
