@@ -148,25 +148,28 @@ def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameCon
     rows, cols = _box(reach)  # from here on the work is per pixel: only the box around the reach is computed
     o, e, e_relit, reach_box = original.cropped(rows, cols), edited.cropped(rows, cols), relit.cropped(rows, cols), reach[rows, cols]
     b = base[rows, cols]
-    light = light_only(o, e) if mode == "auto" else None
-    r_e, r_o = rebuild(e_relit, o), rebuild(o, o)
-    if light is None:
-        out = over_base(b, r_e, r_o, reach_box, mode)  # type: ignore[arg-type]
-    else:
-        out = over_base(b, r_e, r_o, reach_box & ~light, MATERIAL_MODE)
-        out = np.where(light[..., None], over_base(b, r_e, r_o, light, LIGHT_MODE), out)
-    made = "formula"
+    glossy = np.zeros(reach_box.shape, bool)  # where tier 1's difference is taken
     if glossy_tier and residual is not None:
         glossy_changed = changed(o, e_relit, GLOSSY_CHANNELS)
         if not sharpen:
             glossy_changed &= ~sharpened(o, e_relit)
         glossy = grow(glossy_changed, margin) & reach_box
-        if glossy.any():
-            wanted = np.zeros(reach.shape, bool)
-            wanted[rows, cols] = glossy
-            r_e, r_o = (r[rows, cols] for r in residual(relit, original, wanted))
-            out = np.where(glossy[..., None], over_base(b, r_e, r_o, glossy, MATERIAL_MODE if mode == "auto" else mode), out)  # type: ignore[arg-type]
-            made = "formula+residual"
+    out, rest = b, reach_box & ~glossy  # tier 0's difference everywhere else in the reach
+    if rest.any():
+        r_e, r_o = rebuild(e_relit, o), rebuild(o, o)
+        light = light_only(o, e) & rest if mode == "auto" else None
+        if light is None:
+            out = over_base(b, r_e, r_o, rest, mode)  # type: ignore[arg-type]
+        else:
+            out = over_base(b, r_e, r_o, rest & ~light, MATERIAL_MODE)
+            out = np.where(light[..., None], over_base(b, r_e, r_o, light, LIGHT_MODE), out)
+    made = "formula"
+    if glossy.any():
+        wanted = np.zeros(reach.shape, bool)
+        wanted[rows, cols] = glossy
+        r_e, r_o = (r[rows, cols] for r in residual(relit, original, wanted))  # type: ignore[misc]
+        out = np.where(glossy[..., None], over_base(b, r_e, r_o, glossy, MATERIAL_MODE if mode == "auto" else mode), out)  # type: ignore[arg-type]
+        made = "formula+residual"
     frame = base.copy()
     frame[rows, cols] = out
     return frame, made
