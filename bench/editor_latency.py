@@ -20,8 +20,9 @@ the shipped weights built in the background) and measures, on the wall clock:
                               (median, 95th percentile, max): how long a click or a repaint waits
 
 --base-fps measures only the live preview of an edit over a shot's path-traced frames (issue 52), without the GUI:
-tier 0's and tier 1's differences at 320x224, on a path-traced frame and on a frame filled from keyframes
-(`base_difference_fps`; bench/results/editor_latency/editor_latency_base.json).
+tier 0's and tier 1's differences at 320x224 on an object, on a path-traced frame and on a frame filled from keyframes,
+and tier 1's on a small object and the whole frame (bench/editor_latency_base.py; results in
+bench/results/editor_latency/editor_latency_base.json).
 
 --drag auto,formula adds the slider-drag scenario (issue 43), once per quality listed, after the renders: with the
 rendered view on screen it drags the Exposure slider through --drag-hz values a second for --drag-seconds (a mouse
@@ -60,6 +61,7 @@ from pathlib import Path  # noqa: E402
 from typing import Callable  # noqa: E402
 
 from bench.common import command, results_path  # noqa: E402
+from bench.editor_latency_base import BASE_TARGET_FPS, base_difference_fps  # noqa: E402
 
 #: the GUI probe's timer interval: while a render runs, the gaps between its ticks (median, 95th percentile, max) say how
 #: long a click or a repaint would wait (`gui_tick_gap_ms`; 10 ms when the event loop is free)
@@ -166,80 +168,6 @@ def drag_scenario(win, quality: str, seconds: float, hz: float, pump: Callable[[
                   "last_input_to_frame_s": reflect is not None and row["last_input_to_frame_s"] <= DRAG_TARGETS["last_input_to_frame_s"],
                   "gui_tick_gap_p95_ms": row["gui_tick_gap_ms"].get("p95", 1e9) <= DRAG_TARGETS["gui_tick_gap_p95_ms"]}
     return row
-
-
-#: issue 52: the live preview of an edit as a difference over a shot's path-traced frames, frames/s at 320x224
-BASE_TARGET_FPS = 10.0
-
-
-def base_difference_fps(repeats: int = 20, size: tuple[int, int] = (224, 320), threads: int = 1) -> list[dict]:
-    """The live preview's frame over a shot's own path-traced frames (issue 52), as the editor's worker renders it
-    (`x2video.render.live.render_frame` on one `Renderer`, base 'auto'): frames/s of tier 0's difference (an albedo
-    recolour) and tier 1's (a roughness edit: the formula's difference plus tier 1's where gloss changed, an untrained
-    tier-1 net of the default architecture: its cost does not depend on its weights), on a path-traced frame and on a
-    frame filled from keyframes 1 in 4 (the fill runs too). The median of `repeats` frames after one warm-up, with
-    the edit's value changed each time (as a slider drag does). Without the GUI: the worker's rate, the most the
-    viewer can show."""
-    import numpy as np
-    import torch
-
-    from x2video.base.keyframes import only_keyframes
-    from x2video.edits import Edits
-    from x2video.edits.masks import Mask
-    from x2video.model.pipeline import X2VideoModel
-    from x2video.model.residual import ResidualConfig, ResidualNet
-    from x2video.render.live import render_frame
-    from x2video.render.renderer import Renderer
-    from x2video.render.settings import RenderSettings
-    from x2video.shot import ArrayShot
-
-    torch.set_num_threads(threads)
-    h, w = size
-    n = 9
-    rng = np.random.default_rng(0)
-    albedo = rng.uniform(0.1, 0.9, (n, h, w, 3)).astype(np.float32)
-    irr = np.broadcast_to(np.linspace(0.3, 2.0, w, dtype=np.float32)[None, None, :, None], (n, h, w, 3)).copy()
-    normal = np.zeros((n, h, w, 3), np.float32)
-    normal[..., 2] = 1
-    depth = np.full((n, h, w, 1), 4.0, np.float32)
-    rgb = albedo * irr
-    rgb[:, 10:60, 20:120] += 3.0  # a window the channels do not hold
-    shot = ArrayShot({"albedo": albedo, "irradiance": irr, "normal": normal, "rgb": rgb, "depth": depth,
-                      "roughness": np.full((n, h, w, 1), 0.6, np.float32), "metallic": np.zeros((n, h, w, 1), np.float32)},
-                     irradiance_scale=0.5)
-    keyed = only_keyframes(shot, "every:4")
-    model = X2VideoModel.untrained("tiny")
-    model.residual_net = ResidualNet(ResidualConfig()).eval()
-    mask = np.zeros((h, w), np.float32)
-    mask[80:180, 100:260] = 1  # a sofa-sized object
-
-    def edits(kind: str, k: int) -> Edits:
-        e = Edits()
-        e.masks["object"] = Mask(frames={0: mask}, hold=True)
-        e.set_tuning("object", *(("albedo_colour", (0.9, 0.1 + 0.02 * (k % 20), 0.1)) if kind == "albedo" else ("roughness_mode", "set")))
-        if kind == "roughness":
-            e.set_tuning("object", "roughness", 0.05 + 0.02 * (k % 20))
-        return e
-
-    rows = []
-    for tier, kind, quality in (("tier 0 (formula)", "albedo", "formula"), ("tier 1 (formula+residual)", "roughness", "auto")):
-        for label, s, t in (("path-traced frame", shot, 4), ("filled frame (keyframes every:4)", keyed, 2)):
-            renderer = Renderer(model)
-            settings = RenderSettings(quality=quality, base="auto")
-            secs, made = [], None
-            for k in range(repeats + 1):
-                t0 = time.perf_counter()
-                made = render_frame(renderer, s, edits(kind, k), settings, t)
-                if k:
-                    secs.append(time.perf_counter() - t0)
-            assert made is not None
-            med = float(np.median(secs))
-            rows.append({"difference": tier, "frame": label, "size": [w, h], "tier_said": made.tier, "frames": repeats,
-                         "median_s": round(med, 4), "p95_s": round(float(np.percentile(secs, 95)), 4), "fps": round(1 / med, 1),
-                         "met": 1 / med >= BASE_TARGET_FPS, "load_average": [round(v, 2) for v in os.getloadavg()]})
-            print(f"{tier} over the base, {label} at {w}x{h}: {rows[-1]['fps']} frames/s (median {med * 1000:.0f} ms, "
-                  f"p95 {rows[-1]['p95_s'] * 1000:.0f} ms; tier {made.tier}); load {rows[-1]['load_average']}", flush=True)
-    return rows
 
 
 def main(argv: list[str] | None = None) -> int:

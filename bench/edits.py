@@ -164,10 +164,10 @@ def library_frames(model: Any, shot: Any, edits: Any, method: str) -> tuple[list
 
     residual = None
     if method in NEEDS_MODEL and model is not None and model.residual_net is not None:
-        from x2video.tiers.residual import residual_frames
+        from x2video.base.tier1 import residual_difference
 
-        def residual(conds):  # noqa: E306
-            return residual_frames(model.residual_net, conds, model.device)
+        def residual(edited, original, wanted):  # noqa: E306  # as the Renderer's tier 1 runs it (the box around the edit)
+            return residual_difference(model.residual_net, original, edited, wanted, device=model.device)
 
     scale = float(shot.info.irradiance_scale)
     out, t0 = [], time.perf_counter()

@@ -136,7 +136,7 @@ def test_a_surface_made_glossier_keeps_the_formulas_difference_not_tier_1s_guess
 
     base = shot.channel("rgb", 0).astype(np.float64) * 0.5
     out, mode = edited_frame(base, plain_conditioning(shot, 0), apply_edits(shot, e, 0), glossy_tier=True, sharpen=True,
-                             residual=lambda conds: residual_frames(model.residual_net, conds))
+                             residual=lambda e, o, where: tuple(residual_frames(model.residual_net, [e, o])))
     assert mode == "formula+residual" and np.abs(out[BOX] - base[BOX]).max() > 1e-4
 
 

@@ -31,3 +31,21 @@ def test_editor_latency_bench_measures_a_render(tmp_path) -> None:
     assert drag["preview_tier"] == "formula" and drag["inputs"] == 30 and drag["stale_runs"] == 0  # (a starved machine may show none mid-drag)
     assert drag["requests"] == drag["frames_rendered"] + drag["dropped"] and drag["last_input_to_frame_s"] is not None
     assert drag["gui_tick_gap_ms"]["ticks"] > 1 and drag["settled_to_full_quality_s"] >= drag["last_input_to_frame_s"]
+
+
+def test_base_fps_times_tier_1s_net_on_an_object_and_the_whole_frame() -> None:
+    """--base-fps (issue 52): every tier-1 row ran the net (a roughness raised: a surface made glossier would keep the
+    formula's difference and time nothing of tier 1), the tier-0 rows did not; wall and CPU seconds a frame."""
+    import torch
+
+    from bench.editor_latency_base import base_difference_fps
+
+    threads = torch.get_num_threads()
+    try:
+        rows = base_difference_fps(repeats=1, size=(48, 64))
+    finally:
+        torch.set_num_threads(threads)
+    assert {r["edit"] for r in rows if r["difference"].startswith("tier 1")} >= {"whole frame (worst case)", "small object (vase, 40x30)"}
+    for r in rows:
+        assert r["fps"] > 0 and r["cpu_s_per_frame"] >= 0
+        assert (r["residual_calls"] > 0) == r["difference"].startswith("tier 1"), r

@@ -8,6 +8,7 @@ the base, bit for bit.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Literal
 
 import cv2
@@ -52,7 +53,7 @@ def changed(original: FrameConditioning, edited: FrameConditioning, names: tuple
             continue
         if a is None or b is None:
             return np.ones((h, w), bool)
-        out |= np.any(np.asarray(a) != np.asarray(b), axis=-1)
+        out |= pixels_differ(a, b)
     if names == INTRINSIC:
         out |= passes_changed(original, edited)
         if np.size(edited.amr_mask):
@@ -60,6 +61,15 @@ def changed(original: FrameConditioning, edited: FrameConditioning, names: tuple
         if np.size(edited.local_masks):
             out |= np.asarray(edited.local_masks).max(0) > 0
     return out
+
+
+def pixels_differ(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels where two (H, W, C) arrays differ in any component (an elementwise or of the C planes: numpy's
+    reduction over a short last axis is several times slower, and a live preview computes this a few times a frame)."""
+    d = np.asarray(a) != np.asarray(b)
+    if d.ndim == 2:
+        return d
+    return functools.reduce(np.logical_or, [d[..., c] for c in range(d.shape[-1])])
 
 
 def grow(mask: np.ndarray, px: int) -> np.ndarray:

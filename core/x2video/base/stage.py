@@ -83,8 +83,13 @@ def render(plan: Plan, emit: Emit, cancel: CancelToken | None, done: set[int]) -
     plan.tier.render(plan.job, emit, cancel, done)
 
 
+#: tier 1's frames of (edited, original) that `edited_frame` needs inside a (H, W) bool mask: (H, W, 3) each, anything
+#: outside it (`x2video.base.tier1.residual_difference`: the net on the box around it)
+Residual = Callable[["FrameConditioning", "FrameConditioning", np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
 def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameConditioning, *, glossy_tier: bool,
-                 residual: Callable[[list[FrameConditioning]], list[np.ndarray]] | None, margin: int = SPILL_MARGIN,
+                 residual: Residual | None, margin: int = SPILL_MARGIN,
                  mode: HowOver = "auto", sharpen: bool = False) -> tuple[np.ndarray, str]:
     """One frame: `base` (model exposure, float64) with the edit's changes, and which tiers made them.
 
@@ -98,24 +103,41 @@ def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameCon
     if not everything.any():
         return base, BASE
     reach = grow(everything, margin)
-    light = light_only(original, edited) if mode == "auto" else None
-    edited = relit_metal(original, edited)
-    r_e, r_o = rebuild(edited, original), rebuild(original, original)
-    if light is None:
-        out = over_base(base, r_e, r_o, reach, mode)  # type: ignore[arg-type]
-    else:
-        out = over_base(base, r_e, r_o, reach & ~light, MATERIAL_MODE)
-        out = np.where(light[..., None], over_base(base, r_e, r_o, light, LIGHT_MODE), out)
-    if not (glossy_tier and residual is not None):
-        return out, "formula"
-    glossy_changed = changed(original, edited, GLOSSY_CHANNELS)
-    if not sharpen:
-        glossy_changed &= ~sharpened(original, edited)
-    glossy = grow(glossy_changed, margin) & reach
-    if not glossy.any():
-        return out, "formula"
-    r_e, r_o = residual([edited, original])
-    return np.where(glossy[..., None], over_base(base, r_e, r_o, glossy, MATERIAL_MODE if mode == "auto" else mode), out), "formula+residual"  # type: ignore[arg-type]
+    relit = relit_metal(original, edited)  # on the whole frame: it spreads the light in from around the hole
+    rows, cols = _box(reach)  # from here on the work is per pixel: only the box around the reach is computed
+    o, e, e_relit, reach_box = original.cropped(rows, cols), edited.cropped(rows, cols), relit.cropped(rows, cols), reach[rows, cols]
+    b = base[rows, cols]
+    glossy = np.zeros(reach_box.shape, bool)  # where tier 1's difference is taken
+    if glossy_tier and residual is not None:
+        glossy_changed = changed(o, e_relit, GLOSSY_CHANNELS)
+        if not sharpen:
+            glossy_changed &= ~sharpened(o, e_relit)
+        glossy = grow(glossy_changed, margin) & reach_box
+    out, rest = b, reach_box & ~glossy  # tier 0's difference everywhere else in the reach
+    if rest.any():
+        r_e, r_o = rebuild(e_relit, o), rebuild(o, o)
+        light = light_only(o, e) & rest if mode == "auto" else None
+        if light is None:
+            out = over_base(b, r_e, r_o, rest, mode)  # type: ignore[arg-type]
+        else:
+            out = over_base(b, r_e, r_o, rest & ~light, MATERIAL_MODE)
+            out = np.where(light[..., None], over_base(b, r_e, r_o, light, LIGHT_MODE), out)
+    made = "formula"
+    if glossy.any():
+        wanted = np.zeros(reach.shape, bool)
+        wanted[rows, cols] = glossy
+        r_e, r_o = (r[rows, cols] for r in residual(relit, original, wanted))  # type: ignore[misc]
+        out = np.where(glossy[..., None], over_base(b, r_e, r_o, glossy, MATERIAL_MODE if mode == "auto" else mode), out)  # type: ignore[arg-type]
+        made = "formula+residual"
+    frame = base.copy()
+    frame[rows, cols] = out
+    return frame, made
+
+
+def _box(mask: np.ndarray) -> tuple[slice, slice]:
+    """The rows and columns of the bounding box of `mask` (H, W) bool, which holds at least one pixel."""
+    ys, xs = np.flatnonzero(mask.any(1)), np.flatnonzero(mask.any(0))
+    return slice(int(ys[0]), int(ys[-1]) + 1), slice(int(xs[0]), int(xs[-1]) + 1)
 
 
 def render_over_base(plan: Plan, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:

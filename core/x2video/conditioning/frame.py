@@ -55,6 +55,16 @@ class FrameConditioning:
     def size(self) -> tuple[int, int]:
         return self.amr_mask.shape[:2]
 
+    def cropped(self, rows: slice, cols: slice) -> FrameConditioning:
+        """The conditioning of pixels [rows, cols] (views of the channels, masks and passes; no depth reader, which
+        reads the whole frame): for work that is per pixel (the formula over the base, `x2video.base.stage`)."""
+        amr, local = self.amr_mask, self.local_masks
+        return FrameConditioning(channels={k: None if v is None else v[rows, cols] for k, v in self.channels.items()},
+                                 amr_mask=amr[rows, cols] if np.ndim(amr) == 2 else amr,
+                                 local_masks=local[:, rows, cols] if np.ndim(local) == 3 else local,
+                                 frame_index=self.frame_index, fov_y_deg=self.fov_y_deg,
+                                 passes={k: v[rows, cols] for k, v in self.passes.items()})
+
 
 #: frame index -> that frame's (edited) conditioning
 Conditioning = Callable[[int], FrameConditioning]

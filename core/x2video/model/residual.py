@@ -104,21 +104,55 @@ class ResidualNet(nn.Module):
         """(N, C) global context from the (N, C) mean of a frame's bottom features."""
         return self.context(mean)
 
-    def forward(self, x: torch.Tensor, g: torch.Tensor | None = None) -> torch.Tensor:
-        """Log-space residual of features x; `g` (N, C): the global context, from x itself when None (a whole
-        frame), given for a tile of a larger frame (`apply_tiled`) so that every tile sees the frame's light."""
-        skips, x = self.encode(x)
-        if g is None:
-            g = self.context_vector(x.mean((2, 3)))  # (N, C) global context: the light's level and colour
+    def decode(self, skips: list[torch.Tensor], x: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+        """Log-space residual (N, 3, H, W) from `encode`'s skips and bottom features x with the global context g (N, C)."""
         x = x + g[:, :, None, None]
         for i in reversed(range(len(self.up))):
             x = F.interpolate(x, scale_factor=2, mode="bilinear", align_corners=False)
             x = self.up[i](torch.cat([x, skips[i]], 1))
         return self.out(x)
 
+    def forward(self, x: torch.Tensor, g: torch.Tensor | None = None) -> torch.Tensor:
+        """Log-space residual of features x; `g` (N, C): the global context, from x itself when None (a whole
+        frame), given for a tile of a larger frame (`apply_tiled`) so that every tile sees the frame's light."""
+        skips, x = self.encode(x)
+        if g is None:
+            g = self.context_vector(x.mean((2, 3)))  # (N, C) global context: the light's level and colour
+        return self.decode(skips, x, g)
+
+    def forward_part(self, x: torch.Tensor, others: torch.Tensor, cells: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(log-space residual (N, 3, h, w), the (N, C) sum of its bottom features) of features x that are a box of a
+        larger frame on the factor grid: the frame's global context is the mean of `others` (N, C), the sum of the
+        frame's bottom features outside the box, and the box's own, over the frame's `cells` (N, 1) bottom cells
+        (`x2video.base.tier1`). One encoder pass: the context needs the box's bottom features first."""
+        skips, b = self.encode(x)
+        s = b.sum((2, 3))  # (N, C)
+        return self.decode(skips, b, self.context_vector((others + s) / cells)), s
+
 
 #: a metal smoother than this is a mirror: what it shows is a sharp image of elsewhere, not in its channels
 MIRROR_ROUGHNESS = 0.1
+
+
+def receptive_radius(cfg: ResidualConfig) -> tuple[int, int]:
+    """(output, bottom) reach in pixels of a `ResidualNet` of `cfg`, global context aside: an output pixel depends on the
+    features at most `output` pixels away either side (58 for the default four levels); the bottom cell over pixels
+    [f*j, f*j + f) on those in [f*j - a, f*j + b], so a changed pixel and a box's edge meet in one cell's view only when
+    they are less than `bottom` = a + b pixels apart (67). Exact: each 3x3 conv at scale s widens by s, each 2x2
+    stride-2 pool by s on one side, each bilinear x2 upsampling to scale s by 2s and s (tests/test_base_tier1.py
+    checks it against the gradient's support)."""
+    n = len(cfg.widths)
+    lo = hi = 0
+    s = 1
+    for i in range(n):  # the encoder: two 3x3 convs per level, a 2x2 stride-2 pool between levels
+        lo, hi = lo + 2 * s, hi + 2 * s
+        if i < n - 1:
+            hi, s = hi + s, 2 * s
+    bottom = lo + hi  # [f*j - lo, f*j + hi]: hi already holds the cell's own f - 1 pixels
+    for _ in range(n - 1):  # the decoder: bilinear x2 (align_corners=False reads the coarse cells either side), two 3x3 convs
+        s //= 2
+        lo, hi = lo + 2 * s + 2 * s, hi + s + 2 * s
+    return max(lo, hi), bottom
 
 
 def unseen_light(ch: Mapping[str, np.ndarray | None], shape: tuple[int, int] | None = None) -> np.ndarray | None:

@@ -27,6 +27,7 @@ class OnnxResidual:
         size = 8 * net.cfg.factor
         self.session = self._session(self._export(self._net, (torch.zeros(1, net.cfg.in_channels, size, size),), ["features"], "delta"))
         self._tile_session = self._bottom_session = None  # made on the first tiled frame (`apply_tiled`)
+        self._part_session = None  # made on the first box of a frame (`x2video.base.tier1`)
 
     @property
     def module(self) -> ResidualNet:
@@ -38,14 +39,16 @@ class OnnxResidual:
 
         return ort_session(model, self._threads)
 
-    def _export(self, module: nn.Module, inputs: tuple, names: list[str], output: str) -> bytes:
+    def _export(self, module: nn.Module, inputs: tuple, names: list[str], output: str | list[str]) -> bytes:
         import io
 
         buf = io.BytesIO()
         axes = {0: "n", 2: "h", 3: "w"}
+        outputs = [output] if isinstance(output, str) else output
+        dynamic = {names[0]: axes, outputs[0]: axes, **{k: {0: "n"} for k in [*names[1:], *outputs[1:]]}}
         with torch.no_grad():
-            torch.onnx.export(module, inputs, buf, input_names=names, output_names=[output],
-                              dynamic_axes={names[0]: axes, output: axes}, opset_version=17, dynamo=False)
+            torch.onnx.export(module, inputs, buf, input_names=names, output_names=outputs,
+                              dynamic_axes=dynamic, opset_version=17, dynamo=False)
         return buf.getvalue()
 
     def __call__(self, x: torch.Tensor, g: torch.Tensor | None = None) -> torch.Tensor:
@@ -69,6 +72,18 @@ class OnnxResidual:
         out = self._bottom_session.run(None, {"features": x.detach().float().cpu().numpy()})[0]
         return torch.from_numpy(out).to(x.device)
 
+    def forward_part(self, x: torch.Tensor, others: torch.Tensor, cells: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """`ResidualNet.forward_part` (a box of a larger frame)."""
+        if self._part_session is None:
+            size = 8 * self.cfg.factor
+            self._part_session = self._session(self._export(_Part(self._net), (torch.zeros(1, self.cfg.in_channels, size, size),
+                                                            torch.zeros(1, self.cfg.widths[-1]), torch.ones(1, 1)),
+                                                            ["features", "others", "cells"], ["delta", "bottom_sum"]))
+        feed = {"features": x.detach().float().cpu().numpy(), "others": others.detach().float().cpu().numpy(),
+                "cells": cells.detach().float().cpu().numpy()}
+        delta, s = self._part_session.run(None, feed)
+        return torch.from_numpy(delta).to(x.device), torch.from_numpy(s).to(x.device)
+
     def context_vector(self, mean: torch.Tensor) -> torch.Tensor:
         with torch.inference_mode():
             return self._net.context_vector(mean.float().cpu()).to(mean.device)
@@ -83,6 +98,17 @@ class _WithContext(nn.Module):
 
     def forward(self, x: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
         return self.net(x, g)
+
+
+class _Part(nn.Module):
+    """ONNX export of `ResidualNet.forward_part` (a box of a larger frame)."""
+
+    def __init__(self, net: ResidualNet):
+        super().__init__()
+        self.net = net
+
+    def forward(self, x: torch.Tensor, others: torch.Tensor, cells: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return self.net.forward_part(x, others, cells)
 
 
 class _Bottom(nn.Module):

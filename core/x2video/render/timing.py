@@ -7,13 +7,14 @@ from contextlib import contextmanager
 from typing import Callable, Iterator
 
 #: the stages of a render `StageTimes` splits wall time into (`x2video.render.renderer.Renderer.timing`)
-STAGES = ("read", "encode", "unet", "decode", "detail", "residual", "write")
+STAGES = ("read", "base", "encode", "unet", "decode", "detail", "residual", "write")
 
 
 class StageTimes:
     """Wall seconds and calls per stage of one render, for benchmarks: read (channels from the shot, edits
-    applied), encode (conditioning latents), unet (every network call of the sampler), decode (VAE), detail
-    (the shading detail residual models add back), residual (the tier-1 net), write (the `FramesReady`
+    applied), base (a shot's path-traced frame, or its fill between keyframes: `x2video.base.stage`), encode
+    (conditioning latents), unet (every network call of the sampler), decode (VAE), detail (the shading detail
+    residual models add back), residual (the tier-1 net), write (the `FramesReady`
     callback: a sink writing files, or the editor's queue). A `Renderer` fills one when its `timing` is set
     (off by default: then nothing is timed); `total` is the render's wall time and `other` what no stage
     holds (sampler arithmetic, noise, prompts, planning)."""

@@ -181,9 +181,12 @@ class PerFrameTier(Tier):
         """The frames this tier lays under a regional diffusion render (`TierChoice.base`): its own by default."""
         return self.frames(job, conds)
 
-    def glossy_frames(self, job: RenderJob, conds: Sequence[FrameConditioning]) -> list[np.ndarray]:
-        """Frames of `conds` whose difference renders an edit's glossy change over the shot's base (`glossy` tiers)."""
-        return self.frames(job, conds)
+    def glossy_frames(self, job: RenderJob, edited: FrameConditioning, original: FrameConditioning,
+                      wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """This tier's frames of (`edited`, `original`), whose difference renders an edit's glossy change over the shot's
+        base (`glossy` tiers), needed inside the (H, W) bool mask `wanted` (anything outside it)."""
+        r_e, r_o = self.frames(job, [edited, original])
+        return r_e, r_o
 
     def begin(self, job: RenderJob) -> None:
         """Called once before the first frame (a log line, say)."""

@@ -50,13 +50,18 @@ class ResidualTier(PerFrameTier):
             return residual_frames(job.model.residual_net, conds, job.model.device, self.batch, job.settings.guess_unseen,
                                    job.settings.residual_pixels, plausible=job.settings.quality == "auto")
 
-    def glossy_frames(self, job: RenderJob, conds: Sequence[FrameConditioning]) -> list[np.ndarray]:
-        """`residual_frames` as they are (the plausibility guard is the whole frame's; over the base the edit's difference
-        goes only where the glossy terms changed)."""
+    def glossy_frames(self, job: RenderJob, edited: FrameConditioning, original: FrameConditioning,
+                      wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The net on the box around `wanted` only (`x2video.base.tier1`: equal to the whole frame inside it), the
+        original frame's part kept in the Renderer's cache where it keeps what it made (`Renderer.retain`: the editor's
+        live preview runs the net once per frame of a slider drag)."""
+        from x2video.base.tier1 import residual_difference
+
         assert job.model is not None
         with job.clock.stage("residual"):
-            return residual_frames(job.model.residual_net, conds, job.model.device, self.batch, job.settings.guess_unseen,
-                                   job.settings.residual_pixels)
+            return residual_difference(job.model.residual_net, original, edited, wanted, cache=job.cache if job.retain else None,
+                                       device=job.model.device, guess_unseen=job.settings.guess_unseen,
+                                       max_pixels=job.settings.residual_pixels)
 
 
 @torch.inference_mode()
