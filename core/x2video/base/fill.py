@@ -4,7 +4,9 @@ Every pixel of a frame between is reprojected into its two nearest keyframes, by
 has them (`base.camera`), else by optical flow on the G-buffers (`base.flow`). A keyframe's pixel is rejected where
 its depth or normal disagrees with the frame's own (another surface occludes it there, or the pixel left the
 view). What it carries is the keyframe's demodulated shading, (rgb - emission) / albedo, so the frame's own albedo
-and emission (at full resolution, with their own texture) modulate it back; the two keyframes blend by their
+and emission (at full resolution, with their own texture) modulate it back; the albedo that demodulates and
+modulates is each frame's averaged with its neighbours' reprojected onto it (`stable_albedo`: a Cycles albedo pass
+is a few-sample estimate that is noisy differently on every frame, which the denoised keyframes are not); the two keyframes blend by their
 distance in time and their validity. A pixel that no keyframe sees (a surface uncovered between them) takes the
 frame's own irradiance where the shot has it (the diffuse light, in the rgb's units), else the shading spread in
 from the pixels around it (normalised convolution): `FillResult.holes` says how many pixels that was.
@@ -41,6 +43,9 @@ class FillConfig:
     albedo_floor: float = 0.03
     #: flow (no depth or camera): forward-backward disagreement in pixels above which a pixel is rejected
     flow_consistency: float = 1.0
+    #: frames either side whose albedo, reprojected by depth and camera, is averaged into the albedo that demodulates
+    #: and modulates the shading (`stable_albedo`); 0: each frame's own albedo pass as it is
+    albedo_frames: int = 2
 
 
 @dataclass
@@ -66,8 +71,29 @@ def nearest_keyframes(t: int, keyframes: Sequence[int]) -> tuple[int, ...]:
     return tuple(x for x in (before[-1] if before else None, after[0] if after else None) if x is not None)
 
 
-def _albedo(shot: Shot, t: int, floor: float) -> np.ndarray:
-    return np.maximum(shot.channel("albedo", t), floor) if shot.has("albedo") else np.ones((*shot.size, 3), np.float32)
+def stable_albedo(shot: Shot, t: int, cfg: FillConfig) -> np.ndarray:
+    """Frame t's albedo (H, W, 3), averaged with the albedo of the `cfg.albedo_frames` frames either side where they
+    see the same surface, reprojected onto t by depth and camera (`warp_by_depth`); t's own where it cannot reproject.
+
+    Cycles estimates the albedo pass from the pixel's few samples, so fine texture comes out as noise drawn anew on
+    every frame, while the denoised rgb (keyframes and truth alike) is smooth there: modulating by that noise made
+    the frames between flicker more than the truth (warping error 1.3x on a wall of fine texture), and averaging it
+    over frames keeps what is the same surface on every frame and drops what is not."""
+    own = shot.channel("albedo", t).astype(np.float32)
+    if cfg.albedo_frames <= 0 or not can_reproject(shot):
+        return own
+    acc, weight = own.copy(), np.ones(shot.size, np.float32)
+    for j in range(max(0, t - cfg.albedo_frames), min(shot.num_frames, t + cfg.albedo_frames + 1)):
+        if j != t:
+            a, valid = warp_by_depth(shot, t, j, shot.channel("albedo", j).astype(np.float32), cfg)
+            acc += a * valid[..., None]
+            weight += valid
+    return acc / weight[..., None]
+
+
+def _albedo(shot: Shot, t: int, cfg: FillConfig) -> np.ndarray:
+    """The albedo that (de)modulates frame t's shading: `stable_albedo`, floored at `cfg.albedo_floor`; 1 without albedo."""
+    return np.maximum(stable_albedo(shot, t, cfg), cfg.albedo_floor) if shot.has("albedo") else np.ones((*shot.size, 3), np.float32)
 
 
 def _emission(shot: Shot, t: int) -> np.ndarray:
@@ -76,7 +102,7 @@ def _emission(shot: Shot, t: int) -> np.ndarray:
 
 def demodulated(shot: Shot, k: int, cfg: FillConfig) -> np.ndarray:
     """Keyframe k's shading (rgb - emission) / albedo, (H, W, 3)."""
-    return ((shot.channel("rgb", k) - _emission(shot, k)) / _albedo(shot, k, cfg.albedo_floor)).astype(np.float32)
+    return ((shot.channel("rgb", k) - _emission(shot, k)) / _albedo(shot, k, cfg)).astype(np.float32)
 
 
 def can_reproject(shot: Shot) -> bool:
@@ -174,8 +200,9 @@ def fill_inputs(shot: Shot, t: int, cfg: FillConfig = FillConfig(), keyframes: S
 
 
 def modulation(shot: Shot, t: int, cfg: FillConfig = FillConfig()) -> tuple[np.ndarray, np.ndarray]:
-    """Frame t's (albedo floored as the fill floors it, emission), each (H, W, 3): rgb = shading x albedo + emission."""
-    return _albedo(shot, t, cfg.albedo_floor), _emission(shot, t)
+    """Frame t's (albedo as the fill (de)modulates with it, `_albedo`, emission), each (H, W, 3): rgb = shading x albedo
+    + emission."""
+    return _albedo(shot, t, cfg), _emission(shot, t)
 
 
 def modulated(shot: Shot, t: int, shading: np.ndarray, cfg: FillConfig = FillConfig()) -> np.ndarray:
