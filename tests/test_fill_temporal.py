@@ -57,3 +57,31 @@ def test_frames_between_flicker_less_with_stable_albedo():
     (stable_err, stable_psnr), (raw_err, raw_psnr) = for_time[FillConfig().albedo_frames], for_time[0]
     assert stable_err < 0.6 * raw_err
     assert stable_psnr > raw_psnr + 2
+
+
+class CountingShot(ArrayShot):
+    """An ArrayShot that counts its reads per (channel, frame)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.reads: dict[tuple[str, int], int] = {}
+
+    def _read(self, name: str, t: int) -> np.ndarray:
+        self.reads[name, t] = self.reads.get((name, t), 0) + 1
+        return super()._read(name, t)
+
+
+def test_a_shot_filled_in_order_reads_each_frame_once_and_keeps_only_the_frames_in_reach():
+    xs = [0.02 * i for i in range(9)]
+    full = wall_shot(xs)
+    arrays = {k: np.stack([full.channel(k, t) for t in range(9)]) for k in ("albedo", "normal", "depth", "rgb")}
+    shot = only_keyframes(CountingShot(arrays, poses=full.info.poses), "0,8")
+    counting = shot.base_shot
+    cache: dict = {}
+    reach = FillConfig().albedo_frames
+    for t in range(1, 8):
+        fill_frame(shot, t, shading=cache)
+        assert cache["frames"].frames() <= {*range(t - reach, t + reach + 2), 0, 8}
+    reads = {(name, t): n for (name, t), n in counting.reads.items() if name in ("albedo", "depth", "normal")}
+    # once in order; the frames next to keyframe 8 once more, read early for its own (stable) albedo
+    assert all(n == 1 for (_, t), n in reads.items() if t < 8 - reach) and max(reads.values()) == 2

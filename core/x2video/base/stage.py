@@ -108,7 +108,7 @@ class BaseFrames:
     def __init__(self, shot: Shot, cfg: FillConfig = FillConfig()) -> None:
         self.shot, self.cfg = shot, cfg
         self.scale = float(shot.info.irradiance_scale)
-        self._shading: dict[int, np.ndarray] = {}
+        self._shading: dict = {}  # fill_frame's cache across frames (keyframes' shading, the frames in reach)
         #: frame -> fraction of its pixels that no keyframe saw (filled frames only)
         self.holes: dict[int, float] = {}
 
