@@ -4,7 +4,9 @@ Every pixel of a frame between is reprojected into its two nearest keyframes, by
 has them (`base.camera`), else by optical flow on the G-buffers (`base.flow`). A keyframe's pixel is rejected where
 its depth or normal disagrees with the frame's own (another surface occludes it there, or the pixel left the
 view). What it carries is the keyframe's demodulated shading, (rgb - emission) / albedo, so the frame's own albedo
-and emission (at full resolution, with their own texture) modulate it back; the two keyframes blend by their
+and emission (at full resolution, with their own texture) modulate it back; the albedo that demodulates and
+modulates is each frame's averaged with its neighbours' reprojected onto it (`stable_albedo`: a Cycles albedo pass
+is a few-sample estimate that is noisy differently on every frame, which the denoised keyframes are not); the two keyframes blend by their
 distance in time and their validity. A pixel that no keyframe sees (a surface uncovered between them) takes the
 frame's own irradiance where the shot has it (the diffuse light, in the rgb's units), else the shading spread in
 from the pixels around it (normalised convolution): `FillResult.holes` says how many pixels that was.
@@ -25,7 +27,7 @@ from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
-from x2video.base.camera import View, project, unproject, world_normals
+from x2video.base.reproject import FrameMemo, warp
 from x2video.io.cache import LRU
 from x2video.shot import Shot
 
@@ -45,6 +47,9 @@ class FillConfig:
     albedo_floor: float = 0.03
     #: flow (no depth or camera): forward-backward disagreement in pixels above which a pixel is rejected
     flow_consistency: float = 1.0
+    #: frames either side whose albedo, reprojected by depth and camera, is averaged into the albedo that demodulates
+    #: and modulates the shading (`stable_albedo`); 0: each frame's own albedo pass as it is
+    albedo_frames: int = 2
 
 
 @dataclass
@@ -73,17 +78,41 @@ def nearest_keyframes(t: int, keyframes: Sequence[int]) -> tuple[int, ...]:
     return tuple(x for x in (before[-1] if before else None, after[0] if after else None) if x is not None)
 
 
-def _albedo(shot: Shot, t: int, floor: float) -> np.ndarray:
-    return np.maximum(shot.channel("albedo", t), floor) if shot.has("albedo") else np.ones((*shot.size, 3), np.float32)
+def stable_albedo(shot: Shot, t: int, cfg: FillConfig, memo: FrameMemo | None = None) -> np.ndarray:
+    """Frame t's albedo (H, W, 3), averaged with the albedo of the `cfg.albedo_frames` frames either side where they
+    see the same surface, reprojected onto t by depth and camera (`reproject.warp`); t's own where it cannot reproject.
+
+    Cycles estimates the albedo pass from the pixel's few samples, so fine texture comes out as noise drawn anew on
+    every frame, while the denoised rgb (keyframes and truth alike) is smooth there: modulating by that noise made
+    the frames between flicker more than the truth (warping error 1.3x on a wall of fine texture), and averaging it
+    over frames keeps what is the same surface on every frame and drops what is not."""
+    memo = memo if memo is not None and memo.shot is shot else FrameMemo(shot)
+    own = memo.channel("albedo", t).astype(np.float32)
+    if cfg.albedo_frames <= 0 or not can_reproject(shot):
+        return own
+    acc, weight = own.copy(), np.ones(shot.size, np.float32)
+    for j in range(max(0, t - cfg.albedo_frames), min(shot.num_frames, t + cfg.albedo_frames + 1)):
+        if j != t:
+            a, valid = warp(memo.geometry(t), memo.geometry(j), memo.channel("albedo", j).astype(np.float32), cfg)
+            acc += a * valid[..., None]
+            weight += valid
+    return acc / weight[..., None]
+
+
+def _albedo(shot: Shot, t: int, cfg: FillConfig, memo: FrameMemo | None = None) -> np.ndarray:
+    """The albedo that (de)modulates frame t's shading: `stable_albedo`, floored at `cfg.albedo_floor`; 1 without albedo."""
+    if not shot.has("albedo"):
+        return np.ones((*shot.size, 3), np.float32)
+    return np.maximum(stable_albedo(shot, t, cfg, memo), cfg.albedo_floor)
 
 
 def _emission(shot: Shot, t: int) -> np.ndarray:
     return shot.channel("emission", t) if shot.has("emission") else np.zeros((*shot.size, 3), np.float32)
 
 
-def demodulated(shot: Shot, k: int, cfg: FillConfig) -> np.ndarray:
+def demodulated(shot: Shot, k: int, cfg: FillConfig, memo: FrameMemo | None = None) -> np.ndarray:
     """Keyframe k's shading (rgb - emission) / albedo, (H, W, 3)."""
-    return ((shot.channel("rgb", k) - _emission(shot, k)) / _albedo(shot, k, cfg.albedo_floor)).astype(np.float32)
+    return ((shot.channel("rgb", k) - _emission(shot, k)) / _albedo(shot, k, cfg, memo)).astype(np.float32)
 
 
 def can_reproject(shot: Shot) -> bool:
@@ -92,38 +121,12 @@ def can_reproject(shot: Shot) -> bool:
     return shot.has("depth") and poses is not None and all(p.fov_y_deg is not None for p in poses)
 
 
-def warp_by_depth(shot: Shot, t: int, k: int, shading_k: np.ndarray, cfg: FillConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Keyframe k's `shading_k` seen from frame t through depth and camera: ((H, W, 3) shading, (H, W) validity).
-
-    Bilinear over the four keyframe pixels around each reprojected position, each weighed by whether it is the same
-    surface (depth and normal agree): an interpolation never mixes a foreground object's shading into the wall
-    behind it, which is where most of a plain bilinear warp's error lay (measured on the validation clip)."""
-    assert shot.info.poses is not None
-    vt, vk = View.of(shot.info.poses[t], shot.size), View.of(shot.info.poses[k], shot.size)
-    h, w = shot.size
-    x, y, d = project(vk, unproject(vt, shot.channel("depth", t)[..., 0]))
-    depth_k = shot.channel("depth", k)[..., 0]
-    normals = shot.has("normal")
-    if normals:
-        nt = world_normals(vt, shot.channel("normal", t))
-        nk = world_normals(vk, shot.channel("normal", k))
-    x0, y0 = np.floor(x), np.floor(y)
-    fx, fy = x - x0, y - y0
-    acc = np.zeros((h, w, 3), np.float32)
-    wsum = np.zeros((h, w), np.float32)
-    inside = (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5) & (d > 0)
-    for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
-        xi = np.clip(x0 + dx, 0, w - 1).astype(np.int32)
-        yi = np.clip(y0 + dy, 0, h - 1).astype(np.int32)
-        wb = (fx if dx else 1 - fx) * (fy if dy else 1 - fy)
-        ok = inside & (np.abs(depth_k[yi, xi] - d) <= cfg.depth_tolerance * np.maximum(d, 1e-6))
-        if normals:
-            ok &= np.sum(nk[yi, xi] * nt, -1) >= cfg.normal_cos
-        wt = np.where(ok, np.maximum(wb, 1e-4), 0).astype(np.float32)
-        acc += shading_k[yi, xi] * wt[..., None]
-        wsum += wt
-    valid = wsum > 0
-    return np.where(valid[..., None], acc / np.maximum(wsum, 1e-12)[..., None], 0).astype(np.float32), valid
+def warp_by_depth(shot: Shot, t: int, k: int, shading_k: np.ndarray, cfg: FillConfig,
+                  memo: FrameMemo | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Keyframe k's `shading_k` seen from frame t through depth and camera: ((H, W, 3) shading, (H, W) validity),
+    the same surface only (`reproject.warp`)."""
+    memo = memo if memo is not None and memo.shot is shot else FrameMemo(shot)
+    return warp(memo.geometry(t), memo.geometry(k), shading_k, cfg)
 
 
 @dataclass
@@ -145,22 +148,24 @@ class FillInputs:
 
 
 def fill_inputs(shot: Shot, t: int, cfg: FillConfig = FillConfig(), keyframes: Sequence[int] | None = None,
-                shading: dict[int, np.ndarray] | None = None) -> FillInputs:
-    """The warped keyframes, their validity and the classical fill's shading of frame t, which is no keyframe."""
+                shading: dict | None = None) -> FillInputs:
+    """The warped keyframes, their validity and the classical fill's shading of frame t, which is no keyframe
+    (`shading`: the cache `fill_frame` keeps across calls)."""
     keys = tuple(shot.keyframes if keyframes is None else keyframes)
     near = nearest_keyframes(t, keys)
     if near == (t,):
         raise ValueError(f"shot {shot.info.source!r}: frame {t} is a keyframe; there is nothing to fill")
     cache = shading if shading is not None else {}
+    memo = frame_memo(cache, shot)
     use_depth = can_reproject(shot)
     acc = np.zeros((*shot.size, 3), np.float32)
     weight = np.zeros(shot.size, np.float32)
     warped, valids, times = [], [], []
     for k in near:
         if k not in cache:
-            cache[k] = demodulated(shot, k, cfg)
+            cache[k] = demodulated(shot, k, cfg, memo)
         if use_depth:
-            s, valid = warp_by_depth(shot, t, k, cache[k], cfg)
+            s, valid = warp_by_depth(shot, t, k, cache[k], cfg, memo)
         else:
             from x2video.base.flow import warp_by_flow
 
@@ -180,30 +185,46 @@ def fill_inputs(shot: Shot, t: int, cfg: FillConfig = FillConfig(), keyframes: S
     return FillInputs(near, warped, valids, times, out, holes, "depth" if use_depth else "flow")
 
 
-def modulation(shot: Shot, t: int, cfg: FillConfig = FillConfig()) -> tuple[np.ndarray, np.ndarray]:
-    """Frame t's (albedo floored as the fill floors it, emission), each (H, W, 3): rgb = shading x albedo + emission."""
-    return _albedo(shot, t, cfg.albedo_floor), _emission(shot, t)
+def modulation(shot: Shot, t: int, cfg: FillConfig = FillConfig(), memo: FrameMemo | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Frame t's (albedo as the fill (de)modulates with it, `_albedo`, emission), each (H, W, 3): rgb = shading x albedo
+    + emission."""
+    return _albedo(shot, t, cfg, memo), _emission(shot, t)
 
 
-def modulated(shot: Shot, t: int, shading: np.ndarray, cfg: FillConfig = FillConfig()) -> np.ndarray:
+def modulated(shot: Shot, t: int, shading: np.ndarray, cfg: FillConfig = FillConfig(), memo: FrameMemo | None = None) -> np.ndarray:
     """(H, W, 3) rgb of frame t from its demodulated `shading`: shading x albedo + emission, >= 0."""
-    albedo, emission = modulation(shot, t, cfg)
+    albedo, emission = modulation(shot, t, cfg, memo)
     return np.maximum(shading * albedo + emission, 0).astype(np.float32)
 
 
 def fill_frame(shot: Shot, t: int, cfg: FillConfig = FillConfig(), keyframes: Sequence[int] | None = None,
-               shading: dict[int, np.ndarray] | None = None, learned: LearnedFill | None = None) -> FillResult:
+               shading: dict | None = None, learned: LearnedFill | None = None) -> FillResult:
     """Frame t of `shot` filled from its nearest keyframes (default `shot.keyframes`); a keyframe returns its rgb.
 
-    `shading` caches keyframes' demodulated shading across calls (frame -> array). `learned` (tier 1 of the fill,
+    `shading` is a cache kept across calls on one shot (start it as {}): keyframes' demodulated shading (frame ->
+    array), and under "frames" a `FrameMemo` of the frames in reach of the one filled last (its neighbours for
+    `stable_albedo`, its keyframes), so that a shot filled in order reads each frame once. `learned` (tier 1 of the fill,
     `base.learned.load_learned_fill`): its network corrects the classical fill's shading; without it the fill is
     the classical one (tier 0)."""
     keys = tuple(shot.keyframes if keyframes is None else keyframes)
     if nearest_keyframes(t, keys) == (t,):
         return FillResult(shot.channel("rgb", t), 0.0, "keyframe")
-    inputs = fill_inputs(shot, t, cfg, keys, shading)
+    cache = shading if shading is not None else {}
+    inputs = fill_inputs(shot, t, cfg, keys, cache)
     out = inputs.shading if learned is None else learned.shading(shot, t, inputs, cfg)
-    return FillResult(modulated(shot, t, out, cfg), float(inputs.holes.mean()), inputs.method, out)
+    memo = frame_memo(cache, shot)
+    rgb = modulated(shot, t, out, cfg, memo)
+    r = cfg.albedo_frames
+    memo.keep([*range(t - r, t + r + 2), *inputs.near])  # what frame t + 1 reaches
+    return FillResult(rgb, float(inputs.holes.mean()), inputs.method, out)
+
+
+def frame_memo(cache: dict, shot: Shot) -> FrameMemo:
+    """The `FrameMemo` of `shot` kept in a `fill_frame` cache under "frames" (a new one for another shot)."""
+    memo = cache.get("frames")
+    if not isinstance(memo, FrameMemo) or memo.shot is not shot:
+        memo = cache["frames"] = FrameMemo(shot)
+    return memo
 
 
 def _fill_holes(shot: Shot, t: int, shading: np.ndarray, holes: np.ndarray) -> np.ndarray:
@@ -223,7 +244,7 @@ class BaseFrames:
     def __init__(self, shot: Shot, cfg: FillConfig = FillConfig()) -> None:
         self.shot, self.cfg = shot, cfg
         self.scale = float(shot.info.irradiance_scale)
-        self._shading: dict[int, np.ndarray] = {}  # keyframe -> its demodulated shading (the fill's cache)
+        self._shading: dict = {}  # fill_frame's cache across frames (keyframes' shading, the frames in reach)
         self._fills = LRU(4)  # the last frames filled: a frame's base and its irradiance (`irradiance`) fill it once
         #: frame -> fraction of its pixels that no keyframe saw (filled frames only)
         self.holes: dict[int, float] = {}
