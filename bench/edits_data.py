@@ -228,7 +228,7 @@ def cycles_record(secs: dict[str, Any], samples: int) -> dict[str, Any]:
 
 
 def make_room(folder: Path, seed: int, frames: int, width: int, height: int, *, samples: int = 16, threads: int = 2,
-              kinds: tuple[str, ...] = KINDS, log=print) -> dict:
+              kinds: tuple[str, ...] = KINDS, beauty: int = 4, log=print) -> dict:
     """Render (or finish) room `seed` before and after each kind's change into `folder`; returns room.json's content."""
     from x2video.io.atomic import write_json_atomic
     from x2video.io.load import load_shot
@@ -236,7 +236,7 @@ def make_room(folder: Path, seed: int, frames: int, width: int, height: int, *, 
     before = folder / "before"
     if not (before / "shot.json").is_file():
         log(f"room {seed}: before ({frames} frames, {width}x{height}, {samples} spp + OIDN)")
-        cycles_render(before, seed, frames, width, height, samples, threads)
+        cycles_render(before, seed, frames, width, height, samples, threads, beauty=beauty)
     info = json.loads((before / "shot.json").read_text())
     made = (info["num_frames"], info["width"], info["height"], info["extra"]["samples"])
     if made != (frames, width, height, samples):
@@ -261,7 +261,7 @@ def make_room(folder: Path, seed: int, frames: int, width: int, height: int, *, 
         after = folder / f"after_{kind}"
         if not (after / "shot.json").is_file():
             log(f"room {seed}: after_{kind} {pick.get('target', {}).get('caption', '')!r}")
-            cycles_render(after, seed, frames, width, height, samples, threads, gain=gain, look=pick["look"])
+            cycles_render(after, seed, frames, width, height, samples, threads, gain=gain, look=pick["look"], beauty=beauty)
         doc = {"kind": kind, **pick, "edits": x2video_edits(pick["look"]),
                "cycles": {**cycles_record(frame_seconds(after), samples), "light_gain": gain}}
         write_json_atomic(after / "edits.json", doc)
@@ -278,6 +278,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--samples", type=int, default=16, help="samples of every render (+ OIDN), before and after alike")
     ap.add_argument("--threads", type=int, default=2, help="Cycles' CPU threads")
     ap.add_argument("--kinds", default=",".join(KINDS), help=f"edit kinds among {', '.join(KINDS)}")
+    ap.add_argument("--beauty", type=int, default=4,
+                    help="frames of each variant re-rendered as the picture alone, timed (0: none, for training pairs)")
     ap.add_argument("--out", default=None, help="root folder (default: the cache folder)")
     args = ap.parse_args(argv)
     w, h = parse_size(args.size)
@@ -288,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
     root = Path(args.out) if args.out else default_root(w, h)
     for s in (int(v) for v in args.seeds.split(",") if v):
         make_room(root / f"room_{s}", s, args.frames, w, h, samples=args.samples, threads=args.threads, kinds=kinds,
-                  log=lambda m: print(m, flush=True))
+                  beauty=args.beauty, log=lambda m: print(m, flush=True))
         print(root / f"room_{s}", flush=True)
     return 0
 
