@@ -33,7 +33,8 @@ WHAT = {
     "attention": "Attention layer time and memory: Hybrid Self-Attention vs self vs full spatio-temporal",
     "bigframes": "Large frames: seconds per frame and peak memory per tier, PSNR beside the formula",
     "editor_latency": "Editor latency: how soon the editor shows the window, the formula's frame, tier 1's, a diffusion keyframe",
-    "edits": "Edits over the shot's own path-traced frames against Cycles' re-render of each edit, inside the edit and whole frame, beside doing nothing and the rebuild from passes",
+    "edits": ("Edits over the shot's own path-traced frames against Cycles' re-render of each edit, inside the edit and whole "
+              "frame, beside doing nothing and the rebuild from passes"),
     "farm": "x2video farm throughput on a local Ray cluster",
     "lcm_speedup": "LCM-2 vs DDIM-20 back to back, repeated",
     "light_budget": "Where the formula's error lies on path-traced shots: the PSNR each missing light term would add",
