@@ -11,8 +11,11 @@ over rooms; and seconds per edited frame beside Cycles' re-render seconds. Metho
 - ``nothing``: the frames as they were (the before render);
 - ``rebuild``: a compositor's rebuild from the before render's passes: albedo edits
   ``Combined - DiffCol x (DiffDir + DiffInd) + colour x (DiffDir + DiffInd)`` inside the object; the light edit
-  every pass times the tint (a grade of the whole frame, exact when every light changes together); roughness and
-  metallic edits: no pass holds them, so the same as doing nothing;
+  every pass times the tint (a grade of the whole frame, exact when every light changes together); metallic edits
+  ``Combined - DiffCol x DiffLight - GlossCol x GlossLight + DiffCol' x DiffLight + GlossCol' x GlossLight`` with
+  ``DiffCol' = albedo x (1 - m)`` and ``GlossCol' = 0.04 x (1 - m) + albedo x m`` (m the new metallic; the light of
+  a pure metal's black diffuse passes unknown, so left black); roughness edits: no pass holds them, so the same as
+  doing nothing;
 - ``off``: x2video re-rendering the frames from the edited channels (RenderSettings ``base="off"``, quality auto:
   what every render did before the base existed);
 - ``base-formula``, ``base-residual``, ``base-auto``: x2video with the shot's rgb as the base (``base="auto"``) and
@@ -48,9 +51,9 @@ from typing import Any
 
 import numpy as np
 
-from bench.clips import TEST_SEEDS, VALIDATION_SEEDS
+from bench.clips import TEST_SEEDS
 from bench.common import clean_json, command, results_path
-from bench.edits_data import KINDS, default_root
+from bench.edits_data import EDITS_VALIDATION_SEEDS, KINDS, default_root
 from x2video.fields import parse_size
 
 #: pixels around the edited object scored as its band (the spill margin of `x2video.base.difference`)
@@ -120,9 +123,17 @@ def rebuild(before: Any, look: dict, t: int, inside: np.ndarray) -> np.ndarray:
     rgb = before.channel("rgb", t).astype(np.float32)
     if look["kind"] == "light":
         return rgb * float(look["scale"]) * np.asarray(look["tint"], np.float32)
+    frame = sorted(Path(before.info.source).glob("frame_*.exr"))[t]
+    if look["kind"] in ("metal_off", "metal_on"):
+        p = read_passes(frame, ("DiffCol", "DiffDir", "DiffInd", "GlossCol", "GlossDir", "GlossInd"))
+        m = np.float32(look["value"])
+        albedo = np.clip(before.channel("albedo", t), 0, 1)
+        diff, gloss = p["DiffDir"] + p["DiffInd"], p["GlossDir"] + p["GlossInd"]
+        new = (rgb - p["DiffCol"] * diff - p["GlossCol"] * gloss + albedo * (1 - m) * diff
+               + (np.float32(0.04) * (1 - m) + albedo * m) * gloss)
+        return np.where(inside[..., None], np.maximum(new, 0), rgb)
     if look["kind"] != "albedo":
         return rgb
-    frame = sorted(Path(before.info.source).glob("frame_*.exr"))[t]
     p = read_passes(frame, ("DiffCol", "DiffDir", "DiffInd"))
     light = p["DiffDir"] + p["DiffInd"]
     new = rgb - p["DiffCol"] * light + np.asarray(look["color"], np.float32) * light
@@ -255,8 +266,9 @@ def score_room(folder: Path, kinds: tuple[str, ...], methods: tuple[str, ...], m
             elif method == "rebuild":
                 t0 = time.perf_counter()
                 frames = [rebuild(before, doc["look"], t, masks[t]["inside"]) for t in range(before.num_frames)]
-                spf = (time.perf_counter() - t0) / before.num_frames if kind in ("albedo", "light") else 0.0
-                via = "bench" if kind in ("albedo", "light") else "no pass holds it: the frames as they were"
+                passes = kind in ("albedo", "light", "metal_off", "metal_on")
+                spf = (time.perf_counter() - t0) / before.num_frames if passes else 0.0
+                via = "bench" if passes else "no pass holds it: the frames as they were"
             elif method in NEEDS_MODEL and (model is None or (method != "off" and model.residual_net is None)):
                 row["methods"][method] = {"skipped": "needs the model's tier-1 net"}
                 continue
@@ -378,7 +390,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--root", default=None, help="bench.edits_data's folder (default: its cache folder for --size)")
     ap.add_argument("--size", default="320x224", help="WxH of the default root")
     ap.add_argument("--seeds", default=None, help=f"room seeds (default the test rooms {TEST_SEEDS})")
-    ap.add_argument("--validation", action="store_true", help=f"score the validation room {VALIDATION_SEEDS} (edits_validation.json)")
+    ap.add_argument("--validation", action="store_true", help=f"score the validation rooms {EDITS_VALIDATION_SEEDS} (edits_validation.json)")
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--methods", default=",".join(METHODS))
     ap.add_argument("--weights", default=None, help="checkpoint folder (default: the shipped weights)")
@@ -389,7 +401,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     w, h = parse_size(args.size)
     root = Path(args.root) if args.root else default_root(w, h)
-    seeds = [int(s) for s in (args.seeds or (VALIDATION_SEEDS if args.validation else TEST_SEEDS)).split(",") if s]
+    seeds = [int(s) for s in (args.seeds or (EDITS_VALIDATION_SEEDS if args.validation else TEST_SEEDS)).split(",") if s]
     methods = tuple(m for m in args.methods.split(",") if m)
     bad = [m for m in methods if m not in METHODS]
     if bad:

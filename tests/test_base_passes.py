@@ -178,3 +178,70 @@ def test_sharpened_is_roughness_down_alone():
     assert not sharpened(original, edit(ScalarOp(mask="box", target_channel="roughness", value=0.9))).any()  # rougher: tier 1's
     both = edit(ScalarOp(mask="box", target_channel="roughness", value=0.05), ScalarOp(mask="box", target_channel="metallic", value=1.0))
     assert not sharpened(original, both).any()  # made metal too: tier 1's difference (the glossy change of a metal)
+
+
+@pytest.fixture(scope="module")
+def metal_shot(tmp_path_factory):
+    """A Blender shot whose object (BOX) is a pure metal: DiffCol and the diffuse light passes black on it (no diffuse
+    lobe), GlossCol its base colour; and the Cycles truth of it made non-metal, where the diffuse light is what the
+    glossy lobe gathered (GlossDir + GlossInd) and GlossCol a dielectric's 0.04."""
+    folder = tmp_path_factory.mktemp("metal")
+    rng = np.random.default_rng(9)
+    planes, parts = passes_frame(rng)
+    base = parts["basecolor"]
+    gloss_light = planes_of(planes, "GlossDir") + planes_of(planes, "GlossInd")
+    metal_gc = np.clip(base, 0, 1)
+    for name, v in (("DiffCol", 0.0), ("DiffDir", 0.0), ("DiffInd", 0.0)):
+        for i, c in enumerate("RGB"):
+            planes[f"ViewLayer.{name}.{c}"][BOX] = v
+    for i, c in enumerate("RGB"):
+        planes[f"ViewLayer.GlossCol.{c}"][BOX] = metal_gc[BOX][..., i]
+        planes["ViewLayer.metallic.X"][BOX] = 1.0
+    diffcol, light = planes_of(planes, "DiffCol"), planes_of(planes, "DiffDir") + planes_of(planes, "DiffInd")
+    combined = diffcol * light + planes_of(planes, "GlossCol") * gloss_light + planes_of(planes, "Emit") + planes_of(planes, "Env")
+    for i, c in enumerate("RGB"):
+        planes[f"ViewLayer.Combined.{c}"] = combined[..., i]
+    write_exr(folder / "frame_0000.exr", planes, "float")
+    truth = combined.copy()
+    truth[BOX] = (base * gloss_light + 0.04 * gloss_light)[BOX]  # non-metal: albedo x gathered light + 0.04 x glossy light
+    return load_shot(folder), truth, combined
+
+
+def planes_of(planes: dict[str, np.ndarray], name: str) -> np.ndarray:
+    return np.stack([planes[f"ViewLayer.{name}.{c}"] for c in "RGB"], -1)
+
+
+def test_a_metal_made_non_metal_is_rebuilt_from_the_glossy_passes(metal_shot):
+    """Metallic edits over the base move light between the passes' terms (x2video.base.passes): the glossy term takes
+    the dielectric's glossy colour, and the diffuse light the metal's black passes lack is the light its glossy lobe
+    gathered (`relit_metal`); the rebuild renders the metal tier 0's (no tier-1 difference where the glossy colour pass
+    is there), and the pixels no edit reaches stay the base."""
+    shot, truth, combined = metal_shot
+    assert "glossy_color" in shot.channels
+    s = shot.info.irradiance_scale
+    base = shot.channel("rgb", 0).astype(np.float64) * s
+    original = plain_conditioning(shot, 0)
+    edited = apply_edits(shot, object_edit(ScalarOp(mask="cabinet", target_channel="metallic", mode="set", value=0.0)), 0)
+    calls = []
+    out, mode = edited_frame(base, original, edited, glossy_tier=True, residual=lambda *a: calls.append(a))
+    assert mode == "formula" and not calls  # the rebuild, not tier 1
+    inside = np.zeros((H, W), bool)
+    inside[BOX] = True
+    np.testing.assert_allclose((out / s)[inside], truth[inside], rtol=1e-4, atol=1e-5)
+    far = ~grow(inside, SPILL_MARGIN)
+    np.testing.assert_array_equal((out / s).astype(np.float32)[far], shot.channel("rgb", 0)[far])
+    assert np.abs((out / s)[inside] - combined[inside]).max() > 1e-2
+
+
+def test_a_non_metal_made_metal_loses_its_diffuse_term_and_reflects_with_its_colour(blender_shot):
+    shot, terms = blender_shot
+    s = shot.info.irradiance_scale
+    edits = object_edit(ScalarOp(mask="cabinet", target_channel="metallic", mode="set", value=1.0))
+    inside = np.zeros((H, W), bool)
+    inside[BOX] = True
+    for t in range(T):
+        base = shot.channel("rgb", t).astype(np.float64) * s
+        out, mode = edited_frame(base, plain_conditioning(shot, t), apply_edits(shot, edits, t), glossy_tier=False, residual=None)
+        gloss_light = terms[t]["glossy"] / np.maximum(shot.channel("glossy_color", t), 1e-3)
+        want = terms[t]["emission"] + np.clip(terms[t]["basecolor"], 0, 1) * gloss_light  # DiffCol' = 0, GlossCol' = albedo
+        np.testing.assert_allclose((out / s)[inside], want[inside], rtol=1e-4, atol=1e-5)

@@ -257,7 +257,7 @@ def test_addon_keyframe_shot_loads_with_rgb_on_keyframes_only(tmp_path, runner):
     # the light passes (irradiance, and the Cycles colour/glossy passes the base stage's differences use) are
     # rendered on keyframes only: not the shot's channels, offered on the keyframes
     keyframe_only = set(shot.info.extra["keyframe_only"])
-    assert keyframe_only == {"irradiance", "diffuse_color", "glossy"}, keyframe_only
+    assert keyframe_only == {"irradiance", "diffuse_color", "glossy", "glossy_color"}, keyframe_only
     assert not keyframe_only & set(shot.channels)
     assert shot.info.channel_frames == {c: (0, 2, 4) for c in keyframe_only}
     assert shot.has("irradiance", 2) and not shot.has("irradiance", 1) and shot.channel("irradiance", 2).max() > 0

@@ -12,10 +12,12 @@ INTRINSIC = ("albedo", "normal", "roughness", "metallic", "irradiance")
 #: diffuse_color: the colour Cycles divided the diffuse light passes by (DiffCol: the base colour times what the BSDF
 #: keeps diffuse); glossy: the glossy and transmitted light (GlossCol x (GlossDir + GlossInd) + TransCol x (TransDir +
 #: TransInd)), linear HDR in rgb's units as emission. With irradiance they split rgb as Cycles does (`PASSES`).
-EXTRA = ("ids", "rgb", "depth", "emission", "diffuse_color", "glossy")
+#: glossy_color: the colour Cycles divided the glossy light passes by (GlossCol: about 0.04 on a dielectric, the base
+#: colour on a metal), what a metallic edit changes the glossy term by (`x2video.base.passes`).
+EXTRA = ("ids", "rgb", "depth", "emission", "diffuse_color", "glossy", "glossy_color")
 #: the terms of a path-traced frame besides albedo x irradiance: rgb = diffuse_color x irradiance + glossy + emission
 #: (irradiance unnormalised), what the formula over the base rebuilds (`x2video.base.passes`)
-PASSES = ("diffuse_color", "glossy", "emission")
+PASSES = ("diffuse_color", "glossy", "emission", "glossy_color")
 #: the passes that are light (scaled with irradiance by the light operations, `x2video.edits.ops`)
 LIGHT_PASSES = ("glossy", "emission")
 ALL = INTRINSIC + EXTRA
@@ -48,6 +50,7 @@ SPECS: dict[str, ChannelSpec] = {
     "emission": ChannelSpec("emission", 3, ("R", "G", "B"), 0.0, None),
     "diffuse_color": ChannelSpec("diffuse_color", 3, ("R", "G", "B"), 0.0, 1.0),
     "glossy": ChannelSpec("glossy", 3, ("R", "G", "B"), 0.0, None),
+    "glossy_color": ChannelSpec("glossy_color", 3, ("R", "G", "B"), 0.0, 1.0),
 }
 
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from x2video.base.difference import (
     GLOSSY_CHANNELS,
+    GLOSSY_CHANNELS_WITH_PASSES,
     LIGHT_MODE,
     MATERIAL_MODE,
     SPILL_MARGIN,
@@ -109,7 +110,7 @@ def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameCon
     b = base[rows, cols]
     glossy = np.zeros(reach_box.shape, bool)  # where tier 1's difference is taken
     if glossy_tier and residual is not None:
-        glossy_changed = changed(o, e_relit, GLOSSY_CHANNELS)
+        glossy_changed = changed(o, e_relit, GLOSSY_CHANNELS_WITH_PASSES if "glossy_color" in o.passes else GLOSSY_CHANNELS)
         if not sharpen:
             glossy_changed &= ~sharpened(o, e_relit)
         glossy = grow(glossy_changed, margin) & reach_box

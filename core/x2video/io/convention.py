@@ -74,7 +74,7 @@ def to_memory(name: str, img: ImageData, *, ldr_decode: str = "srgb", where: str
     assert a is not None
     a = zero_nonfinite(a, where, name)
     if ldr:
-        if name in ("albedo", "irradiance", "rgb", "emission", "diffuse_color", "glossy"):
+        if name in ("albedo", "irradiance", "rgb", "emission", "diffuse_color", "glossy", "glossy_color"):
             a = srgb_to_linear(a) if ldr_decode == "srgb" else np.power(np.clip(a, 0, 1), 2.2, dtype=np.float32)
         elif name == "normal":
             a = a * 2.0 - 1.0

@@ -41,7 +41,7 @@ PACKED = {"material": {"roughness": 0, "metallic": 1}}
 EXPOSURE_SAMPLES = 16
 #: the path-traced light passes, which a keyframe shot (rgb/ with gaps) may hold on some frames only (its keyframes):
 #: their folders may have gaps there, and the frames that carry them are `ShotInfo.channel_frames`
-KEYFRAME_PASSES = ("irradiance", "diffuse_color", "glossy")
+KEYFRAME_PASSES = ("irradiance", "diffuse_color", "glossy", "glossy_color")
 
 
 #: DiffusionRenderer's G-buffer frames, all in one folder: ``<chunk>.<index>.<pass>.<ext>`` (its

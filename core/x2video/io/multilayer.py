@@ -14,7 +14,7 @@ Blender's (``<ViewLayer>.<Pass>.<comp>``, short or long pass names):
 - ids: ``IndexOB`` / ``Object Index``; depth: ``Depth`` / ``Z``; rgb: ``Combined`` / ``Image``;
 - emission: ``Emit`` + ``Env`` (light the surfaces emit and the world seen directly), in the file's units as
   rgb is (neither is scaled by the irradiance normalisation: rgb - emission is the reflected light);
-- diffuse_color: ``DiffCol`` (the colour the diffuse light passes were divided by);
+- diffuse_color: ``DiffCol`` (the colour the diffuse light passes were divided by); glossy_color: ``GlossCol``;
 - glossy: ``GlossCol`` x (``GlossDir`` + ``GlossInd``), plus ``TransCol`` x (``TransDir`` + ``TransInd``) and
   ``VolumeDir`` + ``VolumeInd`` where the file has them (`PRODUCTS`), in the file's units as emission. With these,
   rgb = diffuse_color x (DiffDir + DiffInd) + glossy + emission: Cycles' split of Combined (`x2video.base.passes`).
@@ -60,6 +60,7 @@ BLENDER: dict[str, list[tuple[str, ...]]] = {
     "rgb": [("Combined",), ("Image",)],
     "emission": [("Emit", "Env"), ("Emission", "Environment"), ("Emit",)],
     "diffuse_color": [("DiffCol",), ("Diffuse Color",)],
+    "glossy_color": [("GlossCol",), ("Glossy Color",)],
 }
 #: channels that are sums of products of passes: channel -> terms (colour pass or None, light passes summed), the
 #: first term required (short names, then long ones); later terms are added where the file has all their passes
