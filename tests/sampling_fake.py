@@ -27,6 +27,7 @@ class FakeModel:
     residual_prior = False
     prior = "shading"
     residual_net = None  # no tier-1 network: quality auto renders with the sampler
+    difference_net = None  # no difference net: tier 1's difference over a base runs residual_net
     residual_auto = True
     text_encoder = None
 

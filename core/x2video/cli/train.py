@@ -1,4 +1,4 @@
-"""`x2video train vae|cache|image|video|lcm|residual|fill`: the training stages (issue 5), each resumable, with a progress bar."""
+"""`x2video train vae|cache|image|video|lcm|residual|difference|fill`: the training stages (issue 5), each resumable, with a progress bar."""
 from __future__ import annotations
 
 import argparse
@@ -264,6 +264,31 @@ def cmd_residual(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_difference(args: argparse.Namespace) -> int:
+    from x2video.train.difference_stage import DifferenceTrainConfig, train
+
+    cfg = from_args(DifferenceTrainConfig, args)
+    out = Path(args.out)
+
+    def db(v: float | None) -> str:
+        return "-" if v is None else f"{v:.2f}"
+
+    def show(v: dict) -> None:
+        base = v["baseline"] or {}
+        was = lambda m: db(base.get(m, {}).get("reach"))  # noqa: E731
+        print(f"step {v['step']:6d}  loss {v['loss']:.4f}  val PSNR in the reach {db(v['difference']['reach'])} dB (inside "
+              f"{db(v['difference']['inside'])}; shipped tier 1 {was('difference')}, formula {was('formula')}, tier 0 {was('tier0')}, "
+              f"nothing {was('nothing')}); as the stage routes it {db(v['stage']['reach'])} (shipped {was('stage')})  {v['seconds']:.0f} s",
+              flush=True)
+
+    summary = train(Path(args.data), out, cfg, threads=args.threads, progress=show)
+    best = summary["best_val_psnr"]
+    print(f"{summary['steps']} steps in {summary['seconds']:.0f} s on {summary['train_frames']} frames"
+          + (f"; best val PSNR in the reach {best:.2f} dB" if best is not None else "; no held-out pairs")
+          + f"; weights in {out / 'best'} (ship: copy difference.safetensors and difference.json beside residual.safetensors)")
+    return 0
+
+
 def cmd_fill(args: argparse.Namespace) -> int:
     from x2video.train.fill_stage import FillTrainConfig, train_folder
 
@@ -354,6 +379,16 @@ def register(subparsers) -> None:
 
     _small_net_args(s, ResidualTrainConfig, "shot folders holding the five channels and rgb", "")
     s.set_defaults(func=cmd_residual)
+
+    s = sub.add_parser("difference", help="tier 1's net fine-tuned for its difference over a shot's frames, on rooms path-traced before and after an edit",
+                       description="Starts from the shipped tier-1 net (--init) and fits base + R(edited) - R(original) to Cycles' render "
+                                   "after the edit, inside the edit's reach. Data: `python -m bench.edits_data --out DATA/{train,val}`. "
+                                   "Resumable: run the same command again to continue.")
+    from x2video.train.difference_stage import DifferenceTrainConfig
+
+    _small_net_args(s, DifferenceTrainConfig, "rooms (room_<seed>/before and after_<kind>/ with edits.json, as bench.edits_data makes them)",
+                    "; the pairs are cached in OUT/cache")
+    s.set_defaults(func=cmd_difference)
 
     s = sub.add_parser("fill", help="the learned keyframe fill: a small net correcting the classical fill between path-traced keyframes",
                        description="Trains on shots with rgb on every frame (random keyframe spacing and phase, a frame "

@@ -54,6 +54,9 @@ class RenderModel(Protocol):
     residual_net: ResidualNet | None
     #: whether quality 'auto' may render with `residual_net` (its record says it beat the formula); else auto keeps the formula
     residual_auto: bool
+    #: tier 1's net fine-tuned for its difference over a shot's own frames (difference.safetensors beside residual.safetensors,
+    #: `x2video train difference`), or None: the residual tier's difference over the base then runs `residual_net`
+    difference_net: ResidualNet | None
     #: the prompt encoder, or None for a model that loads it on first `encode_prompts` (`prepare` warms it when set)
     text_encoder: Any
 

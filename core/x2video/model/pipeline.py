@@ -91,6 +91,9 @@ class X2VideoModel(ConditioningLatents):
         self.residual_net = None
         #: whether auto may render with `residual_net` (residual.json's 'auto': it beat the formula on the outside check)
         self.residual_auto = True
+        #: tier 1's net fine-tuned for its difference over a shot's frames, or None; `from_pretrained` loads the folder's
+        #: difference.safetensors. Only the residual tier's difference over the base runs it (`ResidualTier.glossy_frames`).
+        self.difference_net = None
         #: what runs the UNet, the decoder and the channel encoder: 'torch', or an exported graph's runtime
         #: ('onnx', 'openvino'); see `set_engine` and `x2video.model.engine`
         self.engine = "torch"
@@ -163,6 +166,8 @@ class X2VideoModel(ConditioningLatents):
             model.residual_auto = bool(json.loads((directory / "residual.json").read_text()).get("auto", False))
             if cfg.prior == "tier1":
                 model._check_prior_net(directory)
+            if (directory / "difference.safetensors").is_file():
+                model.difference_net = engine(load_residual(directory, model.device, name="difference"), model.device)
         elif cfg.prior == "tier1":
             raise FileNotFoundError(f"{directory / 'residual.safetensors'} is missing: this model samples its residual over tier 1's "
                                     f"frame (config prior 'tier1'), so it needs the tier-1 net it was trained with beside its weights")

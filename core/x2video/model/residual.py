@@ -364,31 +364,33 @@ def apply_tiled(net, ch: Mapping[str, np.ndarray | None], shape: tuple[int, int]
     return np.maximum(out, 0).astype(np.float32)
 
 
-def save(net: ResidualNet, folder: str | Path, extra: dict | None = None) -> Path:
-    """fp16 safetensors + residual.json (config and what trained it) in `folder`."""
+def save(net: ResidualNet, folder: str | Path, extra: dict | None = None, name: str = "residual") -> Path:
+    """fp16 `name`.safetensors + `name`.json (config and what trained it) in `folder`: "residual" (tier 1), or
+    "difference" (the same net fine-tuned on edit pairs for its difference over a shot's frames, `x2video.train.difference_stage`)."""
     from safetensors.torch import save_file
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     from x2video.io.atomic import atomic_path, write_json_atomic
 
-    with atomic_path(folder / "residual.safetensors") as tmp:
+    with atomic_path(folder / f"{name}.safetensors") as tmp:
         save_file({k: v.detach().to(torch.float16).contiguous() for k, v in net.state_dict().items()}, str(tmp))
     cfg = asdict(net.cfg)
-    write_json_atomic(folder / "residual.json", {"config": cfg, **(extra or {})})
-    return folder / "residual.safetensors"
+    write_json_atomic(folder / f"{name}.json", {"config": cfg, **(extra or {})})
+    return folder / f"{name}.safetensors"
 
 
-def load(folder: str | Path, device: str | torch.device = "cpu") -> ResidualNet:
-    """The tier-1 net saved in `folder` by `save` (float32 on `device`, eval mode)."""
+def load(folder: str | Path, device: str | torch.device = "cpu", name: str = "residual") -> ResidualNet:
+    """The net saved in `folder` by `save` under `name` (float32 on `device`, eval mode)."""
     from safetensors.torch import load_file
 
     folder = Path(folder)
-    meta = folder / "residual.json"
+    meta = folder / f"{name}.json"
     if not meta.is_file():
-        raise FileNotFoundError(f"{meta}: no tier-1 residual network here (train one with `x2video train residual`)")
+        how = "x2video train difference" if name == "difference" else "x2video train residual"
+        raise FileNotFoundError(f"{meta}: no tier-1 {name} network here (train one with `{how}`)")
     cfg = json.loads(meta.read_text())["config"]
     net = ResidualNet(ResidualConfig(widths=tuple(cfg["widths"]), in_channels=int(cfg["in_channels"]), hints=bool(cfg.get("hints", False))))
-    state = load_file(str(folder / "residual.safetensors"))
+    state = load_file(str(folder / f"{name}.safetensors"))
     net.load_state_dict({k: v.float() for k, v in state.items()})
     return net.to(device).eval()

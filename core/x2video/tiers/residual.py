@@ -54,12 +54,15 @@ class ResidualTier(PerFrameTier):
                       wanted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The net on the box around `wanted` only (`x2video.base.tier1`: equal to the whole frame inside it), the
         original frame's part kept in the Renderer's cache where it keeps what it made (`Renderer.retain`: the editor's
-        live preview runs the net once per frame of a slider drag)."""
+        live preview runs the net once per frame of a slider drag). The net is the model's difference net where it has
+        one (`x2video train difference`: fitted to edits' differences), else the tier-1 net."""
         from x2video.base.tier1 import residual_difference
 
         assert job.model is not None
+        net = getattr(job.model, "difference_net", None)
         with job.clock.stage("residual"):
-            return residual_difference(job.model.residual_net, original, edited, wanted, cache=job.cache if job.retain else None,
+            return residual_difference(job.model.residual_net if net is None else net, original, edited, wanted,
+                                       cache=job.cache if job.retain else None,
                                        device=job.model.device, guess_unseen=job.settings.guess_unseen,
                                        max_pixels=job.settings.residual_pixels)
 

@@ -31,7 +31,7 @@ from x2video.io.atomic import atomic_path, write_json_atomic
 from x2video.model import fill_net as FN
 from x2video.shot import Shot
 from x2video.train import fill_data as D
-from x2video.train.small_nets import optimiser_step, over_budget, warm_cosine
+from x2video.train.small_nets import optimiser_step, over_budget, tonemap_t, warm_cosine
 
 log = logging.getLogger(__name__)
 
@@ -75,12 +75,6 @@ class FillTrainConfig:
     """Channels per level of the network, finest first."""
 
 
-def _tonemap_t(x: torch.Tensor) -> torch.Tensor:
-    """`x2video.channels.tonemap` in torch: clip to [0, 1], sRGB encode."""
-    x = x.clamp(0, 1)
-    return torch.where(x <= 0.0031308, x * 12.92, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
-
-
 def predict(net: FN.FillNet, b: dict[str, torch.Tensor]) -> torch.Tensor:
     """rgb (N, 3, H, W) of a batch: the classical shading corrected by the net, modulated by albedo and emission."""
     s = FN.corrected(b["shading"], b["level"], FN.correction(net, b["x"]))
@@ -88,7 +82,7 @@ def predict(net: FN.FillNet, b: dict[str, torch.Tensor]) -> torch.Tensor:
 
 
 def loss_fn(pred: torch.Tensor, target: torch.Tensor, level: torch.Tensor, log_weight: float) -> torch.Tensor:
-    display = F.l1_loss(_tonemap_t(pred), _tonemap_t(target))
+    display = F.l1_loss(tonemap_t(pred), tonemap_t(target))
     return display + log_weight * F.l1_loss(torch.log1p(pred / level), torch.log1p(target.clamp_min(0) / level))
 
 
@@ -97,7 +91,7 @@ def _batch(arrays: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
 
 
 def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
-    return 10 * math.log10(1.0 / max(float(F.mse_loss(_tonemap_t(a), _tonemap_t(b))), 1e-12))
+    return 10 * math.log10(1.0 / max(float(F.mse_loss(tonemap_t(a), tonemap_t(b))), 1e-12))
 
 
 @torch.no_grad()

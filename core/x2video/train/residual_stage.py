@@ -31,7 +31,7 @@ from x2video.io.atomic import atomic_path, write_json_atomic
 from x2video.io.dataset import shot_dirs
 from x2video.model import residual as R
 from x2video.model import screen_space as SS
-from x2video.train.small_nets import optimiser_step, over_budget, warm_cosine
+from x2video.train.small_nets import optimiser_step, over_budget, tonemap_t, warm_cosine
 
 log = logging.getLogger(__name__)
 
@@ -80,12 +80,6 @@ class ResidualTrainConfig:
     """Feed the net the screen-space hints (`x2video.model.screen_space`: reflections marched through the shots'
     depth, the split-sum specular colour, N.V, the reflected direction); a shot without depth gets them without
     the reflections."""
-
-
-def _tonemap_t(x: torch.Tensor) -> torch.Tensor:
-    """`x2video.channels.tonemap` in torch: clip to [0, 1], sRGB encode."""
-    x = x.clamp(0, 1)
-    return torch.where(x <= 0.0031308, x * 12.92, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
 
 
 def cache_shot(shot_dir: Path, cache_dir: Path, hints: bool = False) -> Path:
@@ -245,7 +239,7 @@ def drop_irradiance(x: np.ndarray | torch.Tensor) -> None:
 
 
 def loss_fn(pred: torch.Tensor, y: torch.Tensor, log_weight: float, l2_weight: float = 0.0) -> torch.Tensor:
-    dp, dy = _tonemap_t(pred), _tonemap_t(y)
+    dp, dy = tonemap_t(pred), tonemap_t(y)
     loss = F.l1_loss(dp, dy) + log_weight * F.l1_loss(torch.log1p(pred), torch.log1p(y.clamp_min(0)))
     return loss + l2_weight * F.mse_loss(dp, dy) if l2_weight else loss
 
@@ -266,9 +260,9 @@ def validate(net: R.ResidualNet, frames: Frames, without_irradiance: bool = Fals
         pred = R.apply(net, xt, torch.expm1(xt[:, R.FORMULA_PLANES]))
         unseen = torch.from_numpy(unseen_in(x))[None, None]
         kept = torch.where(unseen, shading, pred)  # what tier 1 renders by default: the formula where the channels hold no light
-        gt = _tonemap_t(torch.from_numpy(y.astype(np.float32))[None] / s)
+        gt = tonemap_t(torch.from_numpy(y.astype(np.float32))[None] / s)
         for v, acc in ((pred, ps_net), (shading, ps_form), (kept, ps_kept)):
-            mse = float(F.mse_loss(_tonemap_t(v / s), gt))
+            mse = float(F.mse_loss(tonemap_t(v / s), gt))
             acc.append(10 * math.log10(1.0 / max(mse, 1e-12)))
     net.train()
     return {"psnr": float(np.mean(ps_net)), "psnr_formula": float(np.mean(ps_form)), "psnr_kept": float(np.mean(ps_kept)),

@@ -1,11 +1,18 @@
-"""What the small nets' training loops share (the tier-1 residual net, `residual_stage`; the keyframe fill,
-`fill_stage`): the learning-rate schedule, one optimiser step, and the wall-clock budget."""
+"""What the small nets' training loops share (the tier-1 residual net, `residual_stage`; its difference over a shot's
+frames, `difference_stage`; the keyframe fill, `fill_stage`): the display image their losses and PSNRs read, the
+learning-rate schedule, one optimiser step, and the wall-clock budget."""
 from __future__ import annotations
 
 import math
 import time
 
 import torch
+
+
+def tonemap_t(x: torch.Tensor) -> torch.Tensor:
+    """`x2video.channels.tonemap` in torch: clip to [0, 1], sRGB encode."""
+    x = x.clamp(0, 1)
+    return torch.where(x <= 0.0031308, x * 12.92, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
 
 
 def warm_cosine(step: int, steps: int) -> float:
