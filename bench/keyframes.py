@@ -174,6 +174,8 @@ def score_clip(folder: Path, every: list[int], names: list[str], fill: Any = Non
         between = [t for t in range(n) if t not in keys]
         for name in names:
             fn, cache, secs = methods(fill, model, preset)[name], {}, []
+            if between:  # loading a method (RIFE's weights, graphs) is off the clock, as a render's model load is
+                fn(shot, keys, between[0], {})
             disp = {}
             for t in range(n):
                 if t in keys:
