@@ -32,6 +32,7 @@ from x2video.base.difference import (
     GLOSSY_CHANNELS,
     GLOSSY_CHANNELS_WITH_PASSES,
     LIGHT_MODE,
+    MATERIAL_CHANNELS,
     MATERIAL_MODE,
     SPILL_MARGIN,
     HowOver,
@@ -91,7 +92,7 @@ Residual = Callable[["FrameConditioning", "FrameConditioning", np.ndarray], tupl
 
 def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameConditioning, *, glossy_tier: bool,
                  residual: Residual | None, margin: int = SPILL_MARGIN,
-                 mode: HowOver = "auto", sharpen: bool = False) -> tuple[np.ndarray, str]:
+                 mode: HowOver = "auto", sharpen: bool = False, learned: bool = False) -> tuple[np.ndarray, str]:
     """One frame: `base` (model exposure, float64) with the edit's changes, and which tiers made them.
 
     Tier 0's R is the frame rebuilt from its passes (`base.passes.rebuild`: the compositor's rebuild where the shot has
@@ -99,7 +100,9 @@ def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameCon
     light and as a difference elsewhere (mode "auto": `difference.LIGHT_MODE`, `MATERIAL_MODE`; or one mode
     everywhere). Tier 1's difference replaces it where roughness, metallic or normal changed (`glossy_tier` with a
     `residual`), except where a surface was only made glossier (`difference.sharpened`; `sharpen` takes tier 1's
-    there too, for measuring)."""
+    there too, for measuring). With `learned` (a difference net's `residual`: its frames are its residual over the formula,
+    `x2video.train.difference_stage`) tier 0's rebuild renders the whole reach and the net's residual difference is
+    added wherever a material channel changed (albedo, normal, roughness, metallic), within the spill margin."""
     everything = changed(original, edited)
     if not everything.any():
         return base, BASE
@@ -109,12 +112,14 @@ def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameCon
     o, e, e_relit, reach_box = original.cropped(rows, cols), edited.cropped(rows, cols), relit.cropped(rows, cols), reach[rows, cols]
     b = base[rows, cols]
     glossy = np.zeros(reach_box.shape, bool)  # where tier 1's difference is taken
-    if glossy_tier and residual is not None:
+    if learned and glossy_tier and residual is not None:
+        glossy = grow(changed(o, e_relit, MATERIAL_CHANNELS), margin) & reach_box
+    elif glossy_tier and residual is not None:
         glossy_changed = changed(o, e_relit, GLOSSY_CHANNELS_WITH_PASSES if "glossy_color" in o.passes else GLOSSY_CHANNELS)
         if not sharpen:
             glossy_changed &= ~sharpened(o, e_relit)
         glossy = grow(glossy_changed, margin) & reach_box
-    out, rest = b, reach_box & ~glossy  # tier 0's difference everywhere else in the reach
+    out, rest = b, reach_box if learned else reach_box & ~glossy  # tier 0's difference everywhere else in the reach (all of it under a difference net)
     if rest.any():
         r_e, r_o = rebuild(e_relit, o), rebuild(o, o)
         light = light_only(o, e) & rest if mode == "auto" else None
@@ -128,7 +133,10 @@ def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameCon
         wanted = np.zeros(reach.shape, bool)
         wanted[rows, cols] = glossy
         r_e, r_o = (r[rows, cols] for r in residual(relit, original, wanted))  # type: ignore[misc]
-        out = np.where(glossy[..., None], over_base(b, r_e, r_o, glossy, MATERIAL_MODE if mode == "auto" else mode), out)  # type: ignore[arg-type]
+        if learned:  # the net's residual difference over tier 0's frame
+            out = np.where(glossy[..., None], np.maximum(out + (r_e - r_o), 0.0), out)
+        else:
+            out = np.where(glossy[..., None], over_base(b, r_e, r_o, glossy, MATERIAL_MODE if mode == "auto" else mode), out)  # type: ignore[arg-type]
         made = "formula+residual"
     frame = base.copy()
     frame[rows, cols] = out
@@ -151,6 +159,7 @@ def render_over_base(plan: Plan, emit: Emit, cancel: CancelToken | None, done: s
         _generative_over_base(job, tier, bases, original, emit, cancel, done)
         return
     residual = functools.partial(tier.glossy_frames, job) if isinstance(tier, PerFrameTier) and tier.glossy else None
+    learned = residual is not None and tier.learned_difference(job)
     emit(RenderStarted(num_frames=len(order), num_windows=0, levels=[0], tier=job.choice.tier, reason=plan.reason, per_frame=True))
     for index, i in enumerate([0, *range(1, len(order), 4)]):
         if cancel is not None and cancel.cancelled:
@@ -164,7 +173,8 @@ def render_over_base(plan: Plan, emit: Emit, cancel: CancelToken | None, done: s
             if tier is None:  # no edit changes a pixel (`x2video.base.plan.base_choice`)
                 frame, mode = base, BASE
             else:
-                frame, mode = edited_frame(base, original(t), job.conditioning(t), glossy_tier=residual is not None, residual=residual)
+                frame, mode = edited_frame(base, original(t), job.conditioning(t), glossy_tier=residual is not None, residual=residual,
+                                           learned=learned)
             by_mode.setdefault(mode, {})[t] = frame
         done.update(fs)
         seconds = time.perf_counter() - tw

@@ -188,6 +188,11 @@ class PerFrameTier(Tier):
         r_e, r_o = self.frames(job, [edited, original])
         return r_e, r_o
 
+    def learned_difference(self, job: RenderJob) -> bool:
+        """Whether `glossy_frames` are a difference net's: its residual over the formula (R - F), which the base stage adds
+        to tier 0's rebuild wherever a material changed (`x2video.base.stage.edited_frame`), instead of whole frames."""
+        return False
+
     def begin(self, job: RenderJob) -> None:
         """Called once before the first frame (a log line, say)."""
 

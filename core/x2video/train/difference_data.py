@@ -186,7 +186,7 @@ class Pairs:
         self.before: dict[Path, dict[str, np.ndarray]] = {}
         #: (the room's before arrays, the pair's arrays, frame index, kind, the before shot's irradiance_scale)
         self.frames: list[tuple[dict[str, np.ndarray], dict[str, np.ndarray], int, str, float]] = []
-        keys = PAIR_ARRAYS if scoring else ("x", "keep", "target", "reach", "inside")
+        keys = PAIR_ARRAYS if scoring else ("x", "keep", "target", "reach", "inside", "tier0")
         for (bf, pf), kind in zip(files, kinds):
             if bf not in self.before:
                 with np.load(bf) as d:
@@ -205,7 +205,7 @@ class Pairs:
         keep weights of the original (``x_o``, ``k_o``) and edited frame (``x_e``, ``k_e``), ``base``, ``target``, the
         edit's ``reach`` (float 0/1) and the frame's ``scale``; half of them mirrored left-right (the normal's x too),
         each frame's light scaled by a random gain in [1/a, a] (light planes, base and target alike)."""
-        keys = ("x_o", "k_o", "base", "x_e", "k_e", "target", "reach", "scale")
+        keys = ("x_o", "k_o", "base", "x_e", "k_e", "target", "reach", "tier0", "scale")
         out: dict[str, list] = {k: [] for k in keys}
         for _ in range(n):
             i = int(rng.integers(len(self.frames)))
@@ -220,7 +220,7 @@ class Pairs:
             crop = {"x_o": bf["x"][t][:, win[0], win[1]], "k_o": bf["keep"][t][None, win[0], win[1]],
                     "base": bf["base"][t][:, win[0], win[1]], "x_e": pf["x"][t][:, win[0], win[1]],
                     "k_e": pf["keep"][t][None, win[0], win[1]], "target": pf["target"][t][:, win[0], win[1]],
-                    "reach": pf["reach"][t][None, win[0], win[1]]}
+                    "reach": pf["reach"][t][None, win[0], win[1]], "tier0": pf["tier0"][t][:, win[0], win[1]]}
             crop = {k: v.astype(np.float32) for k, v in crop.items()}
             if exposure_aug > 1:  # the same room under a brighter or dimmer light
                 g = float(np.exp(rng.uniform(-1, 1) * np.log(exposure_aug)))
@@ -228,6 +228,7 @@ class Pairs:
                     crop[k][LIGHT_PLANES] = np.log1p(g * np.expm1(crop[k][LIGHT_PLANES]))
                 crop["base"] *= g
                 crop["target"] *= g
+                crop["tier0"] *= g
             if rng.random() < 0.5:  # mirror left-right: the camera-space normal's x changes sign
                 crop = {k: np.ascontiguousarray(v[:, :, ::-1]) for k, v in crop.items()}
                 crop["x_o"][3] *= -1

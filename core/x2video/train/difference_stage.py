@@ -1,18 +1,21 @@
 """`x2video train difference`: tier 1's net fine-tuned for its difference over a shot's own frames (issue 52).
 
-Where a shot carries its path-traced rgb, an edit renders as base + R(edited) - R(original) inside its reach
-(`x2video.base.difference`), R tier 1's frame (`x2video.base.tier1.residual_difference`). Tier 1 was trained to
-reproduce whole frames, and its difference misses how an edit changes the glossy self-reflection and the
-interreflection. Here it learns the difference itself, from rooms path-traced before and after one look-dev change
-(`x2video.train.difference_data`): starting from the shipped tier-1 net, on random crops that hold the edit (mirrored,
-the light scaled), the loss is the L1 between display images (`small_nets.tonemap_t` in the shot's units) of
-max(base + R(edited) - R(original), 0) and the after render inside the edit's reach, plus `whole_weight` times the same
-over the whole crop (beyond the reach the difference should be nothing). R is the frame as the tier renders it: the
-formula kept where the channels hold no light.
+Where a shot carries its path-traced rgb, an edit renders over it inside its reach (`x2video.base.difference`): tier 0's
+rebuild from the passes carries what the passes split exactly (an albedo edit's diffuse term, a metallic edit's
+diffuse and glossy colours), and misses how the edit changes the light itself: the glossy self-reflection of an
+object made brighter, its interreflection, a sharper or blurrier highlight. The difference net adds that: its frame's
+residual over the formula, (R(edited) - F(edited)) - (R(original) - F(original)), on top of tier 0's frame (R the
+tier-1 net's frame, F albedo x irradiance under it). It is learnt from rooms path-traced before and after one
+look-dev change (`x2video.train.difference_data`): starting from the shipped tier-1 net, on random crops that hold the
+edit (mirrored, the light scaled), the loss is the L1 between display images (`small_nets.tonemap_t` in the shot's
+units) of max(tier 0 + that residual difference, 0) and the after render inside the edit's reach, plus
+`whole_weight` times the same over the whole crop (beyond the reach the frame should be the base). R is the frame as
+the tier renders it: the formula kept where the channels hold no light (there the residual is 0).
 
 Validation on held-out rooms, whole frames: PSNR of display images pooled over their frames, inside the reach and inside
-the pixels the edit changed, of the net's difference everywhere in the reach (``difference``) and as the stage routes it
-today (``stage``: tier 1's difference where roughness, metallic or normal changed, the rebuild from passes elsewhere);
+the pixels the edit changed, of tier 0 plus the net's residual difference everywhere in the reach (``difference``: what
+the stage renders with a difference net) and the stage's route without one (``stage``: base + R(edited) - R(original)
+where roughness or normal changed, or metallic where the shot has no glossy colour pass, the rebuild elsewhere);
 beside them, measured once before training, the same two with the shipped tier-1 net (the baseline's ``difference`` and
 ``stage``), the stage without tier 1 (``tier0``), the formula's difference (``formula``, tier 0 of `x2video.formula`) and
 doing nothing (``nothing``); each per kind too. Checkpoints every `ckpt_every` steps, a run resumes from its last one;
@@ -97,11 +100,17 @@ def tier_frames(net, x: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
     return keep * shading + (1 - keep) * R.apply(net, x, shading)
 
 
+def residual_over_formula(net, x: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
+    """R - F (N, 3, H, W): what the net's frame adds to the formula under it (0 where `keep` keeps the formula)."""
+    return tier_frames(net, x, keep) - torch.expm1(x[:, R.FORMULA_PLANES])
+
+
 def over_base(net, b: dict[str, torch.Tensor]) -> torch.Tensor:
-    """max(base + R(edited) - R(original), 0) (N, 3, H, W) of a batch of crops (`Pairs.crops`), both frames in one pass."""
-    r = tier_frames(net, torch.cat([b["x_o"], b["x_e"]]), torch.cat([b["k_o"], b["k_e"]]))  # (2N, 3, H, W)
+    """max(tier 0 + (R - F)(edited) - (R - F)(original), 0) (N, 3, H, W) of a batch of crops (`Pairs.crops`), both frames
+    in one pass; beyond the reach tier 0's frame is the base and the residuals' difference is the net's to keep at 0."""
+    r = residual_over_formula(net, torch.cat([b["x_o"], b["x_e"]]), torch.cat([b["k_o"], b["k_e"]]))  # (2N, 3, H, W)
     r_o, r_e = r.chunk(2)
-    return (b["base"] + r_e - r_o).clamp_min(0)
+    return (b["tier0"] + r_e - r_o).clamp_min(0)
 
 
 def loss_fn(out: torch.Tensor, b: dict[str, torch.Tensor], whole_weight: float) -> torch.Tensor:
@@ -142,9 +151,12 @@ def score(net, pairs: Pairs) -> dict:
             originals[key] = tier_frames(net, t32(bf["x"][t]), t32(bf["keep"][t])[:, None])
         r_e = tier_frames(net, t32(pf["x"][t]), t32(pf["keep"][t])[:, None])
         base, reach, glossy = t32(bf["base"][t]), t32(pf["reach"][t])[:, None], t32(pf["glossy"][t])[:, None]
+        tier0 = t32(pf["tier0"][t])
+        f_o, f_e = (torch.expm1(t32(a["x"][t])[:, R.FORMULA_PLANES]) for a in (bf, pf))
+        learned = (tier0 + (r_e - f_e) - (originals[key] - f_o)).clamp_min(0)
         diff = (base + r_e - originals[key]).clamp_min(0)
-        frames = {"difference": torch.where(reach > 0, diff, base), "stage": torch.where(glossy > 0, diff, t32(pf["tier0"][t])),
-                  "tier0": t32(pf["tier0"][t]), "formula": t32(pf["formula"][t]), "nothing": base}
+        frames = {"difference": torch.where(reach > 0, learned, base), "stage": torch.where(glossy > 0, diff, tier0),
+                  "tier0": tier0, "formula": t32(pf["formula"][t]), "nothing": base}
         truth = tonemap_t(t32(pf["target"][t]) / scale)
         masks = {"reach": reach, "inside": t32(pf["inside"][t])[:, None]}
         for m, f in frames.items():
