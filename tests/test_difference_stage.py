@@ -125,15 +125,17 @@ def test_pairs_are_found_complete_and_cached_as_the_stage_sees_them(data, tmp_pa
 
 
 def test_the_validation_difference_is_the_tiers_difference_over_the_base(data, init, tmp_path):
-    """What training and validation compute from the cache is what a render computes: `residual_difference` with the
-    same net over the base inside the reach (features cached in float16: to half precision)."""
-    from x2video.base.difference import over_base, reach, relit_metal
-    from x2video.base.tier1 import residual_difference
+    """What training and validation compute from the cache is what a render computes: tier 0's rebuild plus the net's
+    residual over the formula (`residual_over_formula`) inside the reach, as `edited_frame` adds it under a difference
+    net (features cached in float16: to half precision); and a net whose residual is nothing renders tier 0's frame."""
+    from x2video.base.difference import reach
+    from x2video.base.stage import edited_frame
+    from x2video.base.tier1 import residual_over_formula
     from x2video.conditioning.edited import apply_edits
     from x2video.conditioning.frame import plain_conditioning
     from x2video.io.load import load_shot
     from x2video.train.difference_data import Pairs, cache_pairs, find_pairs
-    from x2video.train.difference_stage import tier_frames
+    from x2video.train.difference_stage import residual_over_formula as trained
 
     net = R.load(init)
     pairs = find_pairs(data, "val", ("albedo",))
@@ -143,15 +145,20 @@ def test_the_validation_difference_is_the_tiers_difference_over_the_base(data, i
     for bf, pf, t, _, scale in va.frames:
         o, e = plain_conditioning(shot, t), apply_edits(shot, Edits.from_dict(_edits("albedo")), t)
         where = reach(o, e)
-        r_e, r_o = residual_difference(net, o, relit_metal(o, e), where)
-        want = over_base(shot.channel("rgb", t).astype(np.float64) * s, r_e, r_o, where)
+        base = shot.channel("rgb", t).astype(np.float64) * s
+        want, mode = edited_frame(base, o, e, glossy_tier=True, residual=lambda ed, orig, w: residual_over_formula(net, orig, ed, w),
+                                  learned=True)
+        tier0, _ = edited_frame(base, o, e, glossy_tier=False, residual=None)
+        nothing, _ = edited_frame(base, o, e, glossy_tier=True, residual=lambda ed, orig, w: (np.zeros_like(base), np.zeros_like(base)),
+                                  learned=True)
         t32 = lambda a: torch.from_numpy(np.asarray(a, np.float32))[None]  # noqa: E731
         with torch.no_grad():
-            got = (t32(bf["base"][t]) + tier_frames(net, t32(pf["x"][t]), t32(pf["keep"][t])[:, None])
-                   - tier_frames(net, t32(bf["x"][t]), t32(bf["keep"][t])[:, None])).clamp_min(0)[0].permute(1, 2, 0).numpy()
-        assert scale == s
+            got = (t32(pf["tier0"][t]) + trained(net, t32(pf["x"][t]), t32(pf["keep"][t])[:, None])
+                   - trained(net, t32(bf["x"][t]), t32(bf["keep"][t])[:, None])).clamp_min(0)[0].permute(1, 2, 0).numpy()
+        assert scale == s and mode == "formula+residual"
         np.testing.assert_allclose(got[where], want[where], rtol=5e-3, atol=5e-3)
-        assert np.abs(r_e - r_o)[where].max() > 1e-3  # the net's difference is not nothing
+        np.testing.assert_array_equal(nothing, tier0)  # no residual: the rebuild from the passes, bit for bit
+        assert np.abs(want - tier0)[where].max() > 1e-3  # the net's residual difference is not nothing
 
 
 def test_a_training_step_lowers_the_loss_on_a_repeated_batch(data, init, tmp_path):

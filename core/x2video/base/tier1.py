@@ -112,6 +112,19 @@ def residual_difference(net, original: FrameConditioning, edited: FrameCondition
     return _placed(r_e, box, (h, w)), _placed(kept.numpy(), box, (h, w))
 
 
+def residual_over_formula(net, original: FrameConditioning, edited: FrameConditioning, wanted: np.ndarray,
+                          **kw) -> tuple[np.ndarray, np.ndarray]:
+    """A difference net's frames of `edited` and `original`: `residual_difference`'s less the formula under them
+    (albedo x irradiance), inside `wanted` (0 elsewhere): what `x2video.base.stage.edited_frame` adds to tier 0's rebuild
+    (`learned`), as `x2video.train.difference_stage` trains it."""
+    from x2video.formula import formula
+
+    r_e, r_o = residual_difference(net, original, edited, wanted, **kw)
+    w = wanted[..., None]
+    return (np.where(w, r_e - formula(edited.channels, edited.size), 0).astype(np.float32),
+            np.where(w, r_o - formula(original.channels, original.size), 0).astype(np.float32))
+
+
 def _key(net, original: FrameConditioning, cache) -> str | None:
     """What `cache` knows the original frame's parts by: the net's weights, the frame's index and size, and a generation
     that changes whenever the frame's channels do, checked against a copy of them kept in the cache (a comparison costs
@@ -195,4 +208,4 @@ def _placed(part: np.ndarray, box: Box, size: tuple[int, int]) -> np.ndarray:
     return out
 
 
-__all__ = ["Box", "part_box", "residual_difference", "supports_parts"]
+__all__ = ["Box", "part_box", "residual_difference", "residual_over_formula", "supports_parts"]

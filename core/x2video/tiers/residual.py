@@ -57,21 +57,14 @@ class ResidualTier(PerFrameTier):
         live preview runs the net once per frame of a slider drag). The net is the model's difference net where it has
         one (`x2video train difference`: fitted to edits' differences), else the tier-1 net; the difference net's frames
         are its residual over the formula, R - F, inside `wanted` (0 elsewhere; `learned_difference`)."""
-        from x2video.base.tier1 import residual_difference
-        from x2video.formula import formula
+        from x2video.base.tier1 import residual_difference, residual_over_formula
 
         assert job.model is not None
         net = getattr(job.model, "difference_net", None)
+        run = residual_difference if net is None else residual_over_formula
         with job.clock.stage("residual"):
-            r_e, r_o = residual_difference(job.model.residual_net if net is None else net, original, edited, wanted,
-                                           cache=job.cache if job.retain else None,
-                                           device=job.model.device, guess_unseen=job.settings.guess_unseen,
-                                           max_pixels=job.settings.residual_pixels)
-        if net is None:
-            return r_e, r_o
-        w = wanted[..., None]
-        return (np.where(w, r_e - formula(edited.channels, edited.size), 0).astype(np.float32),
-                np.where(w, r_o - formula(original.channels, original.size), 0).astype(np.float32))
+            return run(job.model.residual_net if net is None else net, original, edited, wanted, cache=job.cache if job.retain else None,
+                       device=job.model.device, guess_unseen=job.settings.guess_unseen, max_pixels=job.settings.residual_pixels)
 
     def learned_difference(self, job: RenderJob) -> bool:
         return getattr(job.model, "difference_net", None) is not None
