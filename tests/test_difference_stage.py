@@ -174,12 +174,13 @@ def test_a_training_step_lowers_the_loss_on_a_repeated_batch(data, init, tmp_pat
     assert b["x_o"].shape == (4, R.BASE_PLANES, 24, 24) and b["reach"].shape == (4, 1, 24, 24) and (b["reach"].sum((1, 2, 3)) > 0).all()
     opt = torch.optim.AdamW(net.parameters(), lr=3e-3)
     losses = []
-    for _ in range(20):
+    assert float(loss_fn(over_base(net, b), b, 0.1)) == float(loss_fn(b["tier0"], b, 0.1))  # it starts at tier 0's frame
+    for _ in range(30):
         loss = loss_fn(over_base(net, b), b, 0.1)
         assert torch.isfinite(loss)
         losses.append(float(loss.detach()))
         optimiser_step(net, opt, loss)
-    assert max(losses[-3:]) < 0.85 * losses[0], losses
+    assert max(losses[-3:]) < 0.85 * losses[0], losses  # from a zeroed output layer: slow for the first steps
 
 
 def test_training_keeps_the_best_writes_what_it_learned_on_and_resumes(data, init, tmp_path):
