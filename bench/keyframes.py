@@ -114,8 +114,8 @@ class NoDepth:
     def __getattr__(self, name: str) -> Any:
         return getattr(self._shot, name)
 
-    def has(self, name: str) -> bool:
-        return name in self.info.channels
+    def has(self, name: str, t: int | None = None) -> bool:
+        return name != "depth" and self._shot.has(name, t)
 
     @property
     def keyframes(self) -> tuple[int, ...]:
