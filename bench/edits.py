@@ -24,8 +24,8 @@ over rooms; and seconds per edited frame beside Cycles' re-render seconds. Metho
   base-auto chooses: what the per-kind choice is measured against;
 - ``base-sharpen``: base-auto with tier 1's difference also where a surface was only made glossier
   (`x2video.base.difference.sharpened` keeps the formula's there): what that rule is measured against;
-- ``base-auto-difference``: base-auto with a generating tier's frame added over the base as a difference (the frame minus
-  tier 1's of the unedited channels, `x2video.base.stage.GeneratedOver`) where base-auto replaces the base with it:
+- ``base-auto-replace``: base-auto with a generating tier's frame replacing the base inside the reach, where base-auto
+  adds it as a difference (the frame minus tier 1's of the unedited channels, `x2video.base.stage.GeneratedOver`):
   scored on the kind the diffusion tier renders (``masked``) only, the others' frames being base-auto's.
 
 Kinds: those rendered by `bench.edits_data`, and ``masked`` (`bench.edits_masked`): the albedo pair again, the object's
@@ -68,12 +68,12 @@ BAND = 6
 #: the kinds scored: each rendered one, and the masked kind on the albedo pair (`bench.edits_masked`)
 KINDS = (*RENDERED, MASKED)
 METHODS = ("nothing", "rebuild", "off", "base-formula", "base-residual", "base-auto", "base-ratio", "base-difference", "base-sharpen",
-           "base-auto-difference")
+           "base-auto-replace")
 REGIONS = ("inside", "band", "outside", "whole")
 #: methods that need the model (tier 1 or the Renderer's choice)
-NEEDS_MODEL = ("off", "base-residual", "base-auto", "base-ratio", "base-difference", "base-sharpen", "base-auto-difference")
+NEEDS_MODEL = ("off", "base-residual", "base-auto", "base-ratio", "base-difference", "base-sharpen", "base-auto-replace")
 #: methods the Renderer runs with an option (`Renderer.render`'s keywords)
-RENDER_OPTIONS = {"base-auto-difference": {"generated": "difference"}}
+RENDER_OPTIONS = {"base-auto-replace": {"generated": "replace"}}
 #: methods made from the library pieces (`library_frames`: an `edited_frame` option the Renderer does not take)
 LIBRARY = {"base-ratio": {"mode": "ratio"}, "base-difference": {"mode": "difference"}, "base-sharpen": {"sharpen": True}}
 
@@ -154,7 +154,7 @@ def has_base_field() -> bool:
 def settings_for(method: str, frames: tuple[int, int] | None = None) -> Any:
     from x2video.render.settings import RenderSettings
 
-    quality = {"off": "auto", "base-formula": "formula", "base-residual": "residual", "base-auto": "auto", "base-auto-difference": "auto"}[method]
+    quality = {"off": "auto", "base-formula": "formula", "base-residual": "residual", "base-auto": "auto", "base-auto-replace": "auto"}[method]
     base = {} if not has_base_field() else {"base": "off" if method == "off" else "auto"}
     return RenderSettings(quality=quality, frames=frames, **base)
 
@@ -397,8 +397,8 @@ NOTES = ["rebuild: roughness and metallic edits have no pass to rebuild from, so
          "metal_off in a room with no metal (the rooms' 'skipped'): the metal_on pair reversed (`edit_pair`): the Cycles render "
          "with the object made metal is the shot, the before render the truth, the edit sets metallic back",
          "masked: the albedo pair, the object's albedo, metallic and roughness masked out and a local prompt naming the colour "
-         "(`bench.edits_masked`); base-auto replaces the base with the diffusion tier's frame inside the reach, "
-         "base-auto-difference adds that frame minus tier 1's frame of the unedited channels"]
+         "(`bench.edits_masked`); base-auto adds the diffusion tier's frame minus tier 1's frame of the unedited channels "
+         "over the base inside the reach, base-auto-replace replaces the base with that frame"]
 
 
 def picture(keep: dict, row: dict, method: str, path: Path) -> dict:

@@ -10,9 +10,10 @@ only what an edit changes (DESIGN.md, "Path-traced pixels first").
   roughness, metallic or normal changed (the glossy change no rebuild from passes makes; not where a surface was only
   made glossier, `difference.sharpened`), when the render runs tier 1 (auto with the tier-1 net, or forced); a forced
   formula renders tier 0's everywhere.
-- A tier that generates (windows: the diffusion sampler) renders as today; its frame replaces the base inside the
-  edit's reach and the base stays everywhere else (`GENERATED` "replace"; "difference" adds it as a difference over
-  tier 1's frame of the unedited channels instead, what bench.edits' masked kind measures it against).
+- A tier that generates (windows: the diffusion sampler) renders as today; its frame goes over the base inside the
+  edit's reach as a difference over tier 1's frame of the unedited channels (`GeneratedOver`: on the validation room's
+  cabinet with its A|M|R masked out and a local prompt, 19.4 dB inside against 18.6 for replacing the base with the
+  frame, whole frame 28.7 against 28.1, no seam above doing nothing's in either), the base everywhere else.
 
 What runs is settled before, once (`x2video.base.plan.Plan`: whether the frames go over the base, the tier, the
 order, the conditioning); `render` takes that plan.
@@ -79,7 +80,7 @@ class Plan:
     reason: str
 
 
-def render(plan: Plan, emit: Emit, cancel: CancelToken | None, done: set[int], *, generated: GeneratedOver = "replace") -> None:
+def render(plan: Plan, emit: Emit, cancel: CancelToken | None, done: set[int], *, generated: GeneratedOver = "difference") -> None:
     """The Renderer's one call: the plan's job over the shot's base where it has one and the settings use it
     (`Plan.over_base`; a generating tier's frame goes over it as `generated` says), else the plan's tier renders it as
     it always has. `Plan.tier` None: no tier runs (`x2video.base.plan.base_choice`)."""
@@ -149,7 +150,7 @@ def _box(mask: np.ndarray) -> tuple[slice, slice]:
 
 
 def render_over_base(plan: Plan, emit: Emit, cancel: CancelToken | None, done: set[int], *,
-                     generated: GeneratedOver = "replace") -> None:
+                     generated: GeneratedOver = "difference") -> None:
     """Render the plan's job over the shot's base: every frame the base where no edit reaches it, else base + the tiers'
     differences (per-frame tiers) or the tier's frame inside the edit's reach (a generative tier, as `generated` says:
     `GeneratedOver`); emits the events every tier emits (RenderStarted, FramesReady) in `Plan.order`, a few frames per
@@ -183,7 +184,7 @@ def render_over_base(plan: Plan, emit: Emit, cancel: CancelToken | None, done: s
 
 
 def _generative_over_base(job: RenderJob, tier: Tier, bases: BaseFrames, original: Conditioning, emit: Emit,
-                          cancel: CancelToken | None, done: set[int], generated: GeneratedOver = "replace") -> None:
+                          cancel: CancelToken | None, done: set[int], generated: GeneratedOver = "difference") -> None:
     """A tier that generates renders its frames as it would; each leaves as the base with the tier's frame inside the
     edit's reach (feathered over the spill margin), replacing it or as a difference (`GeneratedOver`), the base bit for
     bit everywhere else."""

@@ -197,7 +197,7 @@ class Renderer:
         cancel: CancelToken | None = None,
         *,
         base_dir: str | Path | None = None,
-        generated: GeneratedOver = "replace",
+        generated: GeneratedOver = "difference",
     ) -> None:
         """Render `shot` with `edits` (an `x2video.edits.Edits`, or None for none).
 
