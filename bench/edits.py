@@ -26,7 +26,15 @@ over rooms; and seconds per edited frame beside Cycles' re-render seconds. Metho
   (`edited_frame`'s mode), tier 1 where roughness, metallic or normal changed and the formula elsewhere, as
   base-auto chooses: what the per-kind choice is measured against;
 - ``base-sharpen``: base-auto with tier 1's difference also where a surface was only made glossier
-  (`x2video.base.difference.sharpened` keeps the formula's there): what that rule is measured against.
+  (`x2video.base.difference.sharpened` keeps the formula's there): what that rule is measured against;
+- ``base-auto-replace``: base-auto with a generating tier's frame replacing the base inside the reach, where base-auto
+  adds it as a difference (the frame minus tier 1's of the unedited channels, `x2video.base.stage.GeneratedOver`):
+  scored on the kind the diffusion tier renders (``masked``) only, the others' frames being base-auto's.
+
+Kinds: those rendered by `bench.edits_data`, and ``masked`` (`bench.edits_masked`): the albedo pair again, the object's
+A|M|R masked out and a local prompt naming the colour, which the diffusion tier generates; its rebuild is the albedo
+kind's. Object kinds also get the seam statistic at the edge of the edit's reach (`bench.edits_masked.Seam`), the
+truth's beside each method's.
 
 Where `RenderSettings` has no ``base`` field (a build before the Renderer took the base), the base rows are computed
 from the same library pieces the Renderer calls (`x2video.base.stage.edited_frame`) and say so (``via``).
@@ -53,15 +61,22 @@ import numpy as np
 
 from bench.clips import TEST_SEEDS
 from bench.common import clean_json, command, results_path
-from bench.edits_data import EDITS_VALIDATION_SEEDS, KINDS, default_root
+from bench.edits_data import EDITS_VALIDATION_SEEDS, default_root
+from bench.edits_data import KINDS as RENDERED
+from bench.edits_masked import KIND as MASKED
 from x2video.fields import parse_size
 
 #: pixels around the edited object scored as its band (the spill margin of `x2video.base.difference`)
 BAND = 6
-METHODS = ("nothing", "rebuild", "off", "base-formula", "base-residual", "base-auto", "base-ratio", "base-difference", "base-sharpen")
+#: the kinds scored: each rendered one, and the masked kind on the albedo pair (`bench.edits_masked`)
+KINDS = (*RENDERED, MASKED)
+METHODS = ("nothing", "rebuild", "off", "base-formula", "base-residual", "base-auto", "base-ratio", "base-difference", "base-sharpen",
+           "base-auto-replace")
 REGIONS = ("inside", "band", "outside", "whole")
 #: methods that need the model (tier 1 or the Renderer's choice)
-NEEDS_MODEL = ("off", "base-residual", "base-auto", "base-ratio", "base-difference", "base-sharpen")
+NEEDS_MODEL = ("off", "base-residual", "base-auto", "base-ratio", "base-difference", "base-sharpen", "base-auto-replace")
+#: methods the Renderer runs with an option (`Renderer.render`'s keywords)
+RENDER_OPTIONS = {"base-auto-replace": {"generated": "replace"}}
 #: methods made from the library pieces (`library_frames`: an `edited_frame` option the Renderer does not take)
 LIBRARY = {"base-ratio": {"mode": "ratio"}, "base-difference": {"mode": "difference"}, "base-sharpen": {"sharpen": True}}
 
@@ -132,7 +147,7 @@ def rebuild(before: Any, look: dict, t: int, inside: np.ndarray) -> np.ndarray:
         new = (rgb - p["DiffCol"] * diff - p["GlossCol"] * gloss + albedo * (1 - m) * diff
                + (np.float32(0.04) * (1 - m) + albedo * m) * gloss)
         return np.where(inside[..., None], np.maximum(new, 0), rgb)
-    if look["kind"] != "albedo":
+    if look["kind"] not in ("albedo", MASKED):
         return rgb
     p = read_passes(frame, ("DiffCol", "DiffDir", "DiffInd"))
     light = p["DiffDir"] + p["DiffInd"]
@@ -150,7 +165,7 @@ def has_base_field() -> bool:
 def settings_for(method: str, frames: tuple[int, int] | None = None) -> Any:
     from x2video.render.settings import RenderSettings
 
-    quality = {"off": "auto", "base-formula": "formula", "base-residual": "residual", "base-auto": "auto"}[method]
+    quality = {"off": "auto", "base-formula": "formula", "base-residual": "residual", "base-auto": "auto", "base-auto-replace": "auto"}[method]
     base = {} if not has_base_field() else {"base": "off" if method == "off" else "auto"}
     return RenderSettings(quality=quality, frames=frames, **base)
 
@@ -159,9 +174,10 @@ def renderer_frames(renderer: Any, shot: Any, edits: Any, method: str) -> tuple[
     """(the Renderer's frames of `method` in the shot's units, seconds per frame), warmed on two frames first."""
     from bench.ptscore import render_timed
 
-    renderer.render(shot, edits, settings_for(method, (0, min(2, shot.num_frames))))  # graphs, text encoder: off the clock
+    options = RENDER_OPTIONS.get(method, {})
+    renderer.render(shot, edits, settings_for(method, (0, min(2, shot.num_frames))), **options)  # graphs, text encoder: off the clock
     renderer.cache.clear()
-    frames, secs = render_timed(renderer, shot, settings_for(method), edits)
+    frames, secs = render_timed(renderer, shot, settings_for(method), edits, **options)
     scale = float(shot.info.irradiance_scale)
     return [np.asarray(f, np.float64) / scale for f in frames], secs / shot.num_frames
 
@@ -196,6 +212,10 @@ def edit_pair(folder: Path, kind: str) -> tuple[Path, Path, dict] | None:
     none. A room with no metal to make non-metal scores ``metal_off`` on the ``metal_on`` pair reversed: the object
     Cycles rendered as metal is the shot, made non-metal again (metallic set to its value in the before render), and the
     before render, made with the same seed and samples, is the truth."""
+    if kind == MASKED:
+        from bench.edits_masked import masked_pair
+
+        return masked_pair(folder)
     after_dir = folder / f"after_{kind}"
     if (after_dir / "edits.json").is_file():
         return folder / "before", after_dir, json.loads((after_dir / "edits.json").read_text())
@@ -224,6 +244,7 @@ def score_room(folder: Path, kinds: tuple[str, ...], methods: tuple[str, ...], m
                keep: dict | None = None) -> list[dict]:
     """Rows {kind, seed, target, cycles_seconds_per_frame, methods: {m: {regions..., seconds_per_frame, via}}} of one room;
     `keep`, when given, gets each method's display image of the middle frame under (kind, method) ("cycles": the truth)."""
+    from bench.edits_masked import rings, seam
     from x2video.base.difference import grow
     from x2video.channels import tonemap
     from x2video.edits.model import Edits
@@ -249,6 +270,7 @@ def score_room(folder: Path, kinds: tuple[str, ...], methods: tuple[str, ...], m
             obj = np.isin(before.channel("ids", t)[..., 0], ids) if ids else np.ones(before.size, bool)
             masks.append(regions(obj) if ids else {"inside": obj, "band": ~obj, "outside": ~obj, "whole": obj})
         truth = [tonemap(after.channel("rgb", t)) for t in range(after.num_frames)]
+        edges = [rings(~m["outside"]) for m in masks] if ids else None  # around the edit's reach: the object grown by BAND
         mid = before.num_frames // 2
         if keep is not None:
             keep[(kind, "cycles")] = truth[mid]
@@ -257,6 +279,8 @@ def score_room(folder: Path, kinds: tuple[str, ...], methods: tuple[str, ...], m
                                "cycles_passes_seconds_per_frame": doc["cycles"].get("passes_seconds_per_frame"), "methods": {}}
         if doc.get("reversed"):
             row["reversed"] = doc["reversed"]
+        if edges is not None:
+            row["seam_truth"] = seam(truth, edges)
         for method in methods:
             via = "bench"
             if method == "nothing":
@@ -266,11 +290,15 @@ def score_room(folder: Path, kinds: tuple[str, ...], methods: tuple[str, ...], m
             elif method == "rebuild":
                 t0 = time.perf_counter()
                 frames = [rebuild(before, doc["look"], t, masks[t]["inside"]) for t in range(before.num_frames)]
-                passes = kind in ("albedo", "light", "metal_off", "metal_on")
+                passes = kind in ("albedo", "light", "metal_off", "metal_on", MASKED)
                 spf = (time.perf_counter() - t0) / before.num_frames if passes else 0.0
                 via = "bench" if passes else "no pass holds it: the frames as they were"
             elif method in NEEDS_MODEL and (model is None or (method != "off" and model.residual_net is None)):
                 row["methods"][method] = {"skipped": "needs the model's tier-1 net"}
+                continue
+            elif method in RENDER_OPTIONS and (kind != MASKED or not base_field):
+                row["methods"][method] = {"skipped": "a generated frame's way over the base: only the masked kind generates"
+                                          if base_field else "needs RenderSettings.base"}
                 continue
             elif method == "off" or (base_field and method not in LIBRARY):
                 frames, spf = renderer_frames(renderer, before, edits, method)
@@ -288,13 +316,16 @@ def score_room(folder: Path, kinds: tuple[str, ...], methods: tuple[str, ...], m
                     far = ~grow(masks[t]["inside"], BAND)
                     identical &= bool(np.array_equal(np.asarray(f, np.float32)[far], before.channel("rgb", t)[far]))
             res = {**sc.psnr(), "seconds_per_frame": spf, "via": via}
+            if edges is not None:
+                res["seam"] = seam([tonemap(np.asarray(f, np.float32)) for f in frames], edges)
             if method.startswith("base-") and ids:
                 res["outside_bit_identical"] = identical
             cyc = doc["cycles"]["seconds_per_frame"]
             res["cycles_over_method"] = (cyc / spf) if spf > 0 and cyc else None
             row["methods"][method] = res
+            jump = "" if edges is None else f" seam jump {_f(res['seam']['jump'])} (truth {_f(row['seam_truth']['jump'])})"
             log(f"room {row['seed']} {kind:9s} {method:13s} inside {_f(res['inside'])} band {_f(res['band'])} outside "
-                f"{_f(res['outside'])} whole {_f(res['whole'])}  {spf:.3f} s/frame ({via})")
+                f"{_f(res['outside'])} whole {_f(res['whole'])}{jump}  {spf:.3f} s/frame ({via})")
         rows.append(row)
     return rows
 
@@ -305,7 +336,7 @@ def _f(v: float | None) -> str:
 
 # ---------------------------------------------------------------------------------------------- summary
 def summarise(rows: list[dict], methods: tuple[str, ...]) -> dict:
-    """Per kind: the mean over rooms of each method's region PSNRs and seconds per frame, and Cycles' seconds."""
+    """Per kind: the mean over rooms of each method's region PSNRs, seam jump and seconds per frame, and Cycles' seconds."""
     out: dict[str, Any] = {}
     for kind in KINDS:
         mine = [r for r in rows if r["kind"] == kind]
@@ -315,6 +346,8 @@ def summarise(rows: list[dict], methods: tuple[str, ...]) -> dict:
         entry: dict[str, Any] = {"rooms": len(mine), "cycles_seconds_per_frame": cyc,
                                  "cycles_passes_seconds_per_frame": _mean([r.get("cycles_passes_seconds_per_frame") for r in mine]),
                                  "targets": [r["target"] for r in mine], "methods": {}}
+        if any("seam_truth" in r for r in mine):
+            entry["seam_jump_truth"] = _mean([r["seam_truth"]["jump"] for r in mine if "seam_truth" in r])
         for m in methods:
             done = [r["methods"][m] for r in mine if m in r["methods"] and "skipped" not in r["methods"][m]]
             if not done:
@@ -323,6 +356,8 @@ def summarise(rows: list[dict], methods: tuple[str, ...]) -> dict:
             e["seconds_per_frame"] = float(np.mean([d["seconds_per_frame"] for d in done]))
             e["cycles_over_method"] = cyc / e["seconds_per_frame"] if e["seconds_per_frame"] > 0 else None
             e["via"] = sorted({d["via"] for d in done})
+            if any("seam" in d for d in done):
+                e["seam_jump"] = _mean([d["seam"]["jump"] for d in done if "seam" in d])
             if any("outside_bit_identical" in d for d in done):
                 e["outside_bit_identical"] = all(d.get("outside_bit_identical", True) for d in done)
             entry["methods"][m] = e
@@ -352,6 +387,10 @@ def markdown(doc: dict) -> str:
             cells = [("-" if r[reg] is None else f"{r[reg]:.2f}") for reg in REGIONS]
             lines.append(f"| {m} | {' | '.join(cells)} | {r['seconds_per_frame']:.3f} | {speed} |")
         lines.append("")
+        if e.get("seam_jump_truth") is not None:
+            jumps = ", ".join(f"{m} {r['seam_jump']:.2f}" for m, r in e["methods"].items() if r.get("seam_jump") is not None)
+            lines += [f"Seam at the edge of the edit's reach (mean |gradient| on the ring across it over that just inside and "
+                      f"outside; Cycles' re-render {e['seam_jump_truth']:.2f}): {jumps}", ""]
     if doc.get("picture"):
         pic = doc["picture"]
         lines += [f"![room {pic['seed']}, {pic['kind']}: as rendered, by x2video ({pic['method']}), by Cycles]({pic['file']})", ""]
@@ -368,7 +407,10 @@ NOTES = ["rebuild: roughness and metallic edits have no pass to rebuild from, so
          "timings are wall seconds on a machine shared with other jobs (load_average_before_after): ratios are rough",
          "PSNR of a region is that of the squared error pooled over a room's frames, then averaged over rooms",
          "metal_off in a room with no metal (the rooms' 'skipped'): the metal_on pair reversed (`edit_pair`): the Cycles render "
-         "with the object made metal is the shot, the before render the truth, the edit sets metallic back"]
+         "with the object made metal is the shot, the before render the truth, the edit sets metallic back",
+         "masked: the albedo pair, the object's albedo, metallic and roughness masked out and a local prompt naming the colour "
+         "(`bench.edits_masked`); base-auto adds the diffusion tier's frame minus tier 1's frame of the unedited channels "
+         "over the base inside the reach, base-auto-replace replaces the base with that frame"]
 
 
 def picture(keep: dict, row: dict, method: str, path: Path) -> dict:

@@ -51,8 +51,8 @@ def score(disp: Sequence[np.ndarray], gts: Sequence[np.ndarray]) -> dict[str, fl
             "tc": float(temporal_consistency(list(disp), list(gts)).tc) if len(gts) >= 2 else None}
 
 
-def render_timed(renderer: Any, shot: Any, settings: RenderSettings, edits: Any = None) -> tuple[list[np.ndarray], float]:
-    """(linear frames of `settings.frames` (default all) in order, wall seconds of `renderer.render`)."""
+def render_timed(renderer: Any, shot: Any, settings: RenderSettings, edits: Any = None, **options: Any) -> tuple[list[np.ndarray], float]:
+    """(linear frames of `settings.frames` (default all) in order, wall seconds of `renderer.render`, given `options`)."""
     frames: dict[int, np.ndarray] = {}
 
     def on_event(e: Any) -> None:
@@ -60,7 +60,7 @@ def render_timed(renderer: Any, shot: Any, settings: RenderSettings, edits: Any 
             frames.update(e.frames)
 
     t0 = time.perf_counter()
-    renderer.render(shot, edits, settings, on_event)
+    renderer.render(shot, edits, settings, on_event, **options)
     secs = time.perf_counter() - t0
     start, stop = settings.frames if settings.frames is not None else (0, shot.num_frames)
     missing = [t for t in range(start, stop) if t not in frames]

@@ -10,8 +10,10 @@ only what an edit changes (DESIGN.md, "Path-traced pixels first").
   roughness, metallic or normal changed (the glossy change no rebuild from passes makes; not where a surface was only
   made glossier, `difference.sharpened`), when the render runs tier 1 (auto with the tier-1 net, or forced); a forced
   formula renders tier 0's everywhere.
-- A tier that generates (windows: the diffusion sampler) renders as today; its frame replaces the base inside the
-  edit's reach and the base stays everywhere else.
+- A tier that generates (windows: the diffusion sampler) renders as today; its frame goes over the base inside the
+  edit's reach as a difference over tier 1's frame of the unedited channels (`GeneratedOver`: on the validation room's
+  cabinet with its A|M|R masked out and a local prompt, 19.4 dB inside against 18.6 for replacing the base with the
+  frame, whole frame 28.7 against 28.1, no seam above doing nothing's in either), the base everywhere else.
 
 What runs is settled before, once (`x2video.base.plan.Plan`: whether the frames go over the base, the tier, the
 order, the conditioning); `render` takes that plan.
@@ -24,7 +26,7 @@ from __future__ import annotations
 import functools
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, Literal
 
 import numpy as np
 
@@ -56,6 +58,13 @@ if TYPE_CHECKING:
 #: what `RenderStarted.tier` and `FramesReady.mode` say for frames that are the base with no tier's change
 BASE = "base"
 
+#: how a generating tier's frame G goes over the base B inside the edit's reach, w its feathered weight
+#: (`difference.feathered_reach`): "replace", w G + (1 - w) B; "difference", B + w (G - R), R tier 1's frame of the
+#: unedited channels (the tier under a regional render, `TierChoice.base`; else tier 1 where the model has its net,
+#: else the formula), so the light the channels do not hold stays the base's as it does for per-frame tiers
+GeneratedOver = Literal["replace", "difference"]
+GENERATED: tuple[GeneratedOver, ...] = ("replace", "difference")
+
 
 @dataclass(frozen=True)
 class Plan:
@@ -73,12 +82,12 @@ class Plan:
     reason: str
 
 
-def render(plan: Plan, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:
+def render(plan: Plan, emit: Emit, cancel: CancelToken | None, done: set[int], *, generated: GeneratedOver = "difference") -> None:
     """The Renderer's one call: the plan's job over the shot's base where it has one and the settings use it
-    (`Plan.over_base`), else the plan's tier renders it as it always has. `Plan.tier` None: no tier runs
-    (`x2video.base.plan.base_choice`)."""
+    (`Plan.over_base`; a generating tier's frame goes over it as `generated` says), else the plan's tier renders it as
+    it always has. `Plan.tier` None: no tier runs (`x2video.base.plan.base_choice`)."""
     if plan.over_base:
-        render_over_base(plan, emit, cancel, done)
+        render_over_base(plan, emit, cancel, done, generated=generated)
         return
     if plan.tier is None:
         raise ValueError(f"no tier to render shot {plan.job.shot.info.source!r}: it has no path-traced frames to be the base")
@@ -153,14 +162,16 @@ def _box(mask: np.ndarray) -> tuple[slice, slice]:
     return slice(int(ys[0]), int(ys[-1]) + 1), slice(int(xs[0]), int(xs[-1]) + 1)
 
 
-def render_over_base(plan: Plan, emit: Emit, cancel: CancelToken | None, done: set[int]) -> None:
+def render_over_base(plan: Plan, emit: Emit, cancel: CancelToken | None, done: set[int], *,
+                     generated: GeneratedOver = "difference") -> None:
     """Render the plan's job over the shot's base: every frame the base where no edit reaches it, else base + the tiers'
-    differences (per-frame tiers) or the tier's frame inside the edit's reach (a generative tier); emits the events
-    every tier emits (RenderStarted, FramesReady) in `Plan.order`, a few frames per batch, one event per mode in a batch."""
+    differences (per-frame tiers) or the tier's frame inside the edit's reach (a generative tier, as `generated` says:
+    `GeneratedOver`); emits the events every tier emits (RenderStarted, FramesReady) in `Plan.order`, a few frames per
+    batch, one event per mode in a batch."""
     job, tier, bases, original, order = plan.job, plan.tier, plan.bases, plan.original, plan.order
     assert bases is not None and original is not None
     if tier is not None and not tier.per_frame:
-        _generative_over_base(job, tier, bases, original, emit, cancel, done)
+        _generative_over_base(job, tier, bases, original, emit, cancel, done, generated)
         return
     residual = functools.partial(tier.glossy_frames, job) if isinstance(tier, PerFrameTier) and tier.glossy else None
     learned = residual is not None and tier.learned_difference(job)
@@ -188,10 +199,16 @@ def render_over_base(plan: Plan, emit: Emit, cancel: CancelToken | None, done: s
 
 
 def _generative_over_base(job: RenderJob, tier: Tier, bases: BaseFrames, original: Conditioning, emit: Emit,
-                          cancel: CancelToken | None, done: set[int]) -> None:
+                          cancel: CancelToken | None, done: set[int], generated: GeneratedOver = "difference") -> None:
     """A tier that generates renders its frames as it would; each leaves as the base with the tier's frame inside the
-    edit's reach (feathered over the spill margin), the base bit for bit everywhere else."""
+    edit's reach (feathered over the spill margin), replacing it or as a difference (`GeneratedOver`), the base bit for
+    bit everywhere else."""
     from x2video.base.difference import feathered_reach
+
+    if generated not in GENERATED:
+        raise ValueError(f"generated: {generated!r} (one of {', '.join(GENERATED)})")
+    under = _under_tier(job) if generated == "difference" else None
+    unedited: dict[int, np.ndarray] = {}  # frame -> R, tier 1's frame of its unedited channels (a frame may come again, refined)
 
     def over(event: RenderEvent) -> None:
         if isinstance(event, FramesReady):
@@ -199,9 +216,30 @@ def _generative_over_base(job: RenderJob, tier: Tier, bases: BaseFrames, origina
             for t, f in event.frames.items():
                 base = bases(t)
                 w = feathered_reach(original(t), job.conditioning(t)) if job.edits is not None else None
-                out[t] = base if w is None else np.where(w[..., None] > 0, w[..., None] * f + (1 - w[..., None]) * base, base)
+                if w is None:
+                    out[t] = base
+                    continue
+                w3 = w[..., None]  # (H, W, 1)
+                if under is None:
+                    new = w3 * f + (1 - w3) * base
+                else:
+                    if t not in unedited:
+                        unedited[t] = under.base_frames(job, [original(t)])[0]
+                    new = np.maximum(base + w3 * (np.asarray(f, np.float64) - unedited[t]), 0.0)
+                out[t] = np.where(w3 > 0, new, base)
             event = FramesReady(window=event.window, frames=out, level=event.level, mode=event.mode, seconds=event.seconds,
                                 replaces=event.replaces, window_done=event.window_done)
         emit(event)
 
     tier.render(job, over, cancel, done)
+
+
+def _under_tier(job: RenderJob) -> PerFrameTier:
+    """The per-frame tier whose frame of the unedited channels a generated frame is a difference over: the one a regional
+    render lays under the sampler's (`TierChoice.base`), else tier 1 where the model has its net, else the formula."""
+    from x2video.tiers import registry
+
+    name = job.choice.base or (registry.RESIDUAL if registry.get(registry.RESIDUAL).available(job.model) is None else registry.FORMULA)
+    under = registry.get(name)
+    assert isinstance(under, PerFrameTier)
+    return under

@@ -45,6 +45,7 @@ from x2video.tiers.diffusion import DiffusionTier, diffusion_windows, given_keyf
 from x2video.tiers.encoder import Encoder
 
 if TYPE_CHECKING:
+    from x2video.base.stage import GeneratedOver
     from x2video.edits.model import Edits
     from x2video.model.api import RenderModel
 
@@ -196,13 +197,16 @@ class Renderer:
         cancel: CancelToken | None = None,
         *,
         base_dir: str | Path | None = None,
+        generated: GeneratedOver = "difference",
     ) -> None:
         """Render `shot` with `edits` (an `x2video.edits.Edits`, or None for none).
 
         Emits RenderStarted, then the tier's events (per window WindowStarted, StepDone per step, FramesReady;
         per-frame tiers FramesReady only); then RenderFinished. Cancelling (between steps or batches of frames)
         emits RenderCancelled with the finished frames and returns. Any error emits RenderFailed and is re-raised.
-        `base_dir` resolves relative paths of a reference image in the edits (the project file's folder).
+        `base_dir` resolves relative paths of a reference image in the edits (the project file's folder). `generated`:
+        how a generating tier's frame goes over the shot's base (`x2video.base.stage.GeneratedOver`; bench.edits
+        measures the two).
         """
         t0 = time.perf_counter()
         preparing = self._preparing
@@ -226,7 +230,7 @@ class Renderer:
                 choice = self.last_tier = plan.job.choice
                 log.info("quality %s: tier %s (%s)", settings.quality, choice.tier, choice.reason)
                 try:
-                    base_stage.render(plan, emit, cancel, done)
+                    base_stage.render(plan, emit, cancel, done, generated=generated)
                 finally:
                     self._report(stats)
                 emit(RenderFinished(num_frames=len(done), seconds=time.perf_counter() - t0))
