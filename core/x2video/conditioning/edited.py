@@ -63,31 +63,37 @@ def resolve_reference(shot: Shot, edits: Edits, base_dir: str | Path | None = No
     """(frame index where the reference sits, linear RGB float32 (H, W, 3) at the shot's size, in the model's
     exposure), or None.
 
-    An image file sits at `reference.at` (default 0); PNG/JPG are sRGB-decoded (a display picture: taken as it is),
-    EXR taken as linear in the shot's units (negatives and NaN zeroed). A different aspect ratio is centre-cropped to
-    the shot's before resizing. A shot frame reference is `rgb/` of that frame. Frames in the shot's units are scaled by
-    its `irradiance_scale`, as the model's training frames are (`x2video.train.cache`), so a reference of a shot whose
-    irradiance was normalised on load has the brightness the model saw.
+    An image file sits at `reference.at` (default 0): `reference_image`, at the shot's size and in its units. A shot
+    frame reference is `rgb/` of that frame. Frames in the shot's units are scaled by its `irradiance_scale`, as the
+    model's training frames are (`x2video.train.cache`), so a reference of a shot whose irradiance was normalised on
+    load has the brightness the model saw.
     """
-    scale = np.float32(shot.info.irradiance_scale)
     ref = edits.reference
     if ref is None:
         return None
-    if ref.frame is not None:
-        if not shot.has("rgb"):
-            raise ValueError(f"reference frame {ref.frame}: shot {shot.info.source!r} has no rgb channel")
-        if not 0 <= ref.frame < shot.num_frames:
-            raise ValueError(f"reference frame {ref.frame} outside the shot's {shot.num_frames} frames")
-        return ref.frame, shot.channel("rgb", ref.frame).astype(np.float32) * scale
+    scale = np.float32(shot.info.irradiance_scale)
+    if ref.frame is None:
+        if not 0 <= ref.position < shot.num_frames:
+            raise ValueError(f"reference image {ref.path}: placed at frame {ref.position}, outside the shot's {shot.num_frames} frames")
+        path = Path(ref.path)  # type: ignore[arg-type]
+        if not path.is_absolute() and base_dir is not None:
+            path = Path(base_dir) / path
+        return ref.position, reference_image(path, scale, shot.size)
+    if not shot.has("rgb"):
+        raise ValueError(f"reference frame {ref.frame}: shot {shot.info.source!r} has no rgb channel")
+    if not 0 <= ref.frame < shot.num_frames:
+        raise ValueError(f"reference frame {ref.frame} outside the shot's {shot.num_frames} frames")
+    return ref.frame, shot.channel("rgb", ref.frame).astype(np.float32) * scale
+
+
+def reference_image(path: Path, scale: np.float32, size: tuple[int, int]) -> np.ndarray:
+    """The user's reference image file as linear RGB float32 (H, W, 3) at `size` = (H, W) (`fit_image`): PNG/JPG
+    sRGB-decoded (a display picture: taken as it is), EXR taken as linear in the shot's units and multiplied by
+    `scale`, the shot's `irradiance_scale` (negatives and NaN zeroed)."""
     from x2video.channels import srgb_to_linear
     from x2video.io.convention import zero_nonfinite
     from x2video.io.image import read_image
 
-    if not 0 <= ref.position < shot.num_frames:
-        raise ValueError(f"reference image {ref.path}: placed at frame {ref.position}, outside the shot's {shot.num_frames} frames")
-    path = Path(ref.path)  # type: ignore[arg-type]
-    if not path.is_absolute() and base_dir is not None:
-        path = Path(base_dir) / path
     img = read_image(path)
     colour = [c for c in img.channel_names if c not in ("A", "a")]
     if len(colour) == 1:
@@ -96,7 +102,7 @@ def resolve_reference(shot: Shot, edits: Edits, base_dir: str | Path | None = No
     rgb = img.stack(names)
     rgb = zero_nonfinite(rgb, str(path), "reference")
     rgb = srgb_to_linear(rgb) if img.max_int is not None else np.maximum(rgb, 0) * scale
-    return ref.position, fit_image(rgb, shot.size)
+    return fit_image(rgb, size)
 
 
 def fit_image(rgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
