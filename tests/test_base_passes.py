@@ -7,9 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from x2video.base.difference import SPILL_MARGIN, grow, light_only, sharpened
+from x2video.base.difference import SPILL_MARGIN, edited_frame, grow, light_only, sharpened
 from x2video.base.passes import rebuild
-from x2video.base.stage import edited_frame
 from x2video.conditioning.edited import apply_edits
 from x2video.conditioning.frame import plain_conditioning
 from x2video.edits import Edits

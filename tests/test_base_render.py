@@ -118,7 +118,7 @@ def test_a_surface_made_glossier_keeps_the_formulas_difference_not_tier_1s_guess
     a roughness-only edit towards gloss leaves the base as it was (the formula has no roughness), bit for bit."""
     from test_tiers import with_net
 
-    from x2video.base.stage import edited_frame
+    from x2video.base.difference import edited_frame
     from x2video.conditioning.edited import apply_edits
     from x2video.conditioning.frame import plain_conditioning
     from x2video.edits.ops import ScalarOp

@@ -9,8 +9,7 @@ import pytest
 import torch
 from sampling_fake import FakeModel
 
-from x2video.base.difference import SPILL_MARGIN, changed, grow
-from x2video.base.stage import edited_frame
+from x2video.base.difference import SPILL_MARGIN, changed, edited_frame, grow
 from x2video.base.tier1 import part_box, residual_difference
 from x2video.conditioning.cache import ConditioningCache
 from x2video.conditioning.edited import apply_edits

@@ -4,19 +4,27 @@ R is a tier's render of a frame's channels; its systematic errors (light the fiv
 mirrors, glass) appear in both renders and cancel, so the base keeps them. An edit reaches the pixels whose
 channels it changed, plus a margin for the light it spills onto its surroundings (`reach`); every other pixel is
 the base, bit for bit.
+
+What the base stage (`x2video.base.stage`) does to each frame an edit reaches is this module's job, in one call:
+`edited_frame` for the per-frame tiers (which pixels changed, tier 0's part rebuilt from the passes,
+`x2video.base.passes`, tier 1's glossy part, the light spread into a metal made non-metal), `generated_frame` for a
+tier that generates its frames.
 """
 from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Literal
+from typing import Callable, Literal
 
 import cv2
 import numpy as np
 
+from x2video.base.passes import rebuild
 from x2video.channels import INTRINSIC
 from x2video.conditioning.frame import FrameConditioning
 
+#: what `RenderStarted.tier` and `FramesReady.mode` say for frames that are the base with no tier's change
+BASE = "base"
 #: pixels around an edit where its spill (a red sofa tints the floor beside it) may change the frame
 SPILL_MARGIN = 6
 #: channels whose change only a network's difference renders (the glossy term)
@@ -49,8 +57,6 @@ def changed(original: FrameConditioning, edited: FrameConditioning, names: tuple
     """(H, W) bool: pixels where any of `names` differs between the two conditionings (a channel present in one and
     dropped in the other changes every pixel); with every intrinsic channel (the default) also those where a pass
     differs (a light edit of an emitter or the sky: no irradiance there) or that an A|M|R mask or local prompt covers."""
-    from x2video.base.passes import passes_changed
-
     h, w = edited.size
     out = np.zeros((h, w), bool)
     for name in names:
@@ -78,6 +84,19 @@ def pixels_differ(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return functools.reduce(np.logical_or, [d[..., c] for c in range(d.shape[-1])])
 
 
+def passes_changed(original: FrameConditioning, edited: FrameConditioning) -> np.ndarray:
+    """(H, W) bool: pixels where a pass differs (a light operation scaled it); every pixel where one frame has a pass
+    the other lacks."""
+    h, w = edited.size
+    out = np.zeros((h, w), bool)
+    for name in set(original.passes) | set(edited.passes):
+        a, b = original.passes.get(name), edited.passes.get(name)
+        if a is None or b is None:
+            return np.ones((h, w), bool)
+        out |= pixels_differ(a, b)
+    return out
+
+
 def grow(mask: np.ndarray, px: int) -> np.ndarray:
     """`mask` (H, W) bool dilated by `px` pixels (a disc)."""
     if px <= 0 or not mask.any():
@@ -99,6 +118,24 @@ def feathered_reach(original: FrameConditioning, edited: FrameConditioning, marg
         return None
     dist = cv2.distanceTransform((~core).astype(np.uint8), cv2.DIST_L2, 3)
     return np.clip(1.0 - dist / max(margin, 1), 0.0, 1.0).astype(np.float32)
+
+
+def generated_frame(base: np.ndarray, generated: np.ndarray, original: FrameConditioning, edited: FrameConditioning,
+                    unedited: Callable[[], np.ndarray] | None = None, margin: int = SPILL_MARGIN) -> np.ndarray:
+    """One frame of a tier that generates (the diffusion sampler) over the base (H, W, 3): inside the edit's reach,
+    weighted by `feathered_reach` (w), its frame G = `generated` replaces the base, w G + (1 - w) B, or with `unedited`
+    (called only where the edit reaches the frame: R, a per-frame tier's frame of the unedited channels) goes over it
+    as a difference, B + w (G - R), never below 0; `base` bit for bit everywhere else (the whole frame where the edit
+    changes nothing in it)."""
+    w = feathered_reach(original, edited, margin)
+    if w is None:
+        return base
+    w3 = w[..., None]  # (H, W, 1)
+    if unedited is None:
+        new = w3 * generated + (1 - w3) * base
+    else:
+        new = np.maximum(base + w3 * (np.asarray(generated, np.float64) - unedited()), 0.0)
+    return np.where(w3 > 0, new, base)
 
 
 def light_only(original: FrameConditioning, edited: FrameConditioning) -> np.ndarray:
@@ -186,7 +223,7 @@ def relit_metal(original: FrameConditioning, edited: FrameConditioning) -> Frame
 
 def sharpened(original: FrameConditioning, edited: FrameConditioning) -> np.ndarray:
     """(H, W) bool: pixels an edit made glossier (roughness down) and changed in no other glossy channel (normal,
-    metallic): where tier 1's difference is not used (`x2video.base.stage.edited_frame`). A sharper reflection shows
+    metallic): where tier 1's difference is not used (`edited_frame`). A sharper reflection shows
     the light arriving from the mirror direction, which none of the pixel's channels holds (the base holds it only
     blurred by the old roughness): the net can only guess it, and on the validation room its guess, a rough object
     made glossy, scored 25.4 dB inside the object against doing nothing's 30.0. The formula's difference there is
@@ -197,3 +234,71 @@ def sharpened(original: FrameConditioning, edited: FrameConditioning) -> np.ndar
         return np.zeros(edited.size, bool)
     down = np.asarray(re)[..., 0] < np.asarray(ro)[..., 0]
     return down & ~changed(original, edited, ("normal", "metallic"))
+
+
+#: tier 1's frames of (edited, original) that `edited_frame` needs inside a (H, W) bool mask: (H, W, 3) each, anything
+#: outside it (`x2video.base.tier1.residual_difference`: the net on the box around it)
+Residual = Callable[["FrameConditioning", "FrameConditioning", np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameConditioning, *, glossy_tier: bool,
+                 residual: Residual | None, margin: int = SPILL_MARGIN,
+                 mode: HowOver = "auto", sharpen: bool = False, learned: bool = False) -> tuple[np.ndarray, str]:
+    """One frame: `base` (model exposure, float64) with the edit's changes, and which tiers made them.
+
+    Tier 0's R is the frame rebuilt from its passes (`base.passes.rebuild`: the compositor's rebuild where the shot has
+    Cycles' passes, albedo x irradiance where it has not), over the base as a ratio where the edit changed only the
+    light and as a difference elsewhere (mode "auto": `LIGHT_MODE`, `MATERIAL_MODE`; or one mode
+    everywhere). Tier 1's difference replaces it where roughness, metallic or normal changed (`glossy_tier` with a
+    `residual`), except where a surface was only made glossier (`sharpened`; `sharpen` takes tier 1's
+    there too, for measuring). With `learned` (a difference net's `residual`: its frames are its residual over the formula,
+    `x2video.train.difference_stage`) tier 0's rebuild renders the whole reach and the net's residual difference is
+    added wherever a material channel changed (albedo, normal, roughness, metallic), within the spill margin, but
+    where a surface was only made glossier (as above)."""
+    everything = changed(original, edited)
+    if not everything.any():
+        return base, BASE
+    reach = grow(everything, margin)
+    relit = relit_metal(original, edited)  # on the whole frame: it spreads the light in from around the hole
+    rows, cols = _box(reach)  # from here on the work is per pixel: only the box around the reach is computed
+    o, e, e_relit, reach_box = original.cropped(rows, cols), edited.cropped(rows, cols), relit.cropped(rows, cols), reach[rows, cols]
+    b = base[rows, cols]
+    glossy = np.zeros(reach_box.shape, bool)  # where tier 1's difference is taken
+    if learned and glossy_tier and residual is not None:
+        material = changed(o, e_relit, MATERIAL_CHANNELS)
+        if not sharpen:  # a sharper highlight is a guess for the difference net too (validation pairs: -1.0 dB on gloss)
+            material &= ~sharpened(o, e_relit)
+        glossy = grow(material, margin) & reach_box
+    elif glossy_tier and residual is not None:
+        glossy_changed = changed(o, e_relit, GLOSSY_CHANNELS_WITH_PASSES if "glossy_color" in o.passes else GLOSSY_CHANNELS)
+        if not sharpen:
+            glossy_changed &= ~sharpened(o, e_relit)
+        glossy = grow(glossy_changed, margin) & reach_box
+    out, rest = b, reach_box if learned else reach_box & ~glossy  # tier 0's difference everywhere else in the reach (all of it under a difference net)
+    if rest.any():
+        r_e, r_o = rebuild(e_relit, o), rebuild(o, o)
+        light = light_only(o, e) & rest if mode == "auto" else None
+        if light is None:
+            out = over_base(b, r_e, r_o, rest, mode)  # type: ignore[arg-type]
+        else:
+            out = over_base(b, r_e, r_o, rest & ~light, MATERIAL_MODE)
+            out = np.where(light[..., None], over_base(b, r_e, r_o, light, LIGHT_MODE), out)
+    made = "formula"
+    if glossy.any():
+        wanted = np.zeros(reach.shape, bool)
+        wanted[rows, cols] = glossy
+        r_e, r_o = (r[rows, cols] for r in residual(relit, original, wanted))  # type: ignore[misc]
+        if learned:  # the net's residual difference over tier 0's frame
+            out = np.where(glossy[..., None], np.maximum(out + (r_e - r_o), 0.0), out)
+        else:
+            out = np.where(glossy[..., None], over_base(b, r_e, r_o, glossy, MATERIAL_MODE if mode == "auto" else mode), out)  # type: ignore[arg-type]
+        made = "formula+residual"
+    frame = base.copy()
+    frame[rows, cols] = out
+    return frame, made
+
+
+def _box(mask: np.ndarray) -> tuple[slice, slice]:
+    """The rows and columns of the bounding box of `mask` (H, W) bool, which holds at least one pixel."""
+    ys, xs = np.flatnonzero(mask.any(1)), np.flatnonzero(mask.any(0))
+    return slice(int(ys[0]), int(ys[-1]) + 1), slice(int(xs[0]), int(xs[-1]) + 1)

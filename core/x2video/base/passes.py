@@ -109,17 +109,3 @@ def rebuild(cond: FrameConditioning, original: FrameConditioning) -> np.ndarray:
             out = out + p
     return out.astype(np.float32)
 
-
-def passes_changed(original: FrameConditioning, edited: FrameConditioning) -> np.ndarray:
-    """(H, W) bool: pixels where a pass differs (a light operation scaled it); every pixel where one frame has a pass
-    the other lacks."""
-    from x2video.base.difference import pixels_differ
-
-    h, w = edited.size
-    out = np.zeros((h, w), bool)
-    for name in set(original.passes) | set(edited.passes):
-        a, b = original.passes.get(name), edited.passes.get(name)
-        if a is None or b is None:
-            return np.ones((h, w), bool)
-        out |= pixels_differ(a, b)
-    return out

@@ -3,7 +3,8 @@ only what an edit changes (DESIGN.md, "Path-traced pixels first").
 
 - No edit reaches a frame: the frame is the base (the shot's rgb, or on a keyframe shot the fill from its nearest
   keyframes, `base.fill`), and no tier runs.
-- An edit reaches it: per pixel, the base plus a tier's difference (`base.difference`): tier 0's (the frame rebuilt
+- An edit reaches it: per pixel, the base plus a tier's difference (`base.difference.edited_frame`, one call per
+  frame): tier 0's (the frame rebuilt
   from its passes, `base.passes`: the compositor's rebuild, exact for albedo edits of diffuse surfaces; on a keyframe
   shot's frames without the light passes, from the base's own shading, `base.shading`; a ratio where
   only the light changed, exact for a light edit of every lamp) where only albedo or the light changed, tier 1's where
@@ -13,7 +14,8 @@ only what an edit changes (DESIGN.md, "Path-traced pixels first").
 - A tier that generates (windows: the diffusion sampler) renders as today; its frame goes over the base inside the
   edit's reach as a difference over tier 1's frame of the unedited channels (`GeneratedOver`: on the validation room's
   cabinet with its A|M|R masked out and a local prompt, 19.4 dB inside against 18.6 for replacing the base with the
-  frame, whole frame 28.7 against 28.1, no seam above doing nothing's in either), the base everywhere else.
+  frame, whole frame 28.7 against 28.1, no seam above doing nothing's in either), the base everywhere else
+  (`base.difference.generated_frame`).
 
 What runs is settled before, once (`x2video.base.plan.Plan`: whether the frames go over the base, the tier, the
 order, the conditioning); `render` takes that plan.
@@ -26,37 +28,19 @@ from __future__ import annotations
 import functools
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable, Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from x2video.base.difference import (
-    GLOSSY_CHANNELS,
-    GLOSSY_CHANNELS_WITH_PASSES,
-    LIGHT_MODE,
-    MATERIAL_CHANNELS,
-    MATERIAL_MODE,
-    SPILL_MARGIN,
-    HowOver,
-    changed,
-    grow,
-    light_only,
-    over_base,
-    relit_metal,
-    sharpened,
-)
+from x2video.base.difference import BASE, edited_frame, generated_frame
 from x2video.base.fill import BaseFrames
-from x2video.base.passes import rebuild
 from x2video.render.events import Cancelled, CancelToken, FramesReady, RenderEvent, RenderStarted
 from x2video.tiers.base import PerFrameTier
 
 if TYPE_CHECKING:
-    from x2video.conditioning.frame import Conditioning, FrameConditioning
+    from x2video.conditioning.frame import Conditioning
     from x2video.tiers.base import Emit, RenderJob, Tier
 
-
-#: what `RenderStarted.tier` and `FramesReady.mode` say for frames that are the base with no tier's change
-BASE = "base"
 
 #: how a generating tier's frame G goes over the base B inside the edit's reach, w its feathered weight
 #: (`difference.feathered_reach`): "replace", w G + (1 - w) B; "difference", B + w (G - R), R tier 1's frame of the
@@ -92,74 +76,6 @@ def render(plan: Plan, emit: Emit, cancel: CancelToken | None, done: set[int], *
     if plan.tier is None:
         raise ValueError(f"no tier to render shot {plan.job.shot.info.source!r}: it has no path-traced frames to be the base")
     plan.tier.render(plan.job, emit, cancel, done)
-
-
-#: tier 1's frames of (edited, original) that `edited_frame` needs inside a (H, W) bool mask: (H, W, 3) each, anything
-#: outside it (`x2video.base.tier1.residual_difference`: the net on the box around it)
-Residual = Callable[["FrameConditioning", "FrameConditioning", np.ndarray], tuple[np.ndarray, np.ndarray]]
-
-
-def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameConditioning, *, glossy_tier: bool,
-                 residual: Residual | None, margin: int = SPILL_MARGIN,
-                 mode: HowOver = "auto", sharpen: bool = False, learned: bool = False) -> tuple[np.ndarray, str]:
-    """One frame: `base` (model exposure, float64) with the edit's changes, and which tiers made them.
-
-    Tier 0's R is the frame rebuilt from its passes (`base.passes.rebuild`: the compositor's rebuild where the shot has
-    Cycles' passes, albedo x irradiance where it has not), over the base as a ratio where the edit changed only the
-    light and as a difference elsewhere (mode "auto": `difference.LIGHT_MODE`, `MATERIAL_MODE`; or one mode
-    everywhere). Tier 1's difference replaces it where roughness, metallic or normal changed (`glossy_tier` with a
-    `residual`), except where a surface was only made glossier (`difference.sharpened`; `sharpen` takes tier 1's
-    there too, for measuring). With `learned` (a difference net's `residual`: its frames are its residual over the formula,
-    `x2video.train.difference_stage`) tier 0's rebuild renders the whole reach and the net's residual difference is
-    added wherever a material channel changed (albedo, normal, roughness, metallic), within the spill margin, but
-    where a surface was only made glossier (as above)."""
-    everything = changed(original, edited)
-    if not everything.any():
-        return base, BASE
-    reach = grow(everything, margin)
-    relit = relit_metal(original, edited)  # on the whole frame: it spreads the light in from around the hole
-    rows, cols = _box(reach)  # from here on the work is per pixel: only the box around the reach is computed
-    o, e, e_relit, reach_box = original.cropped(rows, cols), edited.cropped(rows, cols), relit.cropped(rows, cols), reach[rows, cols]
-    b = base[rows, cols]
-    glossy = np.zeros(reach_box.shape, bool)  # where tier 1's difference is taken
-    if learned and glossy_tier and residual is not None:
-        material = changed(o, e_relit, MATERIAL_CHANNELS)
-        if not sharpen:  # a sharper highlight is a guess for the difference net too (validation pairs: -1.0 dB on gloss)
-            material &= ~sharpened(o, e_relit)
-        glossy = grow(material, margin) & reach_box
-    elif glossy_tier and residual is not None:
-        glossy_changed = changed(o, e_relit, GLOSSY_CHANNELS_WITH_PASSES if "glossy_color" in o.passes else GLOSSY_CHANNELS)
-        if not sharpen:
-            glossy_changed &= ~sharpened(o, e_relit)
-        glossy = grow(glossy_changed, margin) & reach_box
-    out, rest = b, reach_box if learned else reach_box & ~glossy  # tier 0's difference everywhere else in the reach (all of it under a difference net)
-    if rest.any():
-        r_e, r_o = rebuild(e_relit, o), rebuild(o, o)
-        light = light_only(o, e) & rest if mode == "auto" else None
-        if light is None:
-            out = over_base(b, r_e, r_o, rest, mode)  # type: ignore[arg-type]
-        else:
-            out = over_base(b, r_e, r_o, rest & ~light, MATERIAL_MODE)
-            out = np.where(light[..., None], over_base(b, r_e, r_o, light, LIGHT_MODE), out)
-    made = "formula"
-    if glossy.any():
-        wanted = np.zeros(reach.shape, bool)
-        wanted[rows, cols] = glossy
-        r_e, r_o = (r[rows, cols] for r in residual(relit, original, wanted))  # type: ignore[misc]
-        if learned:  # the net's residual difference over tier 0's frame
-            out = np.where(glossy[..., None], np.maximum(out + (r_e - r_o), 0.0), out)
-        else:
-            out = np.where(glossy[..., None], over_base(b, r_e, r_o, glossy, MATERIAL_MODE if mode == "auto" else mode), out)  # type: ignore[arg-type]
-        made = "formula+residual"
-    frame = base.copy()
-    frame[rows, cols] = out
-    return frame, made
-
-
-def _box(mask: np.ndarray) -> tuple[slice, slice]:
-    """The rows and columns of the bounding box of `mask` (H, W) bool, which holds at least one pixel."""
-    ys, xs = np.flatnonzero(mask.any(1)), np.flatnonzero(mask.any(0))
-    return slice(int(ys[0]), int(ys[-1]) + 1), slice(int(xs[0]), int(xs[-1]) + 1)
 
 
 def render_over_base(plan: Plan, emit: Emit, cancel: CancelToken | None, done: set[int], *,
@@ -203,30 +119,26 @@ def _generative_over_base(job: RenderJob, tier: Tier, bases: BaseFrames, origina
     """A tier that generates renders its frames as it would; each leaves as the base with the tier's frame inside the
     edit's reach (feathered over the spill margin), replacing it or as a difference (`GeneratedOver`), the base bit for
     bit everywhere else."""
-    from x2video.base.difference import feathered_reach
-
     if generated not in GENERATED:
         raise ValueError(f"generated: {generated!r} (one of {', '.join(GENERATED)})")
     under = _under_tier(job) if generated == "difference" else None
     unedited: dict[int, np.ndarray] = {}  # frame -> R, tier 1's frame of its unedited channels (a frame may come again, refined)
+
+    def r_unedited(t: int) -> np.ndarray:  # computed once per frame
+        if t not in unedited:
+            unedited[t] = under.base_frames(job, [original(t)])[0]  # type: ignore[union-attr]
+        return unedited[t]
 
     def over(event: RenderEvent) -> None:
         if isinstance(event, FramesReady):
             out = {}
             for t, f in event.frames.items():
                 base = bases(t)
-                w = feathered_reach(original(t), job.conditioning(t)) if job.edits is not None else None
-                if w is None:
+                if job.edits is None:
                     out[t] = base
                     continue
-                w3 = w[..., None]  # (H, W, 1)
-                if under is None:
-                    new = w3 * f + (1 - w3) * base
-                else:
-                    if t not in unedited:
-                        unedited[t] = under.base_frames(job, [original(t)])[0]
-                    new = np.maximum(base + w3 * (np.asarray(f, np.float64) - unedited[t]), 0.0)
-                out[t] = np.where(w3 > 0, new, base)
+                out[t] = generated_frame(base, f, original(t), job.conditioning(t),
+                                         None if under is None else functools.partial(r_unedited, t))
             event = FramesReady(window=event.window, frames=out, level=event.level, mode=event.mode, seconds=event.seconds,
                                 replaces=event.replaces, window_done=event.window_done)
         emit(event)

@@ -170,7 +170,7 @@ class PerFrameTier(Tier):
     #: frames per event after the first (which comes alone, so it shows as soon as one pass allows)
     batch: ClassVar[int] = 4
     #: renders an edit's glossy change (roughness, metallic, normal), which no rebuild from passes makes: over the shot's
-    #: base its difference (`glossy_frames`) replaces tier 0's there (`x2video.base.stage.edited_frame`)
+    #: base its difference (`glossy_frames`) replaces tier 0's there (`x2video.base.difference.edited_frame`)
     glossy: ClassVar[bool] = False
 
     def frames(self, job: RenderJob, conds: Sequence[FrameConditioning]) -> list[np.ndarray]:
