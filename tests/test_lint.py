@@ -29,3 +29,17 @@ def test_no_machine_paths_in_tracked_files():
     pattern = "/" + "|/".join(("work/", "tmp/", "root/", "home/"))
     proc = subprocess.run(["git", "grep", "-nIE", pattern, "--", ".", ":!tests/test_lint.py"], cwd=ROOT, capture_output=True, text=True)
     assert proc.stdout == "", "machine paths in tracked files:\n" + proc.stdout[:3000]
+
+
+def test_no_tracked_file_holds_merge_conflict_markers():
+    """A merge left `<<<<<<< HEAD` ... `>>>>>>> branch` in docs/ARCHITECTURE.md once and nothing noticed."""
+    files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True).stdout.split()
+    bad = []
+    for name in files:
+        path = ROOT / name
+        if path.suffix not in (".py", ".md", ".toml", ".json", ".yaml", ".yml", ".txt", ".cfg", ".sh") or not path.is_file():
+            continue
+        for i, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
+            if line.startswith(("<<<<<<< ", ">>>>>>> ")) or line == "=======" and path.suffix != ".md":
+                bad.append(f"{name}:{i}")
+    assert not bad, bad
