@@ -140,12 +140,14 @@ def rebuild(before: Any, look: dict, t: int, inside: np.ndarray) -> np.ndarray:
         return rgb * float(look["scale"]) * np.asarray(look["tint"], np.float32)
     frame = sorted(Path(before.info.source).glob("frame_*.exr"))[t]
     if look["kind"] in ("metal_off", "metal_on"):
+        from x2video.base.passes import DIELECTRIC_GLOSS
+
         p = read_passes(frame, ("DiffCol", "DiffDir", "DiffInd", "GlossCol", "GlossDir", "GlossInd"))
         m = np.float32(look["value"])
         albedo = np.clip(before.channel("albedo", t), 0, 1)
         diff, gloss = p["DiffDir"] + p["DiffInd"], p["GlossDir"] + p["GlossInd"]
         new = (rgb - p["DiffCol"] * diff - p["GlossCol"] * gloss + albedo * (1 - m) * diff
-               + (np.float32(0.04) * (1 - m) + albedo * m) * gloss)
+               + (np.float32(DIELECTRIC_GLOSS) * (1 - m) + albedo * m) * gloss)
         return np.where(inside[..., None], np.maximum(new, 0), rgb)
     if look["kind"] not in ("albedo", MASKED):
         return rgb

@@ -120,9 +120,16 @@ def residual_over_formula(net, original: FrameConditioning, edited: FrameConditi
     from x2video.formula import formula
 
     r_e, r_o = residual_difference(net, original, edited, wanted, **kw)
-    w = wanted[..., None]
-    return (np.where(w, r_e - formula(edited.channels, edited.size), 0).astype(np.float32),
-            np.where(w, r_o - formula(original.channels, original.size), 0).astype(np.float32))
+    out_e, out_o = np.zeros_like(r_e), np.zeros_like(r_o)
+    if not wanted.any():
+        return out_e, out_o
+    y0, y1, x0, x1 = _bounds(wanted, 0)  # the formula on the box of `wanted` only (a slider drag runs this every frame)
+    rows, cols = slice(y0, y1), slice(x0, x1)
+    w = wanted[rows, cols, None]
+    for out, r, cond in ((out_e, r_e, edited), (out_o, r_o, original)):
+        box = cond.cropped(rows, cols)
+        out[rows, cols] = np.where(w, r[rows, cols] - formula(box.channels, box.size), 0)
+    return out_e, out_o
 
 
 def _key(net, original: FrameConditioning, cache) -> str | None:
