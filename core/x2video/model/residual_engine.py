@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -28,6 +29,7 @@ class OnnxResidual:
         self.session = self._session(self._export(self._net, (torch.zeros(1, net.cfg.in_channels, size, size),), ["features"], "delta"))
         self._tile_session = self._bottom_session = None  # made on the first tiled frame (`apply_tiled`)
         self._part_session = None  # made on the first box of a frame (`x2video.base.tier1`)
+        self._run_options = None
 
     @property
     def module(self) -> ResidualNet:
@@ -37,7 +39,15 @@ class OnnxResidual:
     def _session(self, model: bytes):
         from x2video.model.engine import ort_session
 
-        return ort_session(model, self._threads)
+        return ort_session(model, self._threads, arena=True)
+
+    def _run(self, session, feed: dict[str, np.ndarray]) -> list[np.ndarray]:
+        """`session`'s outputs for `feed`, its memory arena handed back at the end (`engine.arena_released`)."""
+        if self._run_options is None:
+            from x2video.model.engine import arena_released
+
+            self._run_options = arena_released()
+        return session.run(None, feed, self._run_options)
 
     def _export(self, module: nn.Module, inputs: tuple, names: list[str], output: str | list[str]) -> bytes:
         import io
@@ -54,14 +64,14 @@ class OnnxResidual:
     def __call__(self, x: torch.Tensor, g: torch.Tensor | None = None) -> torch.Tensor:
         feed = {"features": x.detach().float().cpu().numpy()}
         if g is None:
-            out = self.session.run(None, feed)[0]
+            out = self._run(self.session, feed)[0]
         else:
             if self._tile_session is None:
                 size = 8 * self.cfg.factor
                 self._tile_session = self._session(self._export(_WithContext(self._net), (torch.zeros(1, self.cfg.in_channels, size, size),
                                                                 torch.zeros(1, self.cfg.widths[-1])), ["features", "context"], "delta"))
             feed["context"] = g.detach().float().cpu().numpy()
-            out = self._tile_session.run(None, feed)[0]
+            out = self._run(self._tile_session, feed)[0]
         return torch.from_numpy(out).to(x.device)
 
     def bottom(self, x: torch.Tensor) -> torch.Tensor:
@@ -69,7 +79,7 @@ class OnnxResidual:
             size = 8 * self.cfg.factor
             self._bottom_session = self._session(self._export(_Bottom(self._net), (torch.zeros(1, self.cfg.in_channels, size, size),),
                                                               ["features"], "bottom"))
-        out = self._bottom_session.run(None, {"features": x.detach().float().cpu().numpy()})[0]
+        out = self._run(self._bottom_session, {"features": x.detach().float().cpu().numpy()})[0]
         return torch.from_numpy(out).to(x.device)
 
     def forward_part(self, x: torch.Tensor, others: torch.Tensor, cells: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -81,7 +91,7 @@ class OnnxResidual:
                                                             ["features", "others", "cells"], ["delta", "bottom_sum"]))
         feed = {"features": x.detach().float().cpu().numpy(), "others": others.detach().float().cpu().numpy(),
                 "cells": cells.detach().float().cpu().numpy()}
-        delta, s = self._part_session.run(None, feed)
+        delta, s = self._run(self._part_session, feed)
         return torch.from_numpy(delta).to(x.device), torch.from_numpy(s).to(x.device)
 
     def context_vector(self, mean: torch.Tensor) -> torch.Tensor:
