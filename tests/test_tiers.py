@@ -286,6 +286,21 @@ def test_onnx_engine_matches_pytorch():
     assert residual_engine.engine(net, "cpu", prefer="torch") is net
 
 
+def test_exported_form_of_the_net_equals_the_net():
+    """The graphs are exported from `_Unconcatenated` (each decoder block's first conv split in two, no concatenation):
+    the same function as the net for a whole frame, a tile with its context and a box, to float precision."""
+    torch.manual_seed(3)
+    net = R.ResidualNet(R.ResidualConfig(widths=(8, 16, 16))).eval()
+    torch.nn.init.normal_(net.out.weight, std=0.3)
+    form = residual_engine._Unconcatenated(net)
+    x, g = torch.randn(2, net.cfg.in_channels, 24, 32), torch.randn(2, 16)
+    others, cells = torch.randn(2, 16), torch.full((2, 1), 40.0)
+    with torch.inference_mode():
+        for got, want in ((form(x), net(x)), (form(x, g), net(x, g)), (form.forward_part(x, others, cells)[0], net.forward_part(x, others, cells)[0])):
+            assert float(want.abs().max()) > 0.01  # a net that does something
+            assert float((got - want).abs().max()) < 1e-5
+
+
 def test_auto_keeps_the_formula_when_the_net_is_not_trusted():
     c = tiers.choose_tier("auto", [], False, True, residual_trusted=False)
     assert c.tier == "formula" and "outside" in c.reason

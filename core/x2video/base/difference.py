@@ -158,7 +158,8 @@ def over_base(base: np.ndarray, r_edited: np.ndarray, r_original: np.ndarray, wh
         new = np.where(o > 1e-6, base * (e / np.maximum(o, 1e-6)), base + (e - o))
     else:
         new = base + (e - o)
-    return np.where(where[..., None], np.maximum(new, 0.0), base)
+    new = np.maximum(new, 0.0, out=new)
+    return new if where.all() else np.where(where[..., None], new, base)
 
 
 def spread_into(values: np.ndarray, hole: np.ndarray) -> np.ndarray:
@@ -290,9 +291,11 @@ def edited_frame(base: np.ndarray, original: FrameConditioning, edited: FrameCon
         r_e, r_o = (r[rows, cols] for r in residual(relit, original, wanted))  # type: ignore[misc]
         if learned:  # the net's residual difference over tier 0's frame
             out = np.where(glossy[..., None], np.maximum(out + (r_e - r_o), 0.0), out)
-        else:
-            out = np.where(glossy[..., None], over_base(b, r_e, r_o, glossy, MATERIAL_MODE if mode == "auto" else mode), out)  # type: ignore[arg-type]
+        else:  # over `out`, the base bit for bit inside `glossy` (tier 0's difference went only where it is not)
+            out = over_base(out, r_e, r_o, glossy, MATERIAL_MODE if mode == "auto" else mode)  # type: ignore[arg-type]
         made = "formula+residual"
+    if out is not b and out.shape == base.shape:  # the edit reaches the whole frame: `out` is a new frame already
+        return out, made
     frame = base.copy()
     frame[rows, cols] = out
     return frame, made

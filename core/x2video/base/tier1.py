@@ -80,10 +80,12 @@ def residual_difference(net, original: FrameConditioning, edited: FrameCondition
         return r_e, r_o
     f = net.cfg.factor
     radius, span = receptive_radius(net.cfg)
-    box = part_box(wanted, changed(original, edited), f, radius, span)
+    H, W = h + (-h) % f, w + (-w) % f
+    box = part_box(wanted, np.zeros_like(wanted), f, radius, span)
+    if box is not None and box != (0, H, 0, W):  # what changed may widen it (not past the whole frame: skip looking)
+        box = part_box(wanted, changed(original, edited), f, radius, span)
     if box is None:
         return np.zeros((h, w, 3), np.float32), np.zeros((h, w, 3), np.float32)
-    H, W = h + (-h) % f, w + (-w) % f
     cells = torch.tensor([[(H // f) * (W // f)]], dtype=torch.float32, device=device)  # (1, 1)
     pad_o, pad_e = _padded(original.channels, f), _padded(edited.channels, f)
     key = None if cache is None else _key(net, original, cache)

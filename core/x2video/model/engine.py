@@ -60,21 +60,36 @@ class EngineError(RuntimeError):
     """A part could not be exported or compiled for the chosen engine (the message says which and why)."""
 
 
-def ort_session(model: str | bytes, threads: int) -> Any:
+def ort_session(model: str | bytes, threads: int, arena: bool = False) -> Any:
     """An ONNX Runtime CPU session for our graphs (the diffusion tier's here, the tier-1 net's in
-    `x2video.model.residual`): `threads` intra-op threads, no inter-op pool, quiet, and no memory arena or
-    pattern: with them a fast-preset render of 33 frames at 320x224 peaked at 3.6 GB (each graph's arena kept its
-    largest batch; 1.7 GB without, 16 % more time) and a 1920x1080 tier-1 frame left the process 0.8 GB larger for
-    good (0.3 GB without, about 9 % more time at that size) on the 2-core VM."""
+    `x2video.model.residual_engine`): `threads` intra-op threads, no inter-op pool, quiet, and no memory pattern.
+    No memory arena unless `arena`: with one kept across calls a fast-preset render of 33 frames at 320x224 peaked
+    at 3.6 GB (each graph's arena kept its largest batch; 1.7 GB without, 16 % more time) and a 1920x1080 tier-1
+    frame left the process 0.8 GB larger for good (0.3 GB without, about 9 % more time at that size) on the
+    2-core VM. With `arena`, run it with `arena_released` so the arena is handed back at the end of each call."""
     import onnxruntime as ort
 
     so = ort.SessionOptions()
     so.intra_op_num_threads = threads
     so.inter_op_num_threads = 1
     so.log_severity_level = 3
-    so.enable_cpu_mem_arena = False
+    so.enable_cpu_mem_arena = arena
     so.enable_mem_pattern = False
     return ort.InferenceSession(model, so, providers=["CPUExecutionProvider"])
+
+
+def arena_released() -> Any:
+    """ONNX Runtime run options that shrink a session's memory arena at the end of the call: within the call its
+    tensors reuse the memory of those freed before them (without an arena each large one is fresh pages: 3,400
+    page faults, about 5 ms of a 320x224 tier-1 frame's 70), and what is free at its end is handed back (the region
+    that holds the call's outputs at the end of the next call). On the 2-core VM two 1920x1080 tier-1 frames in
+    tiles peaked at 783 MB and left the process 246 MB larger (without an arena 925 MB and 401 MB, most of it
+    glibc's heap until trimmed)."""
+    import onnxruntime as ort
+
+    ro = ort.RunOptions()
+    ro.add_run_config_entry("memory.enable_memory_arena_shrinkage", "cpu:0")
+    return ro
 
 
 def cache_dir() -> Path:

@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import hashlib
 
+import numpy as np
 import torch
 from torch import nn
+from torch.nn import functional as F
 
 from x2video.model.residual import ResidualNet
 
@@ -25,9 +27,10 @@ class OnnxResidual:
         self._net = net.float().cpu().eval()
         self._threads = int(threads or torch.get_num_threads())
         size = 8 * net.cfg.factor
-        self.session = self._session(self._export(self._net, (torch.zeros(1, net.cfg.in_channels, size, size),), ["features"], "delta"))
+        self.session = self._session(self._export(_Unconcatenated(self._net), (torch.zeros(1, net.cfg.in_channels, size, size),), ["features"], "delta"))
         self._tile_session = self._bottom_session = None  # made on the first tiled frame (`apply_tiled`)
         self._part_session = None  # made on the first box of a frame (`x2video.base.tier1`)
+        self._run_options = None
 
     @property
     def module(self) -> ResidualNet:
@@ -37,7 +40,15 @@ class OnnxResidual:
     def _session(self, model: bytes):
         from x2video.model.engine import ort_session
 
-        return ort_session(model, self._threads)
+        return ort_session(model, self._threads, arena=True)
+
+    def _run(self, session, feed: dict[str, np.ndarray]) -> list[np.ndarray]:
+        """`session`'s outputs for `feed`, its memory arena handed back at the end (`engine.arena_released`)."""
+        if self._run_options is None:
+            from x2video.model.engine import arena_released
+
+            self._run_options = arena_released()
+        return session.run(None, feed, self._run_options)
 
     def _export(self, module: nn.Module, inputs: tuple, names: list[str], output: str | list[str]) -> bytes:
         import io
@@ -54,39 +65,71 @@ class OnnxResidual:
     def __call__(self, x: torch.Tensor, g: torch.Tensor | None = None) -> torch.Tensor:
         feed = {"features": x.detach().float().cpu().numpy()}
         if g is None:
-            out = self.session.run(None, feed)[0]
+            out = self._run(self.session, feed)[0]
         else:
             if self._tile_session is None:
                 size = 8 * self.cfg.factor
-                self._tile_session = self._session(self._export(_WithContext(self._net), (torch.zeros(1, self.cfg.in_channels, size, size),
+                self._tile_session = self._session(self._export(_WithContext(_Unconcatenated(self._net)), (torch.zeros(1, self.cfg.in_channels, size, size),
                                                                 torch.zeros(1, self.cfg.widths[-1])), ["features", "context"], "delta"))
             feed["context"] = g.detach().float().cpu().numpy()
-            out = self._tile_session.run(None, feed)[0]
+            out = self._run(self._tile_session, feed)[0]
         return torch.from_numpy(out).to(x.device)
 
     def bottom(self, x: torch.Tensor) -> torch.Tensor:
         if self._bottom_session is None:
             size = 8 * self.cfg.factor
-            self._bottom_session = self._session(self._export(_Bottom(self._net), (torch.zeros(1, self.cfg.in_channels, size, size),),
+            self._bottom_session = self._session(self._export(_Bottom(_Unconcatenated(self._net)), (torch.zeros(1, self.cfg.in_channels, size, size),),
                                                               ["features"], "bottom"))
-        out = self._bottom_session.run(None, {"features": x.detach().float().cpu().numpy()})[0]
+        out = self._run(self._bottom_session, {"features": x.detach().float().cpu().numpy()})[0]
         return torch.from_numpy(out).to(x.device)
 
     def forward_part(self, x: torch.Tensor, others: torch.Tensor, cells: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """`ResidualNet.forward_part` (a box of a larger frame)."""
         if self._part_session is None:
             size = 8 * self.cfg.factor
-            self._part_session = self._session(self._export(_Part(self._net), (torch.zeros(1, self.cfg.in_channels, size, size),
+            self._part_session = self._session(self._export(_Part(_Unconcatenated(self._net)), (torch.zeros(1, self.cfg.in_channels, size, size),
                                                             torch.zeros(1, self.cfg.widths[-1]), torch.ones(1, 1)),
                                                             ["features", "others", "cells"], ["delta", "bottom_sum"]))
         feed = {"features": x.detach().float().cpu().numpy(), "others": others.detach().float().cpu().numpy(),
                 "cells": cells.detach().float().cpu().numpy()}
-        delta, s = self._part_session.run(None, feed)
+        delta, s = self._run(self._part_session, feed)
         return torch.from_numpy(delta).to(x.device), torch.from_numpy(s).to(x.device)
 
     def context_vector(self, mean: torch.Tensor) -> torch.Tensor:
         with torch.inference_mode():
             return self._net.context_vector(mean.float().cpu()).to(mean.device)
+
+
+class _Unconcatenated(ResidualNet):
+    """`ResidualNet` as its graphs are exported: each decoder block's first conv, which reads the upsampled coarser
+    features and the skip concatenated, is two convs summed, one on each (the same products summed in another order:
+    equal to float precision). ONNX Runtime's CPU provider copies a concatenation out of its blocked layout and back:
+    on a 320x224 frame the three cost about 3 ms of the net's 58, the split convs about 1. Made from the net's weights
+    as they are when a graph is exported."""
+
+    def __init__(self, net: ResidualNet):
+        nn.Module.__init__(self)
+        self.cfg = net.cfg
+        self.down, self.pool, self.context, self.up, self.out = net.down, net.pool, net.context, net.up, net.out
+        self.coarse, self.skip = nn.ModuleList(), nn.ModuleList()
+        for i, block in enumerate(net.up):
+            conv, c = block[0], net.cfg.widths[i + 1]  # reads (upsampled features of width c, skip)
+            coarse = nn.Conv2d(c, conv.out_channels, 3, padding=1)
+            skip = nn.Conv2d(conv.in_channels - c, conv.out_channels, 3, padding=1, bias=False)
+            with torch.no_grad():
+                coarse.weight.copy_(conv.weight[:, :c])
+                coarse.bias.copy_(conv.bias)
+                skip.weight.copy_(conv.weight[:, c:])
+            self.coarse.append(coarse)
+            self.skip.append(skip)
+
+    def decode(self, skips: list[torch.Tensor], x: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+        """`ResidualNet.decode` without the concatenations."""
+        x = x + g[:, :, None, None]
+        for i in reversed(range(len(self.up))):
+            x = F.interpolate(x, scale_factor=2, mode="bilinear", align_corners=False)
+            x = self.up[i][1:](self.coarse[i](x) + self.skip[i](skips[i]))
+        return self.out(x)
 
 
 class _WithContext(nn.Module):
