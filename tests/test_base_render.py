@@ -279,3 +279,34 @@ def test_each_event_carries_one_mode_for_all_its_frames():
     assert modes == {0: "formula", 1: "formula", 2: BASE, 3: BASE, 4: BASE}
     done = [ev for ev in events if isinstance(ev, FramesReady) and ev.window_done]
     assert len(done) == len({ev.window for ev in events if isinstance(ev, FramesReady)})  # each batch ends once
+
+
+def test_a_live_preview_fills_a_frame_between_keyframes_once(monkeypatch):
+    """A retaining Renderer (the editor's) keeps the shot's base frames across renders: dragging a slider on a frame
+    between keyframes fills it once (the fill does not depend on the edits), with the pixels a fresh render makes."""
+    from x2video.base import fill
+    from x2video.render.live import render_frame
+
+    shot = wall_shot([0.05 * i for i in range(9)])
+    h, w = shot.size
+    filled: list[int] = []
+    real = fill.fill_frame
+    monkeypatch.setattr(fill, "fill_frame", lambda s, t, *a, **k: filled.append(t) or real(s, t, *a, **k))
+
+    def recolour(red: float) -> Edits:
+        e = Edits()
+        m = np.zeros((h, w), np.float32)
+        m[8:20, 10:30] = 1
+        e.masks["wall"] = Mask(frames={0: m}, hold=True)
+        e.ops.append(AlbedoSet(mask="wall", color=(red, 0.2, 0.1)))
+        return e
+
+    live, settings = Renderer(None), RenderSettings(quality="formula", keyframes="0,8")
+    images = [render_frame(live, shot, recolour(red), settings, 4).image for red in (0.9, 0.5)]
+    assert filled == [4]  # the second move reused frame 4's fill
+    fresh = render_frame(Renderer(None, retain=False), shot, recolour(0.5), settings, 4)
+    assert filled == [4, 4]  # a one-off render keeps nothing
+    np.testing.assert_array_equal(images[1], fresh.image)
+    assert float(np.abs(images[0] - images[1]).max()) > 0.01
+    render_frame(live, wall_shot([0.05 * i for i in range(9)]), recolour(0.5), settings, 4)
+    assert filled == [4, 4, 4]  # another shot: its own fill

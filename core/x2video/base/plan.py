@@ -36,17 +36,18 @@ if TYPE_CHECKING:
 
 def make_plan(shot: Shot, edits: Edits | None, settings: RenderSettings, model: RenderModel | None, frames: tuple[int, int],
               keys: tuple[int, ...], *, cache: ConditioningCache, retain: bool, clock: StageTimes | NoTimes, stats: dict,
-              base_dir: str | Path | None = None) -> Plan:
+              base_dir: str | Path | None = None, bases: BaseFrames | None = None) -> Plan:
     """The plan of a render of frames `frames` of `shot` (keyframed already) with `edits` and `settings` (validated) on
     `model`, `keys` the keyframes fill 'diffusion' reads as references (`keyframes.reference_keyframes`), with the
-    Renderer's `cache`, `retain` and `clock`; the tier reports into `stats`. Raises ValueError when the tier cannot run
+    Renderer's `cache`, `retain` and `clock`; the tier reports into `stats`. `bases`: the base frames of `shot` kept
+    from an earlier render (a new `BaseFrames` where None). Raises ValueError when the tier cannot run
     (`registry.decide`, `fill_choice`) or the reference cannot be read."""
     choice = _base_choice(shot, edits, settings, keys) or _fill_choice(shot, edits, settings, keys)
     filled = choice is not None and choice.tier != BASE  # fill 'diffusion': the tier renders every frame, keyframes as references
     over_base = uses_base(shot, settings) and not filled
     reason = "" if choice is not None or not over_base else f"; over the shot's path-traced frames ({keys_text(shot)})"
     order = base_order(shot, *frames) if over_base else []
-    bases = BaseFrames(shot) if over_base else None
+    bases = (bases if bases is not None else BaseFrames(shot)) if over_base else None
     supplied = bases is not None and supplies_irradiance(shot)  # over the base, irradiance where the shot lacks it
     rendered = ShadedShot(shot, bases.irradiance) if bases is not None and supplied else shot  # the shot as the tiers read it
     if choice is None:

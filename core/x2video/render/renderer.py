@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Callable, Sequence
 import torch
 
 from x2video.base import stage as base_stage
+from x2video.base.fill import BaseFrames
 from x2video.base.keyframes import keyframed, reference_keyframes
 from x2video.base.plan import base_plan, fill_choice, make_plan
 from x2video.conditioning.cache import CacheStats, ConditioningCache, conditioning_key
@@ -77,6 +78,10 @@ class Renderer:
         #: the tier the last render ran, and why
         self.last_tier: TierChoice | None = None
         self._preparing: CancelToken | None = None  # the token of a `prepare` in progress; a render cancels it
+        #: a retaining Renderer's base frames (`x2video.base.fill.BaseFrames`) of the shot it last rendered over its
+        #: base, with that shot and its keyframes setting: the live preview renders one frame per slider move, and a
+        #: frame between keyframes is then filled once, not on every move (the fill does not depend on the edits)
+        self._bases: tuple[Shot, str | None, BaseFrames] | None = None
         if model is not None:
             ours, theirs = alphas_cumprod(), model.alphas_cumprod().to(torch.float64).cpu()
             if ours.shape != theirs.shape or not torch.allclose(ours, theirs, atol=1e-6):
@@ -223,10 +228,11 @@ class Renderer:
             try:
                 settings.validate()  # every field, before any tier is chosen (a field changed in place since it was made, too)
                 keys = reference_keyframes(shot, settings)  # fill 'diffusion': the keyframes the tier reads as references
-                shot = keyframed(shot, settings)  # the shot's path-traced frames: the base (x2video.base.stage)
+                source, shot = shot, keyframed(shot, settings)  # the shot's path-traced frames: the base (x2video.base.stage)
                 stats: dict = {}  # what the tier reports back
                 plan = make_plan(shot, edits, settings, self.model, frame_range(shot, settings), keys, cache=self.cache,
-                                 retain=self.retain, clock=self.clock, stats=stats, base_dir=base_dir)
+                                 retain=self.retain, clock=self.clock, stats=stats, base_dir=base_dir,
+                                 bases=self._base_frames(source, shot, settings) if self.retain else None)
                 choice = self.last_tier = plan.job.choice
                 log.info("quality %s: tier %s (%s)", settings.quality, choice.tier, choice.reason)
                 try:
@@ -243,6 +249,14 @@ class Renderer:
         finally:
             if self.timing is not None:
                 self.timing.total = time.perf_counter() - t0
+
+    def _base_frames(self, source: Shot, shot: Shot, settings: RenderSettings) -> BaseFrames:
+        """The base frames of `shot` (`source` keyframed by `settings`) this Renderer keeps across renders (`_bases`):
+        the same object while `source` and the keyframes setting stay; making one computes nothing."""
+        held = self._bases
+        if held is None or held[0] is not source or held[1] != settings.keyframes:
+            held = self._bases = (source, settings.keyframes, BaseFrames(shot))
+        return held[2]
 
     @staticmethod
     def _timed_emit(emit: Callable[[RenderEvent], None], timing: StageTimes) -> Callable[[RenderEvent], None]:
