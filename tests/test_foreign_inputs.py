@@ -91,3 +91,25 @@ def test_a_plausible_frame_passes_the_guard_untouched(model):
     conds = [plain_conditioning(SyntheticShot(2, (96, 128)), t) for t in range(2)]
     for a, b in zip(residual_frames(model.residual_net, conds), residual_frames(model.residual_net, conds, plausible=True)):
         np.testing.assert_array_equal(a, b)
+
+
+def test_auto_keeps_the_formula_where_roughness_is_not_a_roughness(model, caplog):
+    """Roughness written as -0.5 (the stability grid's hostile case): tier 1 would read a mirror everywhere; under auto
+    (`plausible=True`) the frame is the formula's, and the log says why."""
+    from x2video.conditioning.frame import plain_conditioning
+    from x2video.formula import formula
+    from x2video.shot import ArrayShot
+    from x2video.tiers.residual import residual_frames
+
+    synthetic = SyntheticShot(2, (96, 128))
+    arrays = {k: np.stack([synthetic.channel(k, t) for t in range(2)]) for k in ("albedo", "normal", "roughness", "metallic", "irradiance")}
+    arrays["roughness"] = np.full_like(arrays["roughness"], -0.5)
+    conds = [plain_conditioning(ArrayShot(arrays), t) for t in range(2)]
+    raw = residual_frames(model.residual_net, conds)
+    with caplog.at_level(logging.WARNING, logger="x2video.tiers.residual"):
+        kept = residual_frames(model.residual_net, conds, plausible=True)
+    assert "roughness lies outside [0, 1]" in caplog.text
+    for c, r, k in zip(conds, raw, kept):
+        f = formula(c.channels)
+        np.testing.assert_array_equal(k, f)
+        assert float(np.abs(r - f).max()) > 0.01  # without the check, tier 1's own frame

@@ -99,3 +99,20 @@ def test_the_verdict_says_what_it_did():
     _, v = P.guard(f * 4, f)
     text = v.describe()
     assert f"{(4 + P.FLOOR) / (1 + P.FLOOR):.2f}x the formula" in text and f"{v.rejected.size} of {v.rejected.size} tiles" in text
+
+
+def test_channels_outside_their_range_are_named_and_in_range_ones_pass():
+    h, w = 40, 50
+    ok = {"roughness": np.full((h, w, 1), 0.5, np.float32), "metallic": np.zeros((h, w, 1), np.float32)}
+    assert P.out_of_range(ok) is None
+    edges = dict(ok, roughness=ok["roughness"].copy())
+    edges["roughness"][:, :1] = 1.0039  # an 8-bit map's rounding, and a column of filtered edge beyond it
+    edges["roughness"][:1, :] = -0.3  # 2 % of the pixels: more than RANGE_SHARE
+    assert "roughness" in (P.out_of_range(edges) or "")
+    edges["roughness"][:1, :] = 0.0
+    assert P.out_of_range(edges) is None  # the rounding alone is within RANGE_SLACK
+    why = P.out_of_range(dict(ok, roughness=np.full((h, w, 1), -0.5, np.float32)))
+    assert why is not None and "roughness" in why and "100%" in why and "-0.5" in why
+    assert "metallic" in (P.out_of_range(dict(ok, metallic=np.full((h, w, 1), 255.0, np.float32))) or "")
+    assert "metallic" in (P.out_of_range(dict(ok, metallic=np.full((h, w, 1), np.nan, np.float32))) or "")
+    assert P.out_of_range({}) is None  # no such channel: nothing to judge

@@ -46,6 +46,15 @@ TILE_BOUND = 1.2
 #: light's level it lifts whole frames: the kitchen 2.7x (log 1.0); our Cycles room with its irradiance x0.01 or x100,
 #: 0.70 .. 0.89; a synthetic room written as 8-bit PNGs at 1/100 of our scale, with a lamp (tests/test_foreign_inputs.py), 0.33.
 FRAME_BOUND = 0.2
+#: channels tier 1 reads as fractions of one: a frame where one lies outside [-RANGE_SLACK, 1 + RANGE_SLACK] (or is not
+#: finite) on more than RANGE_SHARE of its pixels is not a channel of the kind the net was trained on (a roughness map
+#: written as -0.5, a metallic mask in 0 .. 255), so auto keeps the formula on that frame (`out_of_range`). Tier 1 reads
+#: such values clamped to [0, 1]: roughness -0.5 read as 0, a mirror everywhere, scored 11.6 dB under the formula in the
+#: stability grid's hostile family (the formula reads neither channel). The slack and share let through filtered edges
+#: and a texture's rounding (1.0039 from an 8-bit map); 1 % of a 320x224 frame is about one small object.
+UNIT_CHANNELS = ("roughness", "metallic")
+RANGE_SLACK = 0.02
+RANGE_SHARE = 0.01
 
 
 @dataclass
@@ -68,6 +77,22 @@ class Verdict:
         worst = float(np.abs(self.tile_log_ratios).max()) if self.tile_log_ratios.size else 0.0
         return (f"tier 1 at {np.exp(self.frame_log_ratio):.2f}x the formula over the frame, up to {np.exp(worst):.2f}x (or 1/that) in a tile;"
                 f" {int(self.rejected.sum())} of {self.rejected.size} tiles keep the formula ({100 * self.formula_share:.0f}% of the pixels)")
+
+
+def out_of_range(channels: dict) -> str | None:
+    """Why `channels` (name -> (H, W, C) array) are not what tier 1 was trained on (`UNIT_CHANNELS`), or None."""
+    for name in UNIT_CHANNELS:
+        a = channels.get(name)
+        if a is None or np.size(a) == 0:
+            continue
+        a = np.asarray(a, np.float32)
+        bad = ~np.isfinite(a) | (a < -RANGE_SLACK) | (a > 1 + RANGE_SLACK)
+        share = float(bad.mean())
+        if share > RANGE_SHARE:
+            seen = a[np.isfinite(a)]
+            span = f"{float(seen.min()):.3g} .. {float(seen.max()):.3g}" if seen.size else "no finite value"
+            return f"{name} lies outside [0, 1] on {100 * share:.0f}% of the pixels ({span})"
+    return None
 
 
 def luminance(a: np.ndarray) -> np.ndarray:

@@ -103,11 +103,17 @@ def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.devic
 
 
 def _plausible(frame: np.ndarray, c: FrameConditioning) -> np.ndarray:
-    """`frame` with the formula where tier 1's correction of it is implausible (`plausible.guard`), said in the log."""
+    """`frame` with the formula where tier 1's correction of it is implausible (`plausible.guard`), or everywhere where
+    the frame's channels are not of the kind tier 1 was trained on (`plausible.out_of_range`), said in the log."""
     from x2video.formula import formula
-    from x2video.model.plausible import guard
+    from x2video.model.plausible import guard, out_of_range
 
-    out, verdict = guard(frame, formula(c.channels, _shape(c)))
+    f = formula(c.channels, _shape(c))
+    why = out_of_range(c.channels)
+    if why is not None:
+        log.warning("tier 1 keeps the formula on this frame: %s, not a channel of the kind it was trained on", why)
+        return f
+    out, verdict = guard(frame, f)
     if verdict.engaged:
         log.warning("tier 1's correction of the formula is larger than any it made on validation data: %s", verdict.describe())
     return out
