@@ -13,10 +13,13 @@ and a truth rendered apart at more samples with another seed), for N in `--every
 - cost per frame = keyframe cost / N + G-buffer frame cost + the method's own seconds, beside Cycles at the
   keyframes' samples and at 1, 2, 4 samples + OIDN on every frame (their PSNR against the same truth).
 
-    python -m bench.keyframes [--clips DIR] [--every 2,4,8,16] [--validation] [--fill DIR] [--methods hold,diffusion]
+    python -m bench.keyframes [--clips DIR] [--size 320x224] [--seeds S] [--every 2,4,8,16] [--validation] [--fill DIR]
+                              [--methods hold,diffusion]
 
 `--validation` scores the validation clip only (where the fill's settings are chosen); without it, the test clips
-(`bench.clips.TEST_SEEDS`) are scored and written to bench/results/keyframes/keyframes.json.
+(`bench.clips.TEST_SEEDS`, or those of them in `--seeds`) are scored and written to
+bench/results/keyframes/keyframes.json (keyframes_960x540.json at --size 960x540, beside the G-buffer cost of that
+size, gbuffer_cost_960x540.json).
 """
 from __future__ import annotations
 
@@ -38,6 +41,19 @@ from x2video.metrics.image import psnr, ssim
 from x2video.metrics.temporal import temporal_consistency
 
 GBUFFER_COST = Path(__file__).parent / "results" / "keyframes" / "gbuffer_cost.json"
+#: the size the default result files are at; other sizes' carry it in their names (keyframes_960x540.json,
+#: gbuffer_cost_960x540.json)
+DEFAULT_SIZE = "320x224"
+
+
+def gbuffer_cost_path(size: str) -> Path:
+    """The G-buffer cost file of `size` (`bench/results/keyframes/gbuffer_cost.py --size S --out` that path)."""
+    return GBUFFER_COST if size == DEFAULT_SIZE else GBUFFER_COST.with_name(f"gbuffer_cost_{size}.json")
+
+
+def result_name(validation: bool, size: str) -> str:
+    """The result file's stem: keyframes[_validation][_WxH] (no size for the default one)."""
+    return ("keyframes_validation" if validation else "keyframes") + ("" if size == DEFAULT_SIZE else f"_{size}")
 
 
 def read_exr_rgb(path: Path) -> np.ndarray:
@@ -214,7 +230,9 @@ def score_clip(folder: Path, every: list[int], names: list[str], fill: Any = Non
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--clips", default=None, help="root of bench.clips' clips (default its cache folder at --size)")
-    ap.add_argument("--size", default="320x224")
+    ap.add_argument("--size", default=DEFAULT_SIZE)
+    ap.add_argument("--seeds", default=None, help="clips to score, comma-separated room seeds (default: the test clips, or the "
+                    "validation clip with --validation)")
     ap.add_argument("--every", default="2,4,8,16")
     ap.add_argument("--methods", default="hold,rife,classical,classical_flow,learned")
     ap.add_argument("--fill", default=None, help="folder with fill.safetensors + fill.json (default: beside the shipped weights)")
@@ -224,7 +242,11 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     w, h = parse_size(args.size)
     root = Path(args.clips) if args.clips else default_root(w, h)
-    seeds = VALIDATION_SEEDS if args.validation else TEST_SEEDS
+    seeds = args.seeds or (VALIDATION_SEEDS if args.validation else TEST_SEEDS)
+    wrong = set(seeds.split(",")) - set((VALIDATION_SEEDS if args.validation else TEST_SEEDS).split(","))
+    if wrong:
+        raise SystemExit(f"--seeds {','.join(sorted(wrong))}: not a {'validation' if args.validation else 'test'} clip "
+                         f"(bench.clips: validation {VALIDATION_SEEDS}, test {TEST_SEEDS})")
     folders = [root / f"room_{s}" for s in seeds.split(",")]
     missing = [f for f in folders if not (f / "clip.json").is_file()]
     if missing:
@@ -245,9 +267,10 @@ def main(argv: list[str] | None = None) -> int:
            "machine": machine_info(), "fill_weights": None if fill is None else fill_sha(fill),
            "diffusion": None if model is None else {"weights": model.content_key(), "preset": args.preset},
            "clips": [score_clip(f, every, names, fill, model, args.preset) for f in folders]}
-    if GBUFFER_COST.is_file():
-        out["gbuffer_cost"] = json.loads(GBUFFER_COST.read_text())
-    path = results_path("keyframes", "keyframes_validation" if args.validation else "keyframes")
+    cost = gbuffer_cost_path(f"{w}x{h}")
+    if cost.is_file():
+        out["gbuffer_cost"] = json.loads(cost.read_text())
+    path = results_path("keyframes", result_name(args.validation, f"{w}x{h}"))
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(clean_json(out), indent=1))
     print(path)

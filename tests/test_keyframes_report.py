@@ -31,3 +31,16 @@ def test_table_cost_is_keyframe_over_n_plus_gbuffer_and_fill():
     want = 30.0 + 6.0 * (math.log(cost) - math.log(2.0)) / (math.log(8.0) - math.log(2.0))
     assert cells[7] == f"{want:.2f}"
     assert "TC 1.050" in text
+
+
+def test_other_sizes_get_their_own_result_and_gbuffer_cost_files_and_test_runs_refuse_the_validation_clip():
+    import pytest
+
+    from bench import keyframes as K
+
+    assert K.result_name(False, "320x224") == "keyframes" and K.result_name(True, "320x224") == "keyframes_validation"
+    assert K.result_name(False, "960x540") == "keyframes_960x540"
+    assert K.gbuffer_cost_path("320x224") == K.GBUFFER_COST
+    assert K.gbuffer_cost_path("960x540").name == "gbuffer_cost_960x540.json"
+    with pytest.raises(SystemExit, match="not a test clip"):
+        K.main(["--seeds", K.VALIDATION_SEEDS, "--clips", "/nonexistent"])
