@@ -53,8 +53,16 @@ def headline(doc: dict) -> dict:
                     "light tree off, persistent data, all frames in one animation render",
             "cpu_seconds_per_frame": r["cpu_mean"], "wall_seconds_per_frame": r["wall_mean"],
             "load_average": doc["machine"].get("load_average"), "threads": doc["threads"],
-            "note": "wall seconds on a machine shared with other jobs (load average above its cores): CPU seconds are the "
-                    "figure that carries over; on an idle machine wall would near CPU / threads, which was not measured here"}
+            "note": quiet_note(doc["machine"].get("load_average"), doc["machine"].get("cpu_cores"))}
+
+
+def quiet_note(load: list[float] | None, cores: int | None) -> str:
+    """How far the wall seconds carry over, from the load the run recorded (its 1-minute average as it ended)."""
+    if load and cores and load[0] <= cores:
+        return (f"wall seconds with nothing else running (load average {load[0]:.1f} on {cores} cores, this run's own "
+                "load); CPU seconds are the figure that carries over to other machines")
+    return ("wall seconds on a machine shared with other jobs (load average above its cores): CPU seconds are the "
+            "figure that carries over; on an idle machine wall would near CPU / threads")
 
 
 def main(argv: list[str] | None = None) -> int:
