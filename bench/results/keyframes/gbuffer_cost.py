@@ -127,6 +127,8 @@ def main(argv: list[str] | None = None) -> int:
     given = sys.argv[1:] if argv is None else argv
     shown = [v for i, v in enumerate(given) if v != "--out" and (i == 0 or given[i - 1] != "--out")]
     doc = {
+        "description": f"seconds a G-buffer frame (no Combined, no bounces) costs through the Blender add-on's keyframe export "
+                       f"at {w}x{h}, by render setting, beside a keyframe's",
         "format": "x2video-keyframes-gbuffer-cost",
         "command": " ".join(["PYTHONPATH=core:. python bench/results/keyframes/gbuffer_cost.py", *shown]),
         "machine": {**machine_info(), "label": "2-core CPU VM, shared with other jobs (see load_average)"},
