@@ -72,9 +72,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--size", default="320x224")
     p.add_argument("--key-samples", type=int, default=4, help="samples of the two keyframes (their cost is not the point here)")
     p.add_argument("--threads", type=int, default=2)
-    p.add_argument("--out", type=Path, default=OUT)
+    p.add_argument("--out", type=Path, default=None, help="default gbuffer_cost.json here (gbuffer_cost_WxH.json at another size "
+                   "than 320x224: what bench.keyframes reads at that size)")
     args = p.parse_args(argv)
     w, h = parse_size(args.size)
+    if args.out is None:
+        args.out = OUT if (w, h) == (320, 224) else OUT.with_name(f"gbuffer_cost_{w}x{h}.json")
 
     import bpy
 
