@@ -29,9 +29,11 @@ CARD_OUT = "resources/MODEL_CARD.md"
 SOURCES = {
     "edits": "bench/results/edits/edits.json",  # bench.edits on the test rooms (2026-12-05)
     "keyframes": "bench/results/keyframes/keyframes.json",  # bench.keyframes on the test clips (2026-12-05)
+    "keyframes_960": "bench/results/keyframes/keyframes_960x540.json",  # the same at 960x540, one test clip (2026-12-06)
     "outside": "bench/results/pathtraced/outside320_shipped.json",  # tiers 0-2 and auto, final code and weights (2026-12-04)
     "v3_test10": "bench/results/pathtraced/pt160v3_test10_shipped.json",  # the same, the first 10 v3 test rooms
-    "v3_test20": "bench/results/pathtraced/pt160v3_r4.json",  # the shipped tier-1 net (run w_r4) on all 20 v3 test rooms
+    # the shipped tier-1 net on all 20 v3 test rooms, against their truth apart (64 spp, seed 7; 2026-12-06)
+    "v3_test20": "bench/results/pathtraced/pt160v3_truth.json",
     "v3_320": "bench/results/pathtraced/pt320v3_r4.json",
     "v2_test": "bench/results/pathtraced/pt160v2_r4.json",
     "light_budget": "bench/results/light_budget/pt160v3_test.json",
@@ -81,6 +83,14 @@ def set_label(key: str, doc: dict) -> str:
     return f"{SET_NAMES[key]}, {doc['shots']} \u00d7 {first['frames']} frames, {w}\u00d7{h}"
 
 
+def truth_of(doc: dict) -> str:
+    """What a bench.pathtraced result scored against: its "truth" field ('apart, 64 spp seed 7'), or the passes' own
+    Combined for results from before the field (their truth shared its samples with the inputs, issue 49)."""
+    from x2video.io.truth import OWN
+
+    return str(doc.get("truth") or OWN)
+
+
 def per_shot(doc: dict, a: str, b: str) -> list[tuple[str, float]]:
     """(shot, PSNR of `a` minus PSNR of `b`) per shot of a bench.pathtraced result."""
     return [(s["shot"].split("/")[-1], s[a]["psnr"] - s[b]["psnr"]) for s in doc["shots_detail"] if a in s and b in s]
@@ -89,15 +99,15 @@ def per_shot(doc: dict, a: str, b: str) -> list[tuple[str, float]]:
 # --------------------------------------------------------------------------------------------- the card's blocks
 def tier1_table() -> str:
     keys = ("outside", "v3_test20", "v3_320", "v2_test")
-    lines = ["| set (never trained on) | formula PSNR | **tier 1 PSNR** | SSIM formula \u2192 tier 1 | TC formula \u2192 tier 1 | "
-             "worst shot (tier 1 \u2212 formula) | tier 1 s/frame |", "|---|---|---|---|---|---|---|"]
+    lines = ["| set (never trained on) | truth | formula PSNR | **tier 1 PSNR** | SSIM formula \u2192 tier 1 | TC formula \u2192 tier 1 | "
+             "worst shot (tier 1 \u2212 formula) | tier 1 s/frame |", "|---|---|---|---|---|---|---|---|"]
     above = 0
     for k in keys:
         d = load(k)
         f, t = _row(d, "formula|all", SOURCES[k]), _row(d, "residual|all", SOURCES[k])
         worst = min(v for _, v in per_shot(d, "residual|all", "formula|all"))
         above += t["psnr"] > f["psnr"]
-        lines.append(f"| {set_label(k, d)} | {f['psnr']:.2f} | **{t['psnr']:.2f}** | {f['ssim']:.3f} \u2192 {t['ssim']:.3f} | "
+        lines.append(f"| {set_label(k, d)} | {truth_of(d)} | {f['psnr']:.2f} | **{t['psnr']:.2f}** | {f['ssim']:.3f} \u2192 {t['ssim']:.3f} | "
                      f"{f['tc']:.3f} \u2192 {t['tc']:.3f} | {_signed(worst)} | {t['sec_per_frame']:.3f} |")
     v3 = load("v3_test20")
     guess, form = _row(v3, "residual_guess|all", SOURCES["v3_test20"]), _row(v3, "formula|all", SOURCES["v3_test20"])
@@ -122,13 +132,13 @@ def tier1_table() -> str:
 
 def diffusion_table() -> str:
     keys = ("outside", "v3_test10")
-    lines = ["| set (never trained on) | formula | tier 1 | **diffusion** | diffusion, irradiance dropped | "
-             "A\\|M\\|R masked, in masks: formula / tier 1 / diffusion / **auto** |", "|---|---|---|---|---|---|"]
+    lines = ["| set (never trained on) | truth | formula | tier 1 | **diffusion** | diffusion, irradiance dropped | "
+             "A\\|M\\|R masked, in masks: formula / tier 1 / diffusion / **auto** |", "|---|---|---|---|---|---|---|"]
     docs = {k: load(k) for k in keys}
     for k, d in docs.items():
         r = lambda name: _row(d, name, SOURCES[k])  # noqa: E731,B023
         masks = " / ".join(f"{r(m + '|mask_amr')['psnr_in_masks']:.2f}" for m in ("formula", "residual", "diffusion"))
-        lines.append(f"| {set_label(k, d)} | {r('formula|all')['psnr']:.2f} | {r('residual|all')['psnr']:.2f} | "
+        lines.append(f"| {set_label(k, d)} | {truth_of(d)} | {r('formula|all')['psnr']:.2f} | {r('residual|all')['psnr']:.2f} | "
                      f"**{r('diffusion|all')['psnr']:.2f}** | {r('diffusion|drop_irradiance')['psnr']:.2f} | "
                      f"{masks} / **{r('auto|mask_amr')['psnr_in_masks']:.2f}** |")
     secs = {m: [d["summary"][f"{m}|all"]["sec_per_frame"] for d in docs.values()] for m in ("formula", "residual", "diffusion")}
@@ -197,11 +207,12 @@ def readme_pareto() -> str:
             + f" (`{SOURCES['pareto']}`). " + _pick_sentence(p, rows))
 
 
-def readme_keyframes() -> str:
-    """The keyframe bench's headline: per N, the fills beside hold, RIFE and Cycles read off its own curve at the same cost."""
+def readme_keyframes(key: str = "keyframes") -> str:
+    """The keyframe bench's headline: per N, the fills beside hold, RIFE and Cycles read off its own curve at the same cost
+    (`key`: the result of SOURCES, one size)."""
     from bench.keyframes_report import LABELS, cycles_at, cycles_curve, gbuffer_cpu
 
-    d = load("keyframes")
+    d = load(key)
     clips, curve, gb = d["clips"], cycles_curve(d), gbuffer_cpu(d)
     key_cpu = sum(c["keyframes"]["cpu_seconds_per_frame"] for c in clips) / len(clips)
     methods = [m for m in ("hold", "rife", "classical", "learned") if any(r["method"] == m for c in clips for r in c["rows"])]
@@ -224,9 +235,10 @@ def readme_keyframes() -> str:
                   ("\u2014" if at is None else f"{at:.1f}")]
         lines.append(f"| {n} | " + " | ".join(cells) + " |")
     cyc = "; ".join(f"{label.split(',')[0]} {p:.1f} dB at {s:.2f} CPU s" for s, p, label in curve)
-    return "\n".join(lines + ["", f"PSNR (dB) on the frames between, {len(clips)} path-traced test clips at {d['size']}, against a truth "
-                              f"rendered apart; Cycles on every frame: {cyc} (`{SOURCES['keyframes']}`, "
-                              "[`keyframes.md`](bench/results/keyframes/keyframes.md))."])
+    md = Path(SOURCES[key]).with_suffix(".md")
+    return "\n".join(lines + ["", f"PSNR (dB) on the frames between, {len(clips)} path-traced test clip{'s' if len(clips) > 1 else ''} "
+                              f"at {d['size']}, against a truth rendered apart; Cycles on every frame: {cyc} (`{SOURCES[key]}`, "
+                              f"[`{md.name}`]({md.as_posix()}))."])
 
 
 def readme_edits() -> str:
@@ -286,7 +298,8 @@ def _pick_sentence(p: dict, rows: dict) -> str:
 
 BLOCKS: dict[str, Callable[[], str]] = {"tier1": tier1_table, "diffusion": diffusion_table, "reproduce": reproduce,
                                         "readme-figures": readme_figures, "readme-pareto": readme_pareto,
-                                        "readme-keyframes": readme_keyframes, "readme-edits": readme_edits}
+                                        "readme-keyframes": readme_keyframes, "readme-keyframes-960": lambda: readme_keyframes("keyframes_960"),
+                                        "readme-edits": readme_edits}
 
 
 def fill(text: str, where: str) -> str:

@@ -62,7 +62,8 @@ def table(doc: dict) -> list[str]:
     key_cpu = _mean([c["keyframes"]["cpu_seconds_per_frame"] for c in clips])
     every = sorted({r["every"] for c in clips for r in c["rows"]})
     methods = [m for m in LABELS if any(r["method"] == m for c in clips for r in c["rows"])]
-    out = [f"{len(clips)} test clips ({', '.join(c['rows'][0]['clip'] for c in clips)}), {clips[0]['frames']} frames at {doc['size']}; "
+    names = ", ".join(c["rows"][0]["clip"] for c in clips)
+    out = [f"{len(clips)} test clip{'s' if len(clips) != 1 else ''} ({names}), {clips[0]['frames']} frames at {doc['size']}; "
            f"keyframes {clips[0]['keyframes']['samples']} spp + OIDN, truth {clips[0]['truth']['samples']} spp + OIDN with another "
            f"seed; the keyframes themselves score {_mean([c['keyframes']['psnr_vs_truth'] for c in clips]):.2f} dB against it "
            "(the ceiling of any fill)" + (f", TC {_mean([c['keyframes']['tc'] for c in clips]):.3f}" if "tc" in clips[0]["keyframes"] else "")

@@ -18,7 +18,7 @@ def test_committed_card_and_readme_are_what_the_json_gives():
 def test_every_target_holds_its_blocks():
     names = {t: card.blocks_in((card.ROOT / t).read_text(encoding="utf-8")) for t in card.TARGETS}
     assert names["docs/model_card.md"] == ["tier1", "diffusion", "reproduce"]
-    assert names["README.md"] == ["readme-figures", "readme-pareto", "readme-edits", "readme-keyframes"]
+    assert names["README.md"] == ["readme-figures", "readme-pareto", "readme-edits", "readme-keyframes", "readme-keyframes-960"]
     assert sorted(n for ns in names.values() for n in ns) == sorted(card.BLOCKS)
 
 
