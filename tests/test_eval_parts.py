@@ -337,9 +337,10 @@ def test_shipped_card_is_built_whole_from_its_source_and_fits_a_few_screens():
         os.chdir(cwd)
     assert shipped == built, "resources/MODEL_CARD.md is stale: python -m x2video.eval.card --card docs/model_card.md"
     assert len(shipped.splitlines()) <= 200
-    # the shipped tiers' rows on the outside scenes: tier 1's table and the diffusion tier's, the formula's column beside each
+    # the shipped tiers' rows on the outside scenes: tier 1's table and the diffusion tier's, the truth they scored
+    # against and the formula's column beside each
     rows = [ln for ln in shipped.splitlines() if ln.startswith("| hand-written outside scenes")]
-    assert len(rows) == 2 and all(r.split("|")[2].strip() == "20.11" for r in rows)
+    assert len(rows) == 2 and all(r.split("|")[2].strip() == "the passes' own Combined" and r.split("|")[3].strip() == "20.11" for r in rows)
 
 
 def test_contact_sheet_and_mp4(tmp_path):
