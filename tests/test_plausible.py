@@ -116,3 +116,24 @@ def test_channels_outside_their_range_are_named_and_in_range_ones_pass():
     assert "metallic" in (P.out_of_range(dict(ok, metallic=np.full((h, w, 1), 255.0, np.float32))) or "")
     assert "metallic" in (P.out_of_range(dict(ok, metallic=np.full((h, w, 1), np.nan, np.float32))) or "")
     assert P.out_of_range({}) is None  # no such channel: nothing to judge
+
+
+def test_irradiance_at_another_level_or_clipped_at_a_files_ceiling_is_named():
+    rng = np.random.default_rng(1)
+    irr = rng.uniform(0.1, 0.9, (40, 50, 3)).astype(np.float32)  # mean luminance 0.5: a level tier 1 knows
+    assert P.out_of_range({"irradiance": irr}) is None
+    assert "level" in (P.out_of_range({"irradiance": irr * 0.1}) or "")  # another renderer's scale, left as written
+    assert "level" in (P.out_of_range({"irradiance": irr * 10}) or "")
+    clipped = np.minimum(irr * 2.5, 1.0)  # an 8-bit file of a brighter scale: over a quarter of the pixels at 1
+    assert "clipped" in (P.out_of_range({"irradiance": clipped}) or "")
+    window = irr.copy()
+    window[:5] = 1.0  # a window at the file's ceiling: 10 % of the frame
+    assert P.out_of_range({"irradiance": window}) is None
+    assert P.out_of_range({"irradiance": np.ones((40, 50, 3), np.float32)}) is None  # uniform light: nothing to tell
+    assert P.out_of_range({"irradiance": np.minimum(irr * 2.5, 1.3)}) is None  # a ceiling that is not a file's 1.0
+
+
+def test_a_frame_under_the_trusted_size_is_named():
+    irr = np.full((16, 16, 3), 0.5, np.float32)
+    assert "16x16" in (P.out_of_range({"irradiance": irr}) or "")
+    assert P.out_of_range({"irradiance": np.full((P.MIN_SIDE, 64, 3), 0.5, np.float32)}) is None

@@ -22,7 +22,7 @@ from x2video.shot import ArrayShot
 from x2video.tiers import registry as tiers
 
 
-def full_shot(num_frames: int = 5, h: int = 16, w: int = 24) -> ArrayShot:
+def full_shot(num_frames: int = 5, h: int = 32, w: int = 48) -> ArrayShot:
     """`make_shot` plus roughness and metallic: all five channels."""
     base = make_shot(num_frames, h, w)
     rng = np.random.default_rng(1)

@@ -55,6 +55,23 @@ FRAME_BOUND = 0.2
 UNIT_CHANNELS = ("roughness", "metallic")
 RANGE_SLACK = 0.02
 RANGE_SHARE = 0.01
+#: the mean luminance of a frame's irradiance (memory units, after the loader's exposure normalisation) tier 1 was
+#: trained on, widened by its exposure augmentation (gains 1/2 .. 2, `train.residual_stage`): the generator's frames
+#: lie between 0.196 and 1.62 (104 frames of the v3 and v2 Cycles sets, their channels only). A shot whose irradiance
+#: the loader leaves as written (an 8-bit XRGB set) at a tenth of that level scored 6.5 dB under the formula with
+#: tier 1 (the stability grid's foreign family, after one fitted exposure a frame), at a hundredth 18 dB.
+IRRADIANCE_LEVEL = (0.098, 3.24)
+#: share of a frame's pixels whose irradiance sits at the frame's maximum, when that maximum is an 8-bit file's
+#: ceiling (1.0, as a loader that leaves the file's values reads them), above which the irradiance is taken as
+#: clipped: the light there is unknown to the net as to the formula, and tier 1 misreads the rest. On validation
+#: room 43000129 rewritten as 8-bit XRGB sets, the clipped ones (irradiance x3 and x4, the kitchen-like set) held
+#: 56-70 % of their pixels at the ceiling, the unclipped ones 1.7 % (a window) and 4.2 % (a lamp); the generator's
+#: EXR frames at most 0.02 %. A frame at 1 everywhere reads as uniform light (nothing tells the two apart).
+CLIPPED_SHARE = 0.25
+#: the shortest frame side tier 1 runs on under auto: a quarter of the 128-pixel crops it was trained on
+#: (`train.residual_stage`). On frames of 16 pixels or fewer a side its global context is a few cells and it scored
+#: 0.7-2.2 dB under the formula (the stability grid's size family: 8x8, 9x7, 13x11, 16x16; 31x17 -0.16, 64x64 +0.4).
+MIN_SIDE = 32
 
 
 @dataclass
@@ -80,7 +97,9 @@ class Verdict:
 
 
 def out_of_range(channels: dict) -> str | None:
-    """Why `channels` (name -> (H, W, C) array) are not what tier 1 was trained on (`UNIT_CHANNELS`), or None."""
+    """Why `channels` (name -> (H, W, C) array, memory units) are not what tier 1 was trained on, or None: a unit channel
+    outside [0, 1] (`UNIT_CHANNELS`), a frame too small (`MIN_SIDE`), the irradiance's level outside the trained one
+    (`IRRADIANCE_LEVEL`), or the irradiance clipped (`CLIPPED_SHARE`)."""
     for name in UNIT_CHANNELS:
         a = channels.get(name)
         if a is None or np.size(a) == 0:
@@ -92,6 +111,22 @@ def out_of_range(channels: dict) -> str | None:
             seen = a[np.isfinite(a)]
             span = f"{float(seen.min()):.3g} .. {float(seen.max()):.3g}" if seen.size else "no finite value"
             return f"{name} lies outside [0, 1] on {100 * share:.0f}% of the pixels ({span})"
+    sides = [np.shape(a)[:2] for a in channels.values() if a is not None and np.ndim(a) >= 2 and np.size(a)]
+    if sides and min(min(s) for s in sides) < MIN_SIDE:
+        h, w = sides[0]
+        return f"the frame is {w}x{h} pixels, under the {MIN_SIDE} a side tier 1 is trusted with"
+    irr = channels.get("irradiance")
+    if irr is None or np.size(irr) == 0:
+        return None
+    irr = np.nan_to_num(np.asarray(irr, np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+    level = float(luminance(irr).mean())
+    if not IRRADIANCE_LEVEL[0] <= level <= IRRADIANCE_LEVEL[1]:
+        return (f"the irradiance's mean level {level:.3g} lies outside {IRRADIANCE_LEVEL[0]:g} .. {IRRADIANCE_LEVEL[1]:g}, the levels "
+                "tier 1 was trained on (another renderer's scale, left as written)")
+    top = float(irr.max())
+    clipped = float((irr.max(-1) >= 0.999 * top).mean()) if abs(top - 1.0) <= 1e-3 else 0.0  # at a file's ceiling, 1
+    if CLIPPED_SHARE < clipped < 1.0:  # every pixel at 1: uniform light, as far as anything can tell
+        return f"the irradiance sits at its maximum ({top:.3g}) on {100 * clipped:.0f}% of the pixels: clipped"
     return None
 
 
