@@ -35,7 +35,7 @@ SOURCES = {
     # the shipped tier-1 net on all 20 v3 test rooms, against their truth apart (64 spp, seed 7; 2026-12-06)
     "v3_test20": "bench/results/pathtraced/pt160v3_truth.json",
     "v3_320": "bench/results/pathtraced/pt320v3_r4.json",
-    "v2_test": "bench/results/pathtraced/pt160v2_r4.json",
+    "v2_test": "bench/results/pathtraced/pt160v2_truth.json",  # the v2 test rooms against their truth apart (64 spp, seed 7)
     "light_budget": "bench/results/light_budget/pt160v3_test.json",
     "pareto": "docs/pareto.json",
     "side_by_side": "bench/results/side_by_side/side_by_side.json",
