@@ -194,7 +194,15 @@ def product_note(f: dict) -> str:
                 "tier 1 around them over a feathered seam")
     if fam == "hostile" and name == "negative_roughness":
         return ("clamped to [0, 1] (the loaders; `to_vae_range` and tier 1's features in memory): roughness -0.5 is roughness 0, "
-                "a mirror-like scene that tier 1 and the sampler render as such; the formula ignores roughness, so only their scores move")
+                "a mirror-like scene that tier 1 and the sampler render as such; the formula ignores roughness, so only their scores "
+                "move. 'auto' keeps the formula on such a frame (x2video.model.plausible.out_of_range: a unit channel outside [0, 1])")
+    if fam == "foreign" and method == RESIDUAL:
+        return ("tier 1 forced on irradiance at another renderer's level, left as the file wrote it: 'auto' keeps the formula "
+                "where the level lies outside the ones tier 1 was trained on, where the irradiance is clipped at a file's "
+                "ceiling, and on frames under 32 pixels a side (x2video.model.plausible.out_of_range)")
+    if fam == "size" and method == RESIDUAL:
+        return ("tier 1 forced on frames of a few pixels, whose global context is a cell or two: 'auto' keeps the formula "
+                "under 32 pixels a side (x2video.model.plausible.MIN_SIDE)")
     if fam == "hostile" and name == "zero_normals" and method == RESIDUAL:
         return ("zero normals mean 'no geometry here' (a window) to tier 1; it keeps the formula wherever the channels say "
                 "nothing of the light (x2video.model.residual.unseen_light), so zero normals give the formula's frames")
@@ -208,8 +216,9 @@ def product_note(f: dict) -> str:
                 "forced (quality 'diffusion') or for what must be generated. Its gap to the formula here is the tiny shipped "
                 "model at preset fast (LCM-2), largest at sizes whose latent is a few pixels")
     if fam == "foreign" and method != RESIDUAL:
-        return ("auto keeps the formula wherever tier 1's correction of it is larger than any it made on validation data "
-                "(x2video.model.plausible); a forced 'residual' renders the net as it is, and the sampler only when forced")
+        return ("auto keeps the formula wherever tier 1's correction of it is larger than any it made on validation data, "
+                "or its input is not of the kind it was trained on (x2video.model.plausible); a forced 'residual' renders the "
+                "net as it is, and the sampler only when forced")
     if fam == "noise":
         return ("channels are used as given: a noisy irradiance makes a noisy frame in every tier; denoise the passes first "
                 "(Cycles' denoiser, OIDN)")
