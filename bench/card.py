@@ -34,7 +34,7 @@ SOURCES = {
     "v3_test10": "bench/results/pathtraced/pt160v3_test10_shipped.json",  # the same, the first 10 v3 test rooms
     # the shipped tier-1 net on all 20 v3 test rooms, against their truth apart (64 spp, seed 7; 2026-12-06)
     "v3_test20": "bench/results/pathtraced/pt160v3_truth.json",
-    "v3_320": "bench/results/pathtraced/pt320v3_r4.json",
+    "v3_320": "bench/results/pathtraced/pt320v3_truth.json",  # the same rooms at 320x224, truth apart (32 spp, seed 7)
     "v2_test": "bench/results/pathtraced/pt160v2_truth.json",  # the v2 test rooms against their truth apart (64 spp, seed 7)
     "light_budget": "bench/results/light_budget/pt160v3_test.json",
     "pareto": "docs/pareto.json",
