@@ -31,7 +31,7 @@ SOURCES = {
     "keyframes": "bench/results/keyframes/keyframes.json",  # bench.keyframes on the test clips (2026-12-05)
     "keyframes_960": "bench/results/keyframes/keyframes_960x540.json",  # the same at 960x540, one test clip (2026-12-06)
     "outside": "bench/results/pathtraced/outside320_shipped.json",  # tiers 0-2 and auto, final code and weights (2026-12-04)
-    "v3_test10": "bench/results/pathtraced/pt160v3_test10_shipped.json",  # the same, the first 10 v3 test rooms
+    "v3_test10": "bench/results/pathtraced/pt160v3_test10_truth.json",  # tiers 0-2 and auto on the first 10 v3 test rooms, truth apart
     # the shipped tier-1 net on all 20 v3 test rooms, against their truth apart (64 spp, seed 7; 2026-12-06)
     "v3_test20": "bench/results/pathtraced/pt160v3_truth.json",
     "v3_320": "bench/results/pathtraced/pt320v3_truth.json",  # the same rooms at 320x224, truth apart (32 spp, seed 7)
