@@ -83,37 +83,46 @@ def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.devic
     Unless `guess_unseen`, pixels whose channels say nothing of their light (`residual.unseen_light`: sky, clear
     glass, mirrors) keep the formula instead of the net's guess (decided at full resolution; at a working size the
     correction is also 0 on such working pixels and next to them, so the guess does not spread when upsampled).
-    With `plausible` (quality 'auto'), the formula wherever the net's correction of it is larger than any it made on
-    validation data (`x2video.model.plausible.guard`): auto's promise never to render below the formula."""
+    With `plausible` (quality 'auto'), the formula on a frame whose input is not of the kind the net was trained on
+    (`x2video.model.plausible.out_of_range`: the net is not run on it), and wherever the net's correction of it is
+    larger than any it made on validation data (`x2video.model.plausible.guard`): auto's promise never to render below
+    the formula."""
     from x2video.formula import formula
+    from x2video.model.plausible import out_of_range
 
-    sizes = [working_size(_size(c), net.cfg.factor, max_pixels) if max_pixels else None for c in conds]
     frames: list[np.ndarray] = [np.empty(0)] * len(conds)
-    whole = [i for i, ws in enumerate(sizes) if ws is None]
+    run = []  # the frames the net runs on
+    for i, c in enumerate(conds):
+        why = out_of_range(c.channels) if plausible else None
+        if why is None:
+            run.append(i)
+        else:
+            log.warning("tier 1 keeps the formula on this frame: %s (not the input it was trained on)", why)
+            frames[i] = formula(c.channels, _shape(c))
+    sizes = {i: working_size(_size(conds[i]), net.cfg.factor, max_pixels) if max_pixels else None for i in run}
+    whole = [i for i in run if sizes[i] is None]
     for i, f in zip(whole, _net_frames(net, [conds[i] for i in whole], device, batch)):
         frames[i] = f
-    small = [i for i, ws in enumerate(sizes) if ws is not None]
+    small = [i for i in run if sizes[i] is not None]
     lows = [downsample_conditioning(conds[i], sizes[i]) for i in small]
     for i, low, r in zip(small, lows, _net_frames(net, lows, device, batch, corrections=True)):
         if not guess_unseen:  # upsampled, the guess would spread a working pixel onto the lit surfaces around
             r = _without_unseen(r, low)  # windows and mirrors (a bright rim): no correction there or next to it
         frames[i] = onto_formula(r, formula(conds[i].channels, _shape(conds[i])))
-    frames = frames if guess_unseen else [keep_formula_where_unseen(f, c.channels) for f, c in zip(frames, conds)]
-    return [_plausible(f, c) for f, c in zip(frames, conds)] if plausible else frames
+    for i in run:
+        if not guess_unseen:
+            frames[i] = keep_formula_where_unseen(frames[i], conds[i].channels)
+        if plausible:
+            frames[i] = _plausible(frames[i], conds[i])
+    return frames
 
 
 def _plausible(frame: np.ndarray, c: FrameConditioning) -> np.ndarray:
-    """`frame` with the formula where tier 1's correction of it is implausible (`plausible.guard`), or everywhere where
-    the frame's channels are not of the kind tier 1 was trained on (`plausible.out_of_range`), said in the log."""
+    """`frame` with the formula where tier 1's correction of it is implausible (`plausible.guard`), said in the log."""
     from x2video.formula import formula
-    from x2video.model.plausible import guard, out_of_range
+    from x2video.model.plausible import guard
 
-    f = formula(c.channels, _shape(c))
-    why = out_of_range(c.channels)
-    if why is not None:
-        log.warning("tier 1 keeps the formula on this frame: %s, not a channel of the kind it was trained on", why)
-        return f
-    out, verdict = guard(frame, f)
+    out, verdict = guard(frame, formula(c.channels, _shape(c)))
     if verdict.engaged:
         log.warning("tier 1's correction of the formula is larger than any it made on validation data: %s", verdict.describe())
     return out
