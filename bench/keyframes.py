@@ -242,8 +242,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     w, h = parse_size(args.size)
     root = Path(args.clips) if args.clips else default_root(w, h)
-    seeds = args.seeds or (VALIDATION_SEEDS if args.validation else TEST_SEEDS)
-    wrong = set(seeds.split(",")) - set((VALIDATION_SEEDS if args.validation else TEST_SEEDS).split(","))
+    split = VALIDATION_SEEDS if args.validation else TEST_SEEDS
+    seeds = args.seeds or split
+    wrong = set(seeds.split(",")) - set(split.split(","))
     if wrong:
         raise SystemExit(f"--seeds {','.join(sorted(wrong))}: not a {'validation' if args.validation else 'test'} clip "
                          f"(bench.clips: validation {VALIDATION_SEEDS}, test {TEST_SEEDS})")

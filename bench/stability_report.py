@@ -198,11 +198,13 @@ def product_note(f: dict) -> str:
                 "move. 'auto' keeps the formula on such a frame (x2video.model.plausible.out_of_range: a unit channel outside [0, 1])")
     if fam == "foreign" and method == RESIDUAL:
         return ("tier 1 forced on irradiance at another renderer's level, left as the file wrote it: 'auto' keeps the formula "
-                "where the level lies outside the ones tier 1 was trained on, where the irradiance is clipped at a file's "
-                "ceiling, and on frames under 32 pixels a side (x2video.model.plausible.out_of_range)")
+                "where the level lies outside the ones tier 1 was trained on and where the irradiance is clipped at a file's "
+                "ceiling (x2video.model.plausible.out_of_range)")
     if fam == "size" and method == RESIDUAL:
+        from x2video.model.plausible import MIN_SIDE
+
         return ("tier 1 forced on frames of a few pixels, whose global context is a cell or two: 'auto' keeps the formula "
-                "under 32 pixels a side (x2video.model.plausible.MIN_SIDE)")
+                f"under {MIN_SIDE} pixels a side (x2video.model.plausible.MIN_SIDE)")
     if fam == "hostile" and name == "zero_normals" and method == RESIDUAL:
         return ("zero normals mean 'no geometry here' (a window) to tier 1; it keeps the formula wherever the channels say "
                 "nothing of the light (x2video.model.residual.unseen_light), so zero normals give the formula's frames")

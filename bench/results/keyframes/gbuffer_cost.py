@@ -28,7 +28,6 @@ from x2video.fields import parse_size
 
 ROOT = Path(__file__).resolve().parents[3]
 ADDON = ROOT / "packaging" / "blender" / "x2video_export"
-OUT = Path(__file__).resolve().parent / "gbuffer_cost.json"
 
 
 def load_addon():
@@ -77,7 +76,9 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     w, h = parse_size(args.size)
     if args.out is None:
-        args.out = OUT if (w, h) == (320, 224) else OUT.with_name(f"gbuffer_cost_{w}x{h}.json")
+        from bench.keyframes import gbuffer_cost_path
+
+        args.out = gbuffer_cost_path(f"{w}x{h}")
 
     import bpy
 
