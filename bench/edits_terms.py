@@ -7,7 +7,8 @@ an albedo edit, the floor x2video's tier 0 keeps (`x2video.base.passes`), is
     rebuild = Combined - DiffCol x L + colour' x L,   L = DiffDir + DiffInd of the shot as it was.
 
 Here, on each room's albedo pair of `bench.edits_data` (the shot, and Cycles' re-render of the edit with the same seed),
-the rebuild is scored inside the edited object beside oracles that take one term from the re-render: its diffuse
+the rebuild is scored inside the edited object beside the shot as it was, the formula (the new colour times the
+shot's irradiance, DiffDir + DiffInd) and oracles that take one term from the re-render: its diffuse
 colour, its diffuse light, its glossy term, all of them; and beside the light taken from the denoised Combined
 ((Combined - glossy - emission) / DiffCol where the diffuse term is over 90 % of the pixel's light) instead of the
 separately denoised light passes. The error inside is split between the object's metallic pixels (metallic > 0.5)
@@ -49,7 +50,9 @@ def variants(b: dict, a: dict, colour: np.ndarray) -> dict[str, np.ndarray]:
     diffuse = b["DiffCol"] * light(b)
     from_combined = np.maximum(b["Combined"] - gloss(b) - emit, 0) / np.maximum(b["DiffCol"], 1e-4)
     use = (diffuse / np.maximum(diffuse + gloss(b) + emit, 1e-6) > DIFFUSE_SHARE) & (b["DiffCol"] > 0.02)
-    return {"rebuild from passes (the floor)": rest + colour * light(b) + gloss(b),
+    return {"the shot as it was (no edit)": b["Combined"],
+            "the formula (colour' x irradiance)": colour * light(b),
+            "rebuild from passes (the floor)": rest + colour * light(b) + gloss(b),
             "oracle: re-render's diffuse colour": rest + a["DiffCol"] * light(b) + gloss(b),
             "oracle: re-render's diffuse light": rest + colour * light(a) + gloss(b),
             "oracle: re-render's glossy term": rest + colour * light(b) + gloss(a),
