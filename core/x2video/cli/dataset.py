@@ -95,6 +95,8 @@ def register(subparsers) -> None:
     o.add_argument("--frames", type=int, default=12, help="frames per scene")
     o.add_argument("--samples", type=int, default=32, help="path-tracing samples per pixel (Combined is denoised)")
     o.add_argument("--scenes", default="kitchen,corridor,night_mirror", help="comma-separated scenes to render")
+    o.add_argument("--threads", type=int, default=0, help="render threads of the Blender process (0: every core; the scenes"
+                                                          " render one at a time)")
     o.set_defaults(func=_outside)
     t = sub.add_parser("truth", help="render a truth apart from the passes (more samples, another seed) into DIR/<split>/<shot>/truth/"
                                      " for finished Cycles rooms and outside scenes (resumable)")

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import logging
 import multiprocessing as mp
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +28,7 @@ class OutsideJob:
     width: int
     height: int
     samples: int
+    threads: int = 1
 
 
 def _work(job: OutsideJob) -> None:
@@ -36,7 +38,7 @@ def _work(job: OutsideJob) -> None:
     from x2video.cycles.shot import CyclesConfig
 
     _quiet()
-    write_outside_shot(job.scene, job.out, job.frames, job.width, job.height, cfg=CyclesConfig(samples=job.samples, threads=1))
+    write_outside_shot(job.scene, job.out, job.frames, job.width, job.height, cfg=CyclesConfig(samples=job.samples, threads=job.threads))
 
 
 def _frames_done(out: str) -> int:
@@ -65,7 +67,10 @@ def make_outside(args: argparse.Namespace) -> int:
     out = Path(args.out)
     settings = {"frames": args.frames, "width": width, "height": height, "samples": args.samples, "renderer": "cycles"}
     meta = begin_dataset(out, settings, FORMAT, growable=(), scenes=scenes)
-    jobs = [OutsideJob(s, str(out / "test" / s), args.frames, width, height, args.samples) for s in scenes]
+    # the scenes render one after another, so the one Blender process may use every core (0); the set's pixels do not
+    # depend on the thread count, only its seconds do
+    threads = int(getattr(args, "threads", 0) or 0) or (os.cpu_count() or 1)
+    jobs = [OutsideJob(s, str(out / "test" / s), args.frames, width, height, args.samples, threads) for s in scenes]
     todo = [j for j in jobs if not is_done(Path(j.out))]
     log.info("%d outside scenes, %d already done", len(jobs), len(jobs) - len(todo))
     per_scene = {}
@@ -82,6 +87,7 @@ def make_outside(args: argparse.Namespace) -> int:
         per_scene[job.scene] = round(secs / max(n, 1), 2)
         print(f"{job.scene}: {n} frame(s) path-traced in {secs:.0f} s ({secs / max(n, 1):.1f} s per frame, set-up included)", flush=True)
     write_json_atomic(meta, {**settings, "format": FORMAT, "scenes": scenes, "complete": True,
-                             "splits": {"test": [f"test/{s}" for s in scenes]}, "seconds_per_frame_this_run": per_scene})
+                             "splits": {"test": [f"test/{s}" for s in scenes]}, "seconds_per_frame_this_run": per_scene,
+                             "threads_this_run": threads})
     print(f"{len(jobs)} outside scene(s) in {out / 'test'}")
     return 0
