@@ -36,7 +36,8 @@ SOURCES = {
     "v3_test20": "bench/results/pathtraced/pt160v3_truth.json",
     "v3_320": "bench/results/pathtraced/pt320v3_truth.json",  # the same rooms at 320x224, truth apart (32 spp, seed 7)
     "v2_test": "bench/results/pathtraced/pt160v2_truth.json",  # the v2 test rooms against their truth apart (64 spp, seed 7)
-    "light_budget": "bench/results/light_budget/pt160v3_test.json",
+    # what each light term the channels lack is worth on the 20 v3 test rooms, against their truth apart (2026-12-06)
+    "light_budget": "bench/results/light_budget/pt160v3_truth.json",
     "pareto": "docs/pareto.json",
     "side_by_side": "bench/results/side_by_side/side_by_side.json",
 }
@@ -112,14 +113,15 @@ def tier1_table() -> str:
     v3 = load("v3_test20")
     guess, form = _row(v3, "residual_guess|all", SOURCES["v3_test20"]), _row(v3, "formula|all", SOURCES["v3_test20"])
     worst_guess = min(per_shot(v3, "residual_guess|all", "formula|all"), key=lambda p: p[1])
-    lb = load("light_budget")["summary"]
+    lb_doc = load("light_budget")
+    lb = lb_doc["summary"]
     gain = lambda case: lb[case] - lb["formula"]  # noqa: E731
     unseen = "unseen pixels: the frame's mean truth"
     lines += ["", "How to read it:",
               f"- Tier 1 is above the formula on {above} of the {len(keys)} sets; the worst shot column is its lowest "
               "per-shot PSNR minus the formula's.",
               "- On the v3 rooms most of the formula's error is light that the five channels do not hold "
-              f"(`python -m bench.light_budget`, {SOURCES['light_budget']}):",
+              f"(`python -m bench.light_budget`, {SOURCES['light_budget']}; truth: {truth_of(lb_doc)}):",
               f"  - windows, glass and emitters: Cycles' emission and environment passes alone would add {gain('+ emission and environment'):.1f} dB;",
               f"  - one colour a frame in the unseen pixels would add {gain(unseen):.1f} dB;",
               f"  - the glossy passes would add {gain('+ glossy passes'):.1f} dB.",

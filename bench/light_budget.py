@@ -1,8 +1,8 @@
 """Where the formula's error lies on path-traced shots: the PSNR that each light term it lacks would add.
 
 For Cycles shots (multi-layer EXRs with the light passes) of `--data DATA/<split>/`, every `--step`-th frame is
-scored in the shot's units against its ground truth (display images, `x2video.channels.tonemap`, as
-`bench.pathtraced`), for:
+scored in the shot's units against its ground truth (its truth apart, `SHOT/truth/`, when it has one; display
+images, `x2video.channels.tonemap`, as `bench.pathtraced`), for:
 
 - the formula, albedo x irradiance;
 - the formula plus Cycles' own glossy passes (GlossCol x (GlossDir + GlossInd)), transmission passes, emission and
@@ -30,6 +30,8 @@ from x2video.io import load_shot
 from x2video.io.atomic import write_json_atomic, write_text_atomic
 from x2video.io.image import read_image
 from x2video.io.paths import portable_path
+from x2video.io.truth import ground_truth
+from x2video.io.truth import summary as truth_summary
 from x2video.model.residual import unseen_light
 
 CASES = ("formula", "+ glossy passes", "+ transmission passes", "+ emission and environment", "+ glossy and transmission",
@@ -40,9 +42,10 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     return 10 * math.log10(1 / max(float(np.mean((tonemap(a) - tonemap(b)) ** 2)), 1e-12))
 
 
-def frame_cases(fr: dict, passes, scale: float) -> dict[str, float]:
-    """PSNR of each case of `CASES` for one frame (`fr` from the loader, `passes(name)` -> (H, W, 3) Cycles pass)."""
-    gt = fr["rgb"]
+def frame_cases(fr: dict, passes, scale: float, gt: np.ndarray | None = None) -> dict[str, float]:
+    """PSNR of each case of `CASES` for one frame (`fr` from the loader, `passes(name)` -> (H, W, 3) Cycles pass),
+    against `gt` (the shot's truth apart, `x2video.io.truth`; default the frame's own rgb, the passes' Combined)."""
+    gt = fr["rgb"] if gt is None else gt
     ch = {k: fr[k] for k in INTRINSIC}
     base = formula(ch) / scale  # the loader normalised irradiance by `scale`; the ground truth is in the shot's units
     gloss = passes("GlossCol") * (passes("GlossDir") + passes("GlossInd"))
@@ -73,8 +76,11 @@ def main(argv: list[str] | None = None) -> int:
     if not shots:
         raise SystemExit(f"{root}: no shots (folders with shot.json)")
     rows: list[dict[str, float]] = []
+    labels: list[str] = []
     for sp in shots:
         shot = load_shot(sp)
+        gt = ground_truth(shot, sp)  # a truth apart (SHOT/truth/) when the shot has one: the passes share no samples with it
+        labels.append(gt.label)
         files = sorted(sp.glob("*.exr"))
         if len(files) != shot.num_frames:
             raise SystemExit(f"{sp}: {len(files)} EXR files for {shot.num_frames} frames; this bench needs Cycles' multi-layer EXRs")
@@ -88,18 +94,20 @@ def main(argv: list[str] | None = None) -> int:
                     raise SystemExit(f"{files[t]}: lacks the Cycles pass {p}")
                 return img.stack(comps)
 
-            rows.append(frame_cases(shot.frame(t), passes, float(shot.info.irradiance_scale)))
+            rows.append(frame_cases(shot.frame(t), passes, float(shot.info.irradiance_scale), gt.frame(t)))
     summary = {c: round(float(np.mean([r[c] for r in rows])), 2) for c in CASES}
     summary["unseen_share"] = round(float(np.mean([r["unseen_share"] for r in rows])), 4)
     out = {"format": "x2video-light-budget", "command": command("light_budget", argv), "data": portable_path(args.data),
            "split": args.split, "shots": len(shots), "frames": len(rows), "summary": summary,
+           "truth": truth_summary(labels),
            "note": "mean per-frame PSNR (tonemap: clip, sRGB) in the shot's units; 'unseen' = residual.unseen_light of the channels"}
     dest = results_path("light_budget", args.name or f"{Path(args.data).name}_{args.split}")
     dest.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(dest, out)
     lines = ["| case | PSNR | vs formula |", "|---|---|---|"]
     lines += [f"| {c} | {summary[c]:.2f} | {summary[c] - summary['formula']:+.2f} |" for c in CASES]
-    lines += ["", f"{len(rows)} frames of {len(shots)} shots; unseen pixels {100 * summary['unseen_share']:.1f} % of a frame."]
+    lines += ["", f"{len(rows)} frames of {len(shots)} shots; unseen pixels {100 * summary['unseen_share']:.1f} % of a frame;"
+                  f" truth: {out['truth']}."]
     write_text_atomic(dest.with_suffix(".md"), "\n".join(lines) + "\n")
     print("\n".join(lines))
     print(f"wrote {dest}")

@@ -66,6 +66,21 @@ def test_cycles_room_renders_and_loads(tmp_path, monkeypatch):
     assert light_budget(["--data", str(out), "--split", "train", "--step", "1", "--name", "t"]) == 0
     lb = json.loads((tmp_path / "lb" / "t.json").read_text())["summary"]
     assert lb["+ every pass"] > lb["formula"] + 3 and lb["+ every pass"] > 24  # 4 spp, denoised passes vs denoised Combined
+    # ... and it scores against a truth apart when the room has one (here the Combined at a quarter of its light: the
+    # passes no longer add up to it), and says so
+    from x2video.io.image import write_exr
+    from x2video.io.truth import FORMAT, RECORD, TRUTH_DIR, truth_frame_path
+
+    for clip in (room, room.with_name("room_00000_c1")):
+        clip_shot = load_shot(clip)
+        for t in range(2):
+            truth_frame_path(clip, t).parent.mkdir(exist_ok=True)
+            rgb = 0.25 * clip_shot.channel("rgb", t)
+            write_exr(truth_frame_path(clip, t), {c: rgb[..., i] for i, c in enumerate("RGB")}, "float")
+        (clip / TRUTH_DIR / RECORD).write_text(json.dumps({"format": FORMAT, "samples": 8, "seed": 7, "frames": 2, "complete": True}))
+    assert light_budget(["--data", str(out), "--split", "train", "--step", "1", "--name", "t2"]) == 0
+    lb2 = json.loads((tmp_path / "lb" / "t2.json").read_text())
+    assert lb2["truth"] == "apart, 8 spp seed 7" and lb2["summary"]["+ every pass"] < lb["+ every pass"] - 6
     # the room writes its material classes (every object id in the ids pass that is not background is classed)
     from x2video.cycles.classes import CLASSES, material_classes
 
