@@ -107,6 +107,7 @@ def render_tier(renderer: Renderer, shot, tier: str, edits=None, **overrides) ->
 
 LABELS = {"albedo_x_irradiance|all": "formula: albedo × irradiance", "formula|all": "tier 0 (formula)", "residual|all": "tier 1 (residual net)",
           "residual_guess|all": "tier 1, --guess-unseen (net's guess in sky and glass)",
+          "auto|all": "auto (--quality auto: tier 1 where its guards hold, else the formula)",
           "diffusion|all": "tier 2 (diffusion, fast preset)", "diffusion|drop_irradiance": "tier 2, irradiance dropped",
           "formula|mask_amr": "tier 0 (formula), A\\|M\\|R of 3 objects masked out",
           "residual|mask_amr": "tier 1, A\\|M\\|R of 3 objects masked out", "diffusion|mask_amr": "tier 2, A\\|M\\|R of 3 objects masked out",
@@ -230,6 +231,8 @@ def main(argv: list[str] | None = None) -> int:
             if tiers.get(t).generative or cond == "all" or (cond == "mask_amr" and not tiers.get(t).generative)]  # the per-frame tiers beside it
     if "mask_amr" in conditions and any(tiers.get(t).generative for t in names):  # auto's composite under the masks
         runs.append(("auto|mask_amr", "auto", "mask_amr", {}))
+    if tiers.RESIDUAL in names and "all" in conditions:  # what --quality auto renders of the whole shot: tier 1 under its
+        runs.append(("auto|all", "auto", "all", {}))  # guards (issue 49: no shot under the formula - 0.2 dB)
     if tiers.RESIDUAL in names and "all" in conditions:  # tier 1 with its guess where the channels hold no light (off by default)
         runs.append(("residual_guess|all", "residual", "all", {"guess_unseen": True}))
     summary, per_shot = evaluate(renderer, shots, runs)

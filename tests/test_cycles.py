@@ -117,7 +117,8 @@ def test_cycles_clip_trains_tier1_one_step(tmp_path, monkeypatch):
     assert pathtraced(["--data", str(out), "--split", "test", "--tiers", "formula,residual", "--conditions", "all,mask_amr",
                        "--threads", "1", "--name", "t"]) == 0
     res = json.loads((tmp_path / "ptb" / "t.json").read_text())["summary"]
-    assert {"albedo_x_irradiance|all", "formula|all", "residual|all", "residual|mask_amr"} <= set(res)
+    assert {"albedo_x_irradiance|all", "formula|all", "residual|all", "residual|mask_amr", "auto|all"} <= set(res)
+    assert res["auto|all"]["psnr"] > 5  # what --quality auto renders of the whole shot, scored beside the tiers
     assert "psnr_in_masks" in res["residual|mask_amr"] and "psnr_in_masks" not in res["residual|all"]
     assert np.isfinite(res["residual|mask_amr"]["psnr_in_masks"]) and res["residual|all"]["psnr"] > 5
     assert np.isfinite(res["residual|all"]["psnr_mask_ring"])  # the band around the masks, in every row (auto's seam)
