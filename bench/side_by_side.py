@@ -12,9 +12,10 @@ its light gain and the samples it was rendered at). Panels, left to right:
     diffusion (fast preset)         the diffusion tier, `quality="diffusion", preset="fast"` (LCM-2, or DDIM-4 without LCM weights)
     Cycles 4 spp + OIDN             the same scene rebuilt from its module (`x2video.cycles.outside`), camera and light gain
                                     as the data set's, only the picture rendered (no passes or compositor), OpenImageDenoise'd,
-                                    noise seed 1 (the ground truth's is 0), in a Blender process of its own (bpy stays out of
+                                    noise seed 1 (the passes' is 0), in a Blender process of its own (bpy stays out of
                                     the torch process)
-    ground truth                    the shot's rgb: Cycles at the data set's samples (shot.json), OpenImageDenoise'd
+    ground truth                    the shot's truth apart (SHOT/truth/, `x2video dataset truth`: more samples, another
+                                    seed) when it has one, else its rgb: Cycles at the data set's samples, OpenImageDenoise'd
 
 Every tier renders the whole shot through `x2video.Renderer` (the library's one public API) and the picture shows frame
 `--frame`; seconds per frame are wall seconds of the render over the shot's frame count, after one untimed warm-up
@@ -46,6 +47,7 @@ import numpy as np
 
 from bench.common import clean_json, command, results_path
 from bench.ptscore import display, render_timed, truth
+from x2video.io.truth import ground_truth
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 #: the README shows the picture about 900 px wide: keep the file small
@@ -187,15 +189,24 @@ def cycles_panel(res: dict, samples: int, gts: list[np.ndarray], frame: int) -> 
     return scored(p, gts[frame])
 
 
-def ground_truth_panel(info: dict, gt: np.ndarray) -> Panel:
-    """The shot's rgb; its seconds per frame as the data set's build recorded them (all passes, its own threads)."""
+def ground_truth_panel(info: dict, gt: np.ndarray, record: dict | None = None) -> Panel:
+    """The ground truth: the shot's truth apart when it has one (`record`, SHOT/truth/truth.json: its samples, seed and
+    seconds), else the shot's rgb (its seconds per frame as the data set's build recorded them: all passes, its own threads)."""
+    if record is not None:
+        secs = record.get("seconds") or {}
+        mean = round(sum(secs.values()) / len(secs), 3) if secs else None
+        label = f"{GROUND_TRUTH}: Cycles {record['samples']} spp + OIDN, seed {record['seed']}"
+        caption = (f"{mean:g} s/frame (rendered apart from the passes)" if mean is not None else "rendered apart from the passes")
+        return Panel("ground_truth", label, gt, mean, caption=caption,
+                     extra={"samples": record["samples"], "denoise": record.get("denoise"), "seed": record["seed"],
+                            "apart": True, "seconds_note": "recorded by `x2video dataset truth`: the beauty render alone, wall"})
     extra = info.get("extra", {})
     samples, secs, threads = extra.get("samples"), extra.get("seconds_per_frame"), extra.get("threads")
     label = f"{GROUND_TRUTH}: Cycles {samples} spp + OIDN" if samples else GROUND_TRUTH
     caption = (f"{secs:g} s/frame at build ({threads} thread{'s' if threads != 1 else ''})" if secs is not None
                else "the shot's rgb")
     return Panel("ground_truth", label, gt, float(secs) if secs is not None else None, caption=caption,
-                 extra={"samples": samples, "denoise": extra.get("denoise"), "seed": 0, "threads": threads,
+                 extra={"samples": samples, "denoise": extra.get("denoise"), "seed": 0, "threads": threads, "apart": False,
                         "seconds_note": "recorded by the data set's build: the render of every pass and the compositor, wall"})
 
 
@@ -302,6 +313,10 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"--frame {args.frame}: the shot has frames 0..{shot.num_frames - 1}")
     if not shot.has("rgb"):
         raise SystemExit(f"--shot {args.shot}: no rgb ground truth")
+    gt_apart = ground_truth(shot, args.shot)
+    if gt_apart.record is not None and not args.no_cycles and int(gt_apart.record["seed"]) == args.cycles_seed:
+        raise SystemExit(f"--cycles-seed {args.cycles_seed} is the seed of the shot's truth apart ({gt_apart.label}): the Cycles panel"
+                         " would share its noise with what it is scored against; pick another")
     job = None if args.no_cycles else cycles_job(args.shot, info, args.frame, args.cycles_samples, args.threads, args.cycles_seed)
     load0 = os.getloadavg()
     gts = truth(shot)
@@ -316,7 +331,7 @@ def main(argv: list[str] | None = None) -> int:
         p = panels[-1]
         print(f"{p.label}: PSNR {p.psnr:.2f} dB, {p.seconds_per_frame:.3f} s/frame (scene build {cycles['build_seconds']:.1f} s, "
               f"first render {cycles['first_render_seconds']:.1f} s, process {cycles['process_seconds']:.1f} s)", flush=True)
-    panels.append(ground_truth_panel(info, gts[args.frame]))
+    panels.append(ground_truth_panel(info, gts[args.frame], gt_apart.record))
 
     from bench.pareto.measure import weights_digest
 
@@ -334,10 +349,10 @@ def main(argv: list[str] | None = None) -> int:
         "load_average_end": [round(v, 2) for v in os.getloadavg()],
         "weights": portable_path(args.weights) if args.weights else "shipped",
         "weights_sha256": weights_digest(Path(args.weights) if args.weights else shipped_weights()),
-        "shot": portable_path(args.shot), "scene": scene, "frame": args.frame, "frames": shot.num_frames, "size": [w, h],
+        "shot": portable_path(args.shot), "truth": gt_apart.label, "scene": scene, "frame": args.frame, "frames": shot.num_frames, "size": [w, h],
         "cycles": None if cycles is None else {"samples": args.cycles_samples, "seed": args.cycles_seed, "threads": args.threads,
                                                "seconds_per_frame": [round(s, 3) for s in cycles["seconds"]]},
-        "note": "PSNR/SSIM on display images (tonemap: clip, sRGB) in the shot's units against the shot's rgb, for the picture's "
+        "note": "PSNR/SSIM on display images (tonemap: clip, sRGB) in the shot's units against the ground truth ('truth'), for the picture's "
                 "frame (psnr, ssim) and as means over the shot (psnr_shot, ssim_shot); seconds_per_frame: wall seconds of the whole "
                 "shot's render over its frames after an untimed warm-up (Cycles: the render call per frame, the scene built and one "
                 "1-sample render made beforehand); cpu_seconds_per_frame: CPU seconds of the rendering process, all threads",

@@ -61,3 +61,33 @@ def test_a_large_picture_becomes_a_palette_png(tmp_path, monkeypatch):
 
     with Image.open(tmp_path / "p.png") as im:
         assert im.mode == "P"
+
+
+def test_side_by_side_scores_against_a_truth_apart_and_names_it(tmp_path, monkeypatch):
+    """A shot with SHOT/truth/ (`x2video dataset truth`): every panel is scored against it, not the shot's rgb, the
+    ground-truth panel says its samples and seed, and a Cycles panel on the truth's own seed is refused."""
+    from x2video.io.image import write_exr
+    from x2video.io.truth import FORMAT, RECORD, TRUTH_DIR, truth_frame_path
+
+    model = with_net()
+    monkeypatch.setattr("x2video.weights.load_model", lambda *a, **k: model)
+    shot_dir = tmp_path / "data" / "test" / "room"
+    shot = SyntheticShot(3, (32, 48))
+    write_shot_folder(shot, shot_dir)
+    (shot_dir / TRUTH_DIR).mkdir()
+    for t in range(3):
+        rgb = 0.5 * shot.channel("rgb", t)
+        write_exr(truth_frame_path(shot_dir, t), {c: rgb[..., i] for i, c in enumerate("RGB")}, "float")
+    (shot_dir / TRUTH_DIR / RECORD).write_text(json.dumps({"format": FORMAT, "samples": 64, "seed": 7, "frames": 3, "complete": True,
+                                                           "seconds": {"0": 2.0, "1": 4.0, "2": 3.0}}))
+    out = tmp_path / "sbs.json"
+    assert S.main(["--shot", str(shot_dir), "--frame", "1", "--no-cycles", "--threads", "1", "--png", str(tmp_path / "p.png"),
+                   "--out", str(out)]) == 0
+    res = json.loads(out.read_text())
+    want = psnr(tonemap(shot.channel("albedo", 1) * shot.channel("irradiance", 1)), tonemap(0.5 * shot.channel("rgb", 1)))
+    assert res["panels"][0]["psnr"] == pytest.approx(want, abs=0.05)
+    assert res["truth"] == "apart, 64 spp seed 7"
+    gt = res["panels"][3]
+    assert gt["label"] == f"{S.GROUND_TRUTH}: Cycles 64 spp + OIDN, seed 7" and gt["seconds_per_frame"] == pytest.approx(3.0)
+    with pytest.raises(SystemExit, match="seed of the shot's truth apart"):
+        S.main(["--shot", str(shot_dir), "--frame", "1", "--cycles-seed", "7", "--threads", "1", "--out", str(tmp_path / "x.json")])
