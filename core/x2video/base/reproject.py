@@ -77,18 +77,26 @@ def warp(gt: Geometry, gk: Geometry, image_k: np.ndarray, cfg: FillConfig) -> tu
     normals = gt.normals is not None and gk.normals is not None
     x0, y0 = np.floor(x), np.floor(y)
     fx, fy = x - x0, y - y0
-    acc = np.zeros((h, w, image_k.shape[-1]), np.float32)
+    # frame k's arrays gathered by flat index (`take`), the normals' dot product written out: the same arithmetic in
+    # the same order as 2-D fancy indexing and np.sum over the last axis, bit for bit, at about half the time
+    c = image_k.shape[-1]
+    img = np.ascontiguousarray(image_k, np.float32).reshape(-1, c)
+    depth_k = np.ascontiguousarray(gk.depth).reshape(-1)
+    acc = np.zeros((h, w, c), np.float32)
     wsum = np.zeros((h, w), np.float32)
     inside = (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5) & (d > 0)
+    tol = cfg.depth_tolerance * np.maximum(d, 1e-6)
+    cols = [np.clip(x0 + dx, 0, w - 1).astype(np.int32) for dx in (0, 1)]
+    rows = [np.clip(y0 + dy, 0, h - 1).astype(np.int32) * w for dy in (0, 1)]
     for dx, dy in ((0, 0), (1, 0), (0, 1), (1, 1)):
-        xi = np.clip(x0 + dx, 0, w - 1).astype(np.int32)
-        yi = np.clip(y0 + dy, 0, h - 1).astype(np.int32)
+        idx = rows[dy] + cols[dx]
         wb = (fx if dx else 1 - fx) * (fy if dy else 1 - fy)
-        ok = inside & (np.abs(gk.depth[yi, xi] - d) <= cfg.depth_tolerance * np.maximum(d, 1e-6))
+        ok = inside & (np.abs(depth_k.take(idx) - d) <= tol)
         if normals:
-            ok &= np.sum(gk.normals[yi, xi] * gt.normals, -1) >= cfg.normal_cos
+            n, nt = np.ascontiguousarray(gk.normals).reshape(-1, 3).take(idx, axis=0), gt.normals
+            ok &= (n[..., 0] * nt[..., 0] + n[..., 1] * nt[..., 1] + n[..., 2] * nt[..., 2]) >= cfg.normal_cos
         wt = np.where(ok, np.maximum(wb, 1e-4), 0).astype(np.float32)
-        acc += image_k[yi, xi] * wt[..., None]
+        acc += img.take(idx, axis=0) * wt[..., None]
         wsum += wt
     valid = wsum > 0
     return np.where(valid[..., None], acc / np.maximum(wsum, 1e-12)[..., None], 0).astype(np.float32), valid
