@@ -33,7 +33,9 @@ Source data: `--data`, a folder of path-traced shots with rgb ground truth (Cycl
 DATA/test); without it a small synthetic shot (numpy, no renderer) stands in and the results say so. A source with
 a truth apart (``truth/``, `x2video dataset truth`) is scored against it; the result's "truth" says which.
 The diffusion tier is skipped (recorded as skipped, with why) above `--diffusion-max-pixels` and
-`--diffusion-max-frames`: on a 2-core CPU a 1920x1080 or 1,000-frame diffusion render takes hours.
+`--diffusion-max-frames`: on a 2-core CPU a 1,000-frame diffusion render takes hours. Large frames run at the
+diffusion tier's working size (`RenderSettings.working_pixels`): the foreign family's 1920x1080 cell, 8 frames,
+takes about 8 s, so the pixel cap only keeps out frames larger than that.
 
     python -m bench.stability [--quick] [--data DATA/test] [--families channels,masks,...] [--methods formula,residual,auto,diffusion]
 
@@ -180,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--methods", default=",".join(METHODS))
     ap.add_argument("--weights", default=None, help="model folder (default: the shipped weights)")
     ap.add_argument("--residual", default=None, help="folder with residual.safetensors (default: the model's, else random init)")
-    ap.add_argument("--diffusion-max-pixels", type=int, default=640 * 360)
+    ap.add_argument("--diffusion-max-pixels", type=int, default=1920 * 1080)
     ap.add_argument("--diffusion-max-frames", type=int, default=None, help="default 65, 17 with --quick")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--name", default=None, help="results name (default stability, or stability_quick with --quick)")

@@ -186,7 +186,7 @@ class Context:
     truths: list[Any] = field(default_factory=list)
     weights: str | None = None
     residual: str | None = None
-    diffusion_max_pixels: int = 640 * 360
+    diffusion_max_pixels: int = 1920 * 1080
     diffusion_max_frames: int = 65
     threads: int = 2
     untrained: bool = False
