@@ -1,7 +1,7 @@
 """The README's picture: one frame of an outside scene as the formula, tier 1, the diffusion tier and Cycles at 4 samples
 make it, beside the ground truth, each labelled with its PSNR against the ground truth and its seconds per frame.
 
-    python -m bench.side_by_side --shot DATA/test/kitchen --frame 6 [--cycles-samples 4] [--threads 2] [--weights DIR]
+    python -m bench.side_by_side --shot DATA/outside-320x224-16spp/test/kitchen --frame 6 [--cycles-samples 4] [--threads 2] [--weights DIR]
         [--png docs/side_by_side.png] [--out bench/results/side_by_side/side_by_side.json]
 
 `--shot` is a scene folder from `x2video dataset outside` (the hand-written Cycles scenes: shot.json names the scene,
@@ -195,8 +195,9 @@ def ground_truth_panel(info: dict, gt: np.ndarray, record: dict | None = None) -
     if record is not None:
         secs = record.get("seconds") or {}
         mean = round(sum(secs.values()) / len(secs), 3) if secs else None
-        label = f"{GROUND_TRUTH}: Cycles {record['samples']} spp + OIDN, seed {record['seed']}"
-        caption = (f"{mean:g} s/frame (rendered apart from the passes)" if mean is not None else "rendered apart from the passes")
+        label = f"{GROUND_TRUTH}: Cycles {record['samples']} spp + OIDN"  # the title's width: its seed goes below
+        apart = f"seed {record['seed']}, apart from the passes"
+        caption = f"{mean:g} s/frame · {apart}" if mean is not None else apart
         return Panel("ground_truth", label, gt, mean, caption=caption,
                      extra={"samples": record["samples"], "denoise": record.get("denoise"), "seed": record["seed"],
                             "apart": True, "seconds_note": "recorded by `x2video dataset truth`: the beauty render alone, wall"})

@@ -88,6 +88,7 @@ def test_side_by_side_scores_against_a_truth_apart_and_names_it(tmp_path, monkey
     assert res["panels"][0]["psnr"] == pytest.approx(want, abs=0.05)
     assert res["truth"] == "apart, 64 spp seed 7"
     gt = res["panels"][3]
-    assert gt["label"] == f"{S.GROUND_TRUTH}: Cycles 64 spp + OIDN, seed 7" and gt["seconds_per_frame"] == pytest.approx(3.0)
+    assert gt["label"] == f"{S.GROUND_TRUTH}: Cycles 64 spp + OIDN" and gt["seconds_per_frame"] == pytest.approx(3.0)
+    assert gt["caption"] == "3 s/frame · seed 7, apart from the passes"
     with pytest.raises(SystemExit, match="seed of the shot's truth apart"):
         S.main(["--shot", str(shot_dir), "--frame", "1", "--cycles-seed", "7", "--threads", "1", "--out", str(tmp_path / "x.json")])
