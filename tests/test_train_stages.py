@@ -30,7 +30,7 @@ def runs(tmp_path_factory, one_thread):
     from x2video.train.vae_stage import VAEStageConfig, run_vae_stage
 
     root = tmp_path_factory.mktemp("train")
-    ds = tiny_dataset(train=2, test=1, frames=9, size=(32, 24))
+    ds = tiny_dataset(train=2, test=1, val=1, frames=9, size=(32, 24))
     loop = LoopConfig(steps=2, ckpt_every=1, warmup=1)
     vstage = VAEStageConfig(vae_channels=(16, 32), crop=16, batch=4, pool_frames_per_room=4, eval_frames_per_room=1)
     out = {"root": root, "ds": ds}
@@ -107,6 +107,8 @@ def test_image_video_lcm_stages_load_as_models(runs):
         assert len(log) == 2 and all(np.isfinite(h["loss"]) for h in log)
         if key != "lcm":
             assert set(res["heldout_v_loss"]) == {"full", "augmented"} and all(0 < v < 10 for v in res["heldout_v_loss"].values())
+            assert res["heldout_split"] == "val"  # runs are compared on the validation rooms, never the test rooms (issue 49)
+    assert {r["split"] for r in runs["cache_info"].rooms} == {"train", "val", "test"}
 
 
 def _frame_conditioning(shot, t, keep, amr=None):

@@ -45,8 +45,11 @@ def tiny_room(seed: int, frames: int = 9, size: tuple[int, int] = (32, 24), obje
     )
 
 
-def tiny_dataset(train: int = 2, test: int = 1, **kw) -> dict[str, list[ArrayShot]]:
-    return {"train": [tiny_room(i, **kw) for i in range(train)], "test": [tiny_room(100 + i, **kw) for i in range(test)]}
+def tiny_dataset(train: int = 2, test: int = 1, val: int = 0, **kw) -> dict[str, list[ArrayShot]]:
+    out = {"train": [tiny_room(i, **kw) for i in range(train)], "test": [tiny_room(100 + i, **kw) for i in range(test)]}
+    if val:
+        out["val"] = [tiny_room(200 + i, **kw) for i in range(val)]
+    return out
 
 
 class FakeTextEncoder:

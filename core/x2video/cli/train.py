@@ -130,7 +130,7 @@ def _print_result(result: dict) -> None:
 
 # -- stages -------------------------------------------------------------------------
 def cmd_vae(a: argparse.Namespace) -> int:
-    from x2video.train.data import open_dataset
+    from x2video.train.data import heldout_split, open_dataset
     from x2video.train.vae_stage import run_vae_stage
 
     loop = _loop_cfg(a)
@@ -138,7 +138,8 @@ def cmd_vae(a: argparse.Namespace) -> int:
         raise ValueError("--workers applies to the image, video and lcm stages (the VAE stage crops from frames in memory)")
     ds = open_dataset(a.data)
     stage = from_args(VAEStageConfig, a)  # seed: --seed
-    _print_result(_run("vae", loop.steps, lambda bar: run_vae_stage(ds["train"], ds["test"], a.out, stage, loop, bar)))
+    held = ds[heldout_split(ds)]
+    _print_result(_run("vae", loop.steps, lambda bar: run_vae_stage(ds["train"], held, a.out, stage, loop, bar)))
     return 0
 
 
@@ -182,7 +183,7 @@ def cmd_cache(a: argparse.Namespace) -> int:
     finally:
         bar.close()
     secs = time.perf_counter() - t0
-    rooms = {s: sum(1 for r in info.rooms if r["split"] == s) for s in ("train", "test")}
+    rooms = {s: sum(1 for r in info.rooms if r["split"] == s) for s in ("train", "val", "test")}
     _print_result({"cache": str(a.out), "frames": total, "rooms": rooms, "size": info.size, "latent_size": info.latent_size,
                    "prompts": len(info.prompts), "seconds": round(secs, 1), "frames_per_s": round(total / max(secs, 1e-9), 2)})
     return 0
@@ -217,7 +218,7 @@ def cmd_lcm(a: argparse.Namespace) -> int:
 
 def cmd_encoder(a: argparse.Namespace) -> int:
     from x2video.eval.data import training_size
-    from x2video.train.data import open_dataset
+    from x2video.train.data import heldout_split, open_dataset
     from x2video.train.encoder_stage import run_encoder_stage
     from x2video.train.runs import model_dir
 
@@ -227,7 +228,8 @@ def cmd_encoder(a: argparse.Namespace) -> int:
     ds = open_dataset(a.data)
     size = a.size or training_size(model_dir(a.teacher))
     stage = from_args(EncoderStageConfig, a, size=size)
-    _print_result(_run("encoder", loop.steps, lambda bar: run_encoder_stage(a.teacher, ds["train"], ds["test"], a.out, stage, loop, bar)))
+    held = ds[heldout_split(ds)]
+    _print_result(_run("encoder", loop.steps, lambda bar: run_encoder_stage(a.teacher, ds["train"], held, a.out, stage, loop, bar)))
     return 0
 
 

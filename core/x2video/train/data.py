@@ -1,8 +1,9 @@
-"""Training data on disk: the train/test room folders of `x2video dataset make`, and frames resized to the training size.
+"""Training data on disk: the train/val/test room folders of `x2video dataset make`, and frames resized to the training size.
 
-A data set folder holds one shot folder per room (docs/SHOT_FORMAT.md) under `train/` and
-`test/` (held-out rooms, never trained on). A folder of shot folders without the split
-sub-folders is read as one split.
+A data set folder holds one shot folder per room (docs/SHOT_FORMAT.md) under `train/`, `val/` (validation rooms,
+never trained on: what the stages' held-out figures read, so runs are compared and chosen on them) and `test/`
+(held-out rooms the reported figures read, never trained on). A set without `val/` holds out on `test/`, as sets
+made before validation rooms existed. A folder of shot folders without the split sub-folders is read as one split.
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import numpy as np
 from x2video.io.dataset import shot_dirs
 from x2video.shot import Shot
 
-SPLITS = ("train", "test")
+SPLITS = ("train", "val", "test")
 
 
 def open_split(data_dir: str | Path, split: str) -> list[Shot]:
@@ -25,13 +26,24 @@ def open_split(data_dir: str | Path, split: str) -> list[Shot]:
 
 
 def open_dataset(data_dir: str | Path, need_test: bool = True) -> dict[str, list[Shot]]:
-    """{'train': [...], 'test': [...]} shots of a data set folder; errors name what is missing."""
+    """{'train': [...], 'val': [...], 'test': [...]} shots of a data set folder ('val' only when it has validation
+    rooms); errors name what is missing."""
     out = {s: open_split(data_dir, s) for s in SPLITS}
+    if not out["val"]:
+        del out["val"]
     if not out["train"]:
         raise FileNotFoundError(f"{data_dir}: no training rooms (expected {Path(data_dir) / 'train'}/<room>/shot.json)")
-    if need_test and not out["test"]:
-        raise FileNotFoundError(f"{data_dir}: no held-out rooms (expected {Path(data_dir) / 'test'}/<room>/shot.json)")
+    if need_test and not out["test"] and "val" not in out:
+        raise FileNotFoundError(f"{data_dir}: no held-out rooms (expected {Path(data_dir) / 'val'}/<room>/shot.json or"
+                                f" {Path(data_dir) / 'test'}/<room>/shot.json)")
     return out
+
+
+def heldout_split(splits) -> str:
+    """The split a stage's held-out figures read: 'val' when the data set (or latent cache) has validation rooms, else
+    'test'. Runs are compared, and their settings chosen, on validation rooms; the test rooms are for the reported
+    figures only (issue 49)."""
+    return "val" if "val" in splits else "test"
 
 
 def resize_channel(name: str, x: np.ndarray, size: tuple[int, int] | None) -> np.ndarray:

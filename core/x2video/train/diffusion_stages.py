@@ -76,13 +76,22 @@ def image_model_config(stage: ImageStageConfig, cache_cfg: ModelConfig) -> Model
                                prediction=stage.prediction or ("sample" if stage.shading_prior and stage.residual_prior else "v"))
 
 
+def _heldout_split(cache: Path) -> str:
+    from x2video.train.cache import read_info
+    from x2video.train.data import heldout_split
+
+    return heldout_split({r["split"] for r in read_info(cache).rooms})
+
+
 def _heldout(unet: UNet2DConditionModel, cache: Path, cfg: ModelConfig, shading: bool, n: int, draw, noise_shared: float = 0.0) -> dict:
-    """Held-out v-loss on the cache's test split: all channels, and with the training augmentation."""
+    """Held-out v-loss on the cache's validation split (its test split in a cache made without one,
+    `data.heldout_split`; the result's "heldout_split" says which): all channels, and with the training augmentation."""
     from x2video.train.cache import read_info
 
-    if n <= 0 or not any(r["split"] == "test" for r in read_info(cache).rooms):
+    split = _heldout_split(cache)
+    if n <= 0 or not any(r["split"] == split for r in read_info(cache).rooms):
         return {}
-    data = LatentData(cache, "test", cfg.latent_scales, shading)
+    data = LatentData(cache, split, cfg.latent_scales, shading)
     out = {}
     for name, aug in (("full", AugmentConfig(channel_drop_p=0.0, prompt_drop_p=0.0, mask_p=0.0)), ("augmented", AugmentConfig())):
         rng = np.random.default_rng(1234)
@@ -124,6 +133,7 @@ def _run(unet: UNet2DConditionModel, cfg: ModelConfig, cache: Path, out_dir: Pat
         ema = build_unet(cfg)
         load_into(ema, ck / "model" / "unet.safetensors", "unet")
         result["heldout_v_loss"] = heldout(ema.to(next(unet.parameters()).device))
+        result["heldout_split"] = _heldout_split(cache)
         log.info("%s stage held-out v-loss: %s", key, result["heldout_v_loss"])
     write_results(out_dir, key, result)
     return result
