@@ -212,9 +212,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--weights", default=None, help="model folder (default: the shipped weights)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--max-shots", type=int, default=0)
+    ap.add_argument("--seam-px", type=float, default=None,
+                    help="auto's seam in pixels inside a generated region (x2video.tiers.regions.SEAM_PX; 0: a hard edge; negative: "
+                         "the earlier outward feather of that many pixels): to choose it on validation rooms")
     ap.add_argument("--name", default=None, help="results file bench/results/pathtraced/NAME.json (default: <data name>_<split>)")
     args = ap.parse_args(argv)
     torch.set_num_threads(args.threads)
+    from x2video.tiers import regions
+
+    if args.seam_px is not None:
+        regions.SEAM_PX = args.seam_px
 
     from x2video.weights import load_model
 
@@ -239,6 +246,7 @@ def main(argv: list[str] | None = None) -> int:
     out = {"format": "x2video-pathtraced", "command": command("pathtraced", argv), "data": portable_path(args.data), "split": args.split,
            "shots": len(shots), "truth": truth_summary(r["truth"] for r in per_shot),
            "weights": portable_path(weights) if args.weights else "shipped", "threads": args.threads,
+           "seam_px": regions.SEAM_PX,
            "residual_net": model.residual_net is not None, "machine": machine_info(model.device),
            "note": "PSNR/SSIM on tonemap (clip, sRGB) in the shot's units; TC = warping error / ground truth's, DIS flow; "
                    "per-material PSNR pools squared errors over the class's pixels; 'formula' = tier 0 (classical shading), "

@@ -453,3 +453,16 @@ def test_the_composite_seam_lies_inside_the_generated_region():
     assert w[20, 5] == pytest.approx(1 / SEAM_PX, abs=1e-6) and w[20, 6] == pytest.approx(2 / SEAM_PX, abs=1e-6)  # the edge ramps in
     assert np.all(np.diff(w[20, 5:20]) >= 0)
     assert not composite_weight(np.zeros((8, 8), bool)).any() and np.all(composite_weight(np.ones((8, 8), bool), 0) == 1)
+
+
+def test_the_seam_width_is_read_at_call_time_and_a_negative_one_feathers_outward(monkeypatch):
+    """bench.pathtraced --seam-px sets regions.SEAM_PX to choose the width on validation rooms: composite_weight reads it
+    when called; a negative width is the earlier rule (the sampler's frame feathered that many pixels outward)."""
+    from x2video.tiers import regions
+
+    m = np.zeros((40, 40), bool)
+    m[10:30, 5:35] = True
+    monkeypatch.setattr(regions, "SEAM_PX", 6.0)
+    assert regions.composite_weight(m)[20, 5] == pytest.approx(1 / 6, abs=1e-6)
+    out = regions.composite_weight(m, -6.0)
+    assert np.array_equal(out, regions.feathered(m, 6.0)) and out[20, 3] > 0 and np.all(out[m] == 1)

@@ -33,7 +33,7 @@ def feathered(mask: np.ndarray, px: float = FEATHER_PX) -> np.ndarray:
     return np.clip(cv2.GaussianBlur(grown, (k, k), px / 2, borderType=cv2.BORDER_REPLICATE), 0, 1)
 
 
-def composite_weight(mask: np.ndarray, px: float = SEAM_PX) -> np.ndarray:
+def composite_weight(mask: np.ndarray, px: float | None = None) -> np.ndarray:
     """(H, W) weights in [0, 1] of tier 2's frame where a regional render meets tier 1: 1 deeper than `px` pixels inside
     the generated region, falling linearly to 1/px on its edge pixels, 0 outside. The seam lies inside the region, so
     the surfaces around it keep tier 1's frame untouched: with an outward feather the sampler's frame, poor right
@@ -41,8 +41,11 @@ def composite_weight(mask: np.ndarray, px: float = SEAM_PX) -> np.ndarray:
     against tier 1's 22.9; inward, 22.9, and 0.04 dB more inside the masks; docs/evaluations/2026-12-04-diffusion-over-tier1.md)."""
     import cv2
 
+    px = SEAM_PX if px is None else px  # read at call time: bench.pathtraced --seam-px varies it to choose it
+    if px < 0:  # the earlier rule, for comparison: the sampler's frame feathered -px pixels outward
+        return feathered(mask, -px)
     m = (np.asarray(mask, np.float32) > 0.5).astype(np.uint8)
-    if px <= 0 or not m.any():
+    if px == 0 or not m.any():
         return m.astype(np.float32)
     inside = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)  # exact Euclidean distance to the nearest pixel outside the region; 1 on its edge
     return np.clip(inside / px, 0, 1).astype(np.float32)
