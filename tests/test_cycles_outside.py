@@ -72,3 +72,21 @@ def test_material_classes_of_a_procedural_cycles_room():
     assert got[floor] == "glossy" and got[other] == "metal" and got[walls] == "diffuse"
     assert got[max(o.id for o in scene.objects) + 1] == "metal"  # the mirror
     assert set(got.values()) <= set(CLASSES)
+
+
+def test_a_build_of_some_splits_keeps_the_other_splits_rooms_listed(tmp_path):
+    """`x2video dataset make --renderer cycles --splits val` on a set whose test rooms are already built: dataset.json
+    lists the finished rooms of every split (it listed only the splits built last, and the test rooms vanished from it)."""
+    from x2video.cycles.dataset import CyclesJob, finished_rooms
+    from x2video.procedural.dataset import room_dir
+
+    jobs = []
+    for i in range(20):  # test_every 10: rooms 8 and 18 are validation rooms, 9 and 19 test rooms
+        room = room_dir(tmp_path, i, 10, val=True)
+        jobs.append(CyclesJob(i, i, str(room), 8, 16, 16, 4, outs=[str(room)]))
+        if i in (8, 9, 19):  # finished: a test room from an earlier build, this build's validation room, another test room
+            room.mkdir(parents=True)
+            (room / "shot.json").write_text("{}")
+    rooms, done = finished_rooms(jobs, tmp_path, 10)
+    assert rooms == {"train": [], "val": ["val/room_00008"], "test": ["test/room_00009", "test/room_00019"]}
+    assert [p.name for p in done] == ["room_00008", "room_00009", "room_00019"]

@@ -123,6 +123,21 @@ def variety_summary(shot_dirs: list[Path]) -> dict:
             "rooms_with": {k: round(v / n, 3) for k, v in has.items()}}
 
 
+def finished_rooms(jobs: list[CyclesJob], out: Path, test_every: int) -> tuple[dict[str, list[str]], list[Path]]:
+    """({split: finished clip folders relative to `out`}, their paths) over `jobs`, in room order: what dataset.json
+    lists. Given every room of the set, a build of some splits (`--splits val`) keeps the others' rooms listed."""
+    from x2video.procedural.dataset import is_done, room_split
+
+    rooms: dict[str, list[str]] = {"train": [], "val": [], "test": []}
+    done: list[Path] = []
+    for j in sorted(jobs, key=lambda j: j.index):
+        for o in j.outs:
+            if is_done(Path(o)):
+                rooms[room_split(j.index, test_every, True)].append(os.path.relpath(o, out))
+                done.append(Path(o))
+    return rooms, done
+
+
 def make_cycles(args: argparse.Namespace, width: int, height: int) -> int:
     from tqdm import tqdm
 
@@ -170,6 +185,7 @@ def make_cycles(args: argparse.Namespace, width: int, height: int) -> int:
     bad = wanted - {"train", "val", "test"}
     if bad:
         raise ValueError(f"--splits: unknown split(s) {sorted(bad)}; expected train, val, test")
+    every_job = jobs  # the set's dataset.json lists the finished rooms of every split, not only those built now
     jobs = [j for j in jobs if room_split(j.index, args.test_every, True) in wanted]
     todo = [j for j in jobs if not all(is_done(Path(o)) for o in j.outs)]
     log.info("%d rooms, %d already done, %d to path-trace with %d worker(s)", len(jobs), len(jobs) - len(todo), len(todo), args.workers)
@@ -193,14 +209,8 @@ def make_cycles(args: argparse.Namespace, width: int, height: int) -> int:
         pool.terminate()
     seconds = time.perf_counter() - t0
     cpu_children = resource.getrusage(resource.RUSAGE_CHILDREN)
-    rooms: dict[str, list[str]] = {"train": [], "val": [], "test": []}
-    done_dirs: list[Path] = []
-    for j in sorted(jobs, key=lambda j: j.index):  # the splits asked for, finished clips only
-        for o in j.outs:
-            if is_done(Path(o)):
-                rooms[room_split(j.index, args.test_every, True)].append(os.path.relpath(o, out))
-                done_dirs.append(Path(o))
-    complete = all(is_done(Path(o)) for j in jobs for o in j.outs)
+    rooms, done_dirs = finished_rooms(every_job, out, args.test_every)
+    complete = all(is_done(Path(o)) for j in jobs for o in j.outs)  # the splits asked for
     fph = frames / (seconds / 3600) if seconds > 0 and frames else 0.0
     run = {"date": time.strftime("%Y-%m-%d %H:%M"), "workers": args.workers, "frames": frames, "wall_seconds": round(seconds, 1),
            "cpu_seconds": round(cpu_children.ru_utime + cpu_children.ru_stime, 1), "frames_per_hour": round(fph, 1),
