@@ -137,3 +137,18 @@ def test_a_frame_under_the_trusted_size_is_named():
     irr = np.full((16, 16, 3), 0.5, np.float32)
     assert "16x16" in (P.out_of_range({"irradiance": irr}) or "")
     assert P.out_of_range({"irradiance": np.full((P.MIN_SIDE, 64, 3), 0.5, np.float32)}) is None
+
+
+def test_the_guard_bounds_are_chosen_by_the_promise_then_the_mean():
+    """bench.plausible_choice's rule: no shot under the formula by more than 0.2 dB, then the highest mean; a test split
+    is refused (the bounds are chosen on validation rooms only)."""
+    from bench.plausible_choice import choose, main
+
+    rows = [{"formula": 20.0, "tier1": 25.0, "auto": {(1.0, 0.2): 25.0, (2.0, 0.2): 26.0}},
+            {"formula": 20.0, "tier1": 18.0, "auto": {(1.0, 0.2): 19.9, (2.0, 0.2): 18.5}}]
+    res = choose(rows, (1.0, 2.0), (0.2,))
+    assert [g["shots_under"] for g in res["grid"]] == [0, 1]  # the looser bound has the higher mean (22.25) but breaks the promise
+    assert res["chosen"]["tile_bound"] == 1.0 and res["chosen"]["worst_vs_formula_db"] == pytest.approx(-0.1)
+    assert choose(rows[1:], (2.0,), (0.2,))["chosen"] is None
+    with pytest.raises(SystemExit, match="validation rooms only"):
+        main(["--data", "anywhere", "--split", "test"])
