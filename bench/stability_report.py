@@ -218,7 +218,7 @@ def product_note(f: dict) -> str:
                 "forced (quality 'diffusion') or for what must be generated. Its gap to the formula here is the tiny shipped "
                 "model at preset fast (LCM-2), largest at sizes whose latent is a few pixels")
     if fam == "foreign" and method != RESIDUAL:
-        return ("auto keeps the formula wherever tier 1's correction of it is larger than any it made on validation data, "
+        return ("auto keeps the formula wherever tier 1's correction of it is larger than the bounds chosen on validation rooms, "
                 "or its input is not of the kind it was trained on (x2video.model.plausible); a forced 'residual' renders the "
                 "net as it is, and the sampler only when forced")
     if fam == "noise":

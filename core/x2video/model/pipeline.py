@@ -89,7 +89,7 @@ class X2VideoModel(ConditioningLatents):
         #: the tier-1 network (`x2video.model.residual`), or None; `from_pretrained` loads the folder's
         #: residual.safetensors. The Renderer runs it for frames with nothing to generate (`x2video.tiers.registry`).
         self.residual_net = None
-        #: whether auto may render with `residual_net` (residual.json's 'auto': it beat the formula on the outside check)
+        #: whether auto may render with `residual_net` (residual.json's 'auto': it beat the formula on the validation rooms)
         self.residual_auto = True
         #: tier 1's net fine-tuned for its difference over a shot's frames, or None; `from_pretrained` loads the folder's
         #: difference.safetensors. Only the residual tier's difference over the base runs it (`ResidualTier.glossy_frames`).
@@ -162,7 +162,7 @@ class X2VideoModel(ConditioningLatents):
             from x2video.model.residual_engine import engine
 
             model.residual_net = engine(load_residual(directory, model.device), model.device)
-            #: whether quality 'auto' may use it: residual.json's "auto", set when the net beat the formula on the outside check
+            #: whether quality 'auto' may use it: residual.json's "auto", set when the net beat the formula on the validation rooms
             model.residual_auto = bool(json.loads((directory / "residual.json").read_text()).get("auto", False))
             if cfg.prior == "tier1":
                 model._check_prior_net(directory)

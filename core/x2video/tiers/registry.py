@@ -165,12 +165,17 @@ def generation_reasons(shot, edits, supplied: Sequence[str] = ()) -> tuple[list[
 def choose_tier(quality: str, reasons: list[str], only_regions: bool, has_residual: bool, global_prompt: str = "",
                 residual_trusted: bool = True, dropped: Sequence[str] = ()) -> TierChoice:
     """The tier a render runs at `quality` ("auto" or a forced tier), given `generation_reasons`.
-    `residual_trusted`: whether the tier-1 net's own record (residual.json "auto") says it beat the formula on
-    the outside check; where it does not, auto renders what needs nothing generated with the formula.
+    `residual_trusted`: whether the tier-1 net's own record (residual.json "auto") says it beat the formula on the
+    validation rooms (its "auto_decided_on"); where it does not, auto renders what needs nothing generated with the
+    formula.
     `dropped`: the channels missing; when they are only ones the formula ignores (`FORMULA_IGNORES`) and
-    nothing else asks for generation, auto renders the formula: the diffusion tier measured 0.4-7.4 dB below it
-    on all 7 such subsets (docs/STABILITY.md, channel subsets), and the tier-1 net is trained on all five channels. A model
-    without a tier-1 net keeps the paper's behaviour: the sampler for anything missing."""
+    nothing else asks for generation, auto renders the formula. Decided on 6 v3 validation rooms against their truth
+    apart (`python -m bench.stability --data DATA/v3val6/val --families channels`, bench/results/stability/
+    stability_v3val6.json): on those 7 subsets the diffusion tier and tier 1 (forced; trained on all five channels)
+    are above the formula on 6 but 3.2 and 4.1 dB under it without roughness (albedo, normal, metallic, irradiance);
+    only the formula keeps auto's promise on all 7. (The earlier reason, the diffusion tier 0.4-7.4 dB below the
+    formula on all 7, was measured on test rooms with earlier weights.) A model without a tier-1 net keeps the
+    paper's behaviour: the sampler for anything missing."""
     if quality not in qualities():
         raise ValueError(f"unknown quality {quality!r} (use one of {', '.join(qualities())})")
     if quality == "residual" and not has_residual:
@@ -187,7 +192,7 @@ def choose_tier(quality: str, reasons: list[str], only_regions: bool, has_residu
         note = "; a global prompt alone does not change that (quality 'diffusion' follows it)" if global_prompt else ""
         if not residual_trusted:
             return TierChoice("formula", f"every channel present, nothing to generate{note}; this tier-1 net measured below the"
-                                         " formula on the outside scenes, so auto keeps the formula (force 'residual' to use it)")
+                                         " formula on the validation rooms, so auto keeps the formula (force 'residual' to use it)")
         return TierChoice("residual", f"every channel present, nothing to generate{note}")
     if only_regions:  # generate only inside the regions; around them what auto would render with nothing to generate
         if residual_trusted:

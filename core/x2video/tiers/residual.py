@@ -85,7 +85,7 @@ def residual_frames(net, conds: Sequence[FrameConditioning], device: torch.devic
     correction is also 0 on such working pixels and next to them, so the guess does not spread when upsampled).
     With `plausible` (quality 'auto'), the formula on a frame whose input is not of the kind the net was trained on
     (`x2video.model.plausible.out_of_range`: the net is not run on it), and wherever the net's correction of it is
-    larger than any it made on validation data (`x2video.model.plausible.guard`): auto's promise never to render below
+    larger than the bounds chosen on validation rooms (`x2video.model.plausible.guard`): auto's promise never to render below
     the formula."""
     from x2video.formula import formula
     from x2video.model.plausible import out_of_range
@@ -124,7 +124,7 @@ def _plausible(frame: np.ndarray, c: FrameConditioning) -> np.ndarray:
 
     out, verdict = guard(frame, formula(c.channels, _shape(c)))
     if verdict.engaged:
-        log.warning("tier 1's correction of the formula is larger than any it made on validation data: %s", verdict.describe())
+        log.warning("tier 1's correction of the formula is larger than the bounds chosen on validation rooms: %s", verdict.describe())
     return out
 
 
