@@ -7,8 +7,14 @@ from x2video.conditioning.frame import FrameConditioning
 
 #: pixels of the outward feather `feathered` draws (tier 1's unseen-light rule keeps the formula over it)
 FEATHER_PX = 6.0
-#: pixels inside a generated region over which tier 2's frame gives way to tier 1's at its edge (`composite_weight`)
-SEAM_PX = 3.0
+#: pixels inside a generated region over which tier 2's frame gives way to tier 1's at its edge (`composite_weight`).
+#: Chosen on the 20 v3 validation rooms, 3 objects' A|M|R masked out, truth apart (`bench.pathtraced --seam-px`,
+#: bench/results/pathtraced/seam_val_*.json), whole frame / inside the masks / TC under auto: a hard edge (0) 17.21 /
+#: 14.23 / 2.43, 1.5 px 17.18 / 14.18 / 2.47, 3 px (the earlier width, chosen on the outside scenes) 17.02 / 13.96 /
+#: 2.54, 6 px 16.69 / 13.49 / 2.55; the band around the masks is tier 1's in all (19.75; the earlier 6-px outward
+#: feather 16.46). 1.5 px rather than the hard edge: 0.03 dB from it on masks that follow an object's silhouette, and
+#: a painted mask need not follow one.
+SEAM_PX = 1.5
 
 
 def generated_region(cond: FrameConditioning) -> np.ndarray:
