@@ -184,9 +184,11 @@ def product_note(f: dict) -> str:
         return ("the formula needs albedo and irradiance; without either it is black. 'auto' runs the formula only where both "
                 "are present; a missing albedo or irradiance sends it to the diffusion sampler (x2video.tiers.registry.choose_tier; the log says which)")
     if fam == "channels" and "alb" in name.split("+") and "irr" in name.split("+"):
-        return ("the sampler, given albedo and irradiance but not every other channel, renders below the formula on all 7 such "
-                "subsets; so 'auto' renders the formula when only normal, roughness or metallic are missing "
-                "(x2video.tiers.registry.FORMULA_IGNORES), and the sampler runs there only when forced")
+        return ("the sampler, given albedo and irradiance but not every other channel, rendered below the formula on all 7 such "
+                "subsets of these rooms; 'auto' renders the formula when only normal, roughness or metallic are missing "
+                "(x2video.tiers.registry.FORMULA_IGNORES), decided on validation rooms, where the sampler and tier 1 are above "
+                "the formula on 6 of the 7 but 3-4 dB under it without roughness (bench/results/stability/stability_v3val6.json); "
+                "the sampler runs there only when forced")
     if fam == "channels":
         return "'auto' runs the sampler for a dropped channel; what it generates is the model's guess, scored against one truth"
     if fam == "masks" and method == FORMULA:
