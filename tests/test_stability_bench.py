@@ -55,7 +55,10 @@ def test_quick_grid_covers_every_family_and_skips_big_diffusion():
     assert {c["family"] for c in cells} == set(S.FAMILIES)
     c = C.Context([SyntheticShot()])
     big = [x for x in cells if x["method"] == "diffusion" and x["params"].get("size") == [1920, 1080]]
-    assert big and all(C.skip_reason(x, c) for x in big)
+    # 1920x1080 runs at the diffusion tier's working size (the default cap); above a lower cap it is skipped, saying why
+    assert big and not any(C.skip_reason(x, c) for x in big)
+    capped = C.Context([SyntheticShot()], diffusion_max_pixels=640 * 360)
+    assert all("--diffusion-max-pixels" in C.skip_reason(x, capped) for x in big)
     assert len(S.grid(False, 6, True, ("channels",), ("formula",))) == 32
 
 
