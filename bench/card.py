@@ -35,9 +35,9 @@ SOURCES = {
     "v3_test10": "bench/results/pathtraced/pt160v3_test10_truth.json",  # tiers 0-2 and auto on the first 10 v3 test rooms, truth apart
     # the shipped tier-1 net on all 20 v3 test rooms, against their truth apart (64 spp, seed 7; 2026-12-06)
     "v3_test20": "bench/results/pathtraced/pt160v3_truth.json",
-    "v3_320": "bench/results/pathtraced/pt320v3_truth.json",
+    "v3_320": "bench/results/pathtraced/pt320v3_truth.json",  # the same rooms at 320x224, truth apart (32 spp, seed 7)
     # the 20 v3 validation rooms, truth apart (32 spp, seed 7): where auto's defaults are decided (issue 49)
-    "v3_val": "bench/results/pathtraced/pt160v3_val.json",  # the same rooms at 320x224, truth apart (32 spp, seed 7)
+    "v3_val": "bench/results/pathtraced/pt160v3_val.json",
     "v2_test": "bench/results/pathtraced/pt160v2_truth.json",  # the v2 test rooms against their truth apart (64 spp, seed 7)
     # what each light term the channels lack is worth on the 20 v3 test rooms, against their truth apart (2026-12-06)
     "light_budget": "bench/results/light_budget/pt160v3_truth.json",

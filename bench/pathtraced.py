@@ -238,10 +238,9 @@ def main(argv: list[str] | None = None) -> int:
             if tiers.get(t).generative or cond == "all" or (cond == "mask_amr" and not tiers.get(t).generative)]  # the per-frame tiers beside it
     if "mask_amr" in conditions and any(tiers.get(t).generative for t in names):  # auto's composite under the masks
         runs.append(("auto|mask_amr", "auto", "mask_amr", {}))
-    if tiers.RESIDUAL in names and "all" in conditions:  # what --quality auto renders of the whole shot: tier 1 under its
-        runs.append(("auto|all", "auto", "all", {}))  # guards (issue 49: no shot under the formula - 0.2 dB)
-    if tiers.RESIDUAL in names and "all" in conditions:  # tier 1 with its guess where the channels hold no light (off by default)
-        runs.append(("residual_guess|all", "residual", "all", {"guess_unseen": True}))
+    if tiers.RESIDUAL in names and "all" in conditions:
+        runs.append(("auto|all", "auto", "all", {}))  # what --quality auto renders of the whole shot: tier 1 under its guards
+        runs.append(("residual_guess|all", "residual", "all", {"guess_unseen": True}))  # tier 1 guessing where the channels hold no light
     summary, per_shot = evaluate(renderer, shots, runs)
     out = {"format": "x2video-pathtraced", "command": command("pathtraced", argv), "data": portable_path(args.data), "split": args.split,
            "shots": len(shots), "truth": truth_summary(r["truth"] for r in per_shot),

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-#: auto's promise: no shot under the formula by more than this (dB), as `bench.stability` checks it
-AUTO_BELOW_DB = 0.2
+from bench.stability import AUTO_BELOW_DB  # auto's promise, as the stability grid checks it
+
 TILES = (0.5, 0.7, 0.8, 0.85, 0.9, 0.95, 1.0, 1.2, 1.5, 2.0, 3.0)
 FRAMES = (0.1, 0.15, 0.2, 0.3, 0.5)
 

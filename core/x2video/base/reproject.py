@@ -82,6 +82,7 @@ def warp(gt: Geometry, gk: Geometry, image_k: np.ndarray, cfg: FillConfig) -> tu
     c = image_k.shape[-1]
     img = np.ascontiguousarray(image_k, np.float32).reshape(-1, c)
     depth_k = np.ascontiguousarray(gk.depth).reshape(-1)
+    normals_k = np.ascontiguousarray(gk.normals).reshape(-1, 3) if normals else None
     acc = np.zeros((h, w, c), np.float32)
     wsum = np.zeros((h, w), np.float32)
     inside = (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5) & (d > 0)
@@ -93,7 +94,7 @@ def warp(gt: Geometry, gk: Geometry, image_k: np.ndarray, cfg: FillConfig) -> tu
         wb = (fx if dx else 1 - fx) * (fy if dy else 1 - fy)
         ok = inside & (np.abs(depth_k.take(idx) - d) <= tol)
         if normals:
-            n, nt = np.ascontiguousarray(gk.normals).reshape(-1, 3).take(idx, axis=0), gt.normals
+            n, nt = normals_k.take(idx, axis=0), gt.normals
             ok &= (n[..., 0] * nt[..., 0] + n[..., 1] * nt[..., 1] + n[..., 2] * nt[..., 2]) >= cfg.normal_cos
         wt = np.where(ok, np.maximum(wb, 1e-4), 0).astype(np.float32)
         acc += img.take(idx, axis=0) * wt[..., None]

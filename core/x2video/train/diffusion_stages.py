@@ -76,20 +76,21 @@ def image_model_config(stage: ImageStageConfig, cache_cfg: ModelConfig) -> Model
                                prediction=stage.prediction or ("sample" if stage.shading_prior and stage.residual_prior else "v"))
 
 
-def _heldout_split(cache: Path) -> str:
+def _heldout_split(cache: Path) -> str | None:
+    """The cache split the held-out loss reads (`data.heldout_split`), or None when the cache has no rooms of it."""
     from x2video.train.cache import read_info
     from x2video.train.data import heldout_split
 
-    return heldout_split({r["split"] for r in read_info(cache).rooms})
+    splits = {r["split"] for r in read_info(cache).rooms}
+    split = heldout_split(splits)
+    return split if split in splits else None
 
 
 def _heldout(unet: UNet2DConditionModel, cache: Path, cfg: ModelConfig, shading: bool, n: int, draw, noise_shared: float = 0.0) -> dict:
     """Held-out v-loss on the cache's validation split (its test split in a cache made without one,
     `data.heldout_split`; the result's "heldout_split" says which): all channels, and with the training augmentation."""
-    from x2video.train.cache import read_info
-
     split = _heldout_split(cache)
-    if n <= 0 or not any(r["split"] == split for r in read_info(cache).rooms):
+    if n <= 0 or split is None:
         return {}
     data = LatentData(cache, split, cfg.latent_scales, shading)
     out = {}

@@ -69,7 +69,7 @@ def make_outside(args: argparse.Namespace) -> int:
     meta = begin_dataset(out, settings, FORMAT, growable=(), scenes=scenes)
     # the scenes render one after another, so the one Blender process may use every core (0); the set's pixels do not
     # depend on the thread count, only its seconds do
-    threads = int(getattr(args, "threads", 0) or 0) or (os.cpu_count() or 1)
+    threads = int(args.threads or 0) or (os.cpu_count() or 1)
     jobs = [OutsideJob(s, str(out / "test" / s), args.frames, width, height, args.samples, threads) for s in scenes]
     todo = [j for j in jobs if not is_done(Path(j.out))]
     log.info("%d outside scenes, %d already done", len(jobs), len(jobs) - len(todo))
